@@ -1,0 +1,3 @@
+from sb3_cmzdril.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,267 @@
+"""Expert demonstrations: flat arrays of steps plus episode boundaries.
+
+A :class:`Demonstrations` holds ``observations`` (N, *obs_shape), ``actions`` (N, *act_shape), optional
+``rewards`` (N,), the length of each episode and, when known, the reset seed of each episode (so an
+evaluation can restart the environment exactly where the expert started). It is immutable in
+practice: every operation returns a new object.
+
+Out-of-bounds Box actions: :meth:`Demonstrations.check_spaces` *clips* them to the bounds and warns
+(how many, and the largest excess). Imitation targets beyond the bounds cannot be executed by the
+environment anyway (SB3 clips the policy's actions too), and DRIL's ensemble is trained on clipped
+actions. Every other mismatch (shape, NaN/inf, empty, Discrete action out of range) raises
+``ValueError`` naming the problem.
+"""
+from __future__ import annotations
+
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_cmzdril._atomic import PathLike, atomic_path
+
+FORMAT_VERSION = 1
+UNKNOWN_SEED = -1
+
+
+def _finite(name: str, array: np.ndarray) -> None:
+    if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+        bad = np.argwhere(~np.isfinite(array.reshape(len(array), -1)))[0, 0]
+        raise ValueError(f"{name} contains NaN or inf (first at step {bad})")
+
+
+class Demonstrations:
+    """Expert episodes stored as flat step arrays with episode boundaries.
+
+    :param observations: (N, *obs_shape) observations the expert acted on.
+    :param actions: (N, *act_shape) expert actions (integers (N,) for a Discrete space).
+    :param episode_lengths: (n_episodes,) positive lengths summing to N.
+    :param rewards: optional (N,) environment rewards.
+    :param seeds: optional (n_episodes,) reset seed of each episode; -1 where unknown.
+    """
+
+    def __init__(
+        self,
+        observations: np.ndarray,
+        actions: np.ndarray,
+        episode_lengths: Sequence[int],
+        rewards: Optional[np.ndarray] = None,
+        seeds: Optional[Sequence[int]] = None,
+    ) -> None:
+        obs = np.asarray(observations)
+        act = np.asarray(actions)
+        lengths = np.asarray(episode_lengths, dtype=np.int64).reshape(-1)
+        if lengths.size == 0 or obs.size == 0 or len(obs) == 0:
+            raise ValueError("demonstrations are empty: at least one episode with one step is needed")
+        if np.any(lengths <= 0):
+            raise ValueError(f"every episode needs at least one step; got lengths {lengths.tolist()}")
+        if obs.ndim < 2:
+            raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
+        if len(act) != len(obs):
+            raise ValueError(
+                f"observations and actions differ in length: {len(obs)} vs {len(act)} steps"
+                + (" (observations include the final observation? drop it)" if len(obs) == len(act) + lengths.size else "")
+            )
+        if int(lengths.sum()) != len(obs):
+            raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
+        if obs.dtype.kind not in "fiu" or act.dtype.kind not in "fiu":
+            raise ValueError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
+        self.observations = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+        self.actions = act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
+        _finite("observations", self.observations)
+        _finite("actions", self.actions)
+        if rewards is not None:
+            rew = np.asarray(rewards, dtype=np.float32).reshape(-1)
+            if len(rew) != len(obs):
+                raise ValueError(f"rewards have {len(rew)} entries but there are {len(obs)} steps")
+            _finite("rewards", rew)
+            rewards = rew
+        self.rewards: Optional[np.ndarray] = rewards
+        self.episode_lengths = lengths
+        if seeds is None:
+            seeds = np.full(lengths.size, UNKNOWN_SEED, dtype=np.int64)
+        self.seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+        if self.seeds.size != lengths.size:
+            raise ValueError(f"{self.seeds.size} seeds given for {lengths.size} episodes")
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def from_episodes(cls, episodes: Iterable[Mapping[str, Any]]) -> "Demonstrations":
+        """Build from dicts with ``observations`` and ``actions`` (and optional ``rewards``, ``seed``)."""
+        episodes = list(episodes)
+        if not episodes:
+            raise ValueError("demonstrations are empty: from_episodes got no episodes")
+        for i, ep in enumerate(episodes):
+            missing = {"observations", "actions"} - set(ep)
+            if missing:
+                raise ValueError(f"episode {i} lacks {sorted(missing)}")
+            if len(ep["observations"]) != len(ep["actions"]):
+                raise ValueError(
+                    f"episode {i}: {len(ep['observations'])} observations but {len(ep['actions'])} actions"
+                )
+            if len(ep["actions"]) == 0:
+                raise ValueError(f"episode {i} is empty")
+        with_rewards = [ep.get("rewards") is not None for ep in episodes]
+        if any(with_rewards) and not all(with_rewards):
+            raise ValueError("rewards must be given for every episode or for none")
+        return cls(
+            observations=np.concatenate([np.asarray(ep["observations"]) for ep in episodes]),
+            actions=np.concatenate([np.asarray(ep["actions"]) for ep in episodes]),
+            episode_lengths=[len(ep["actions"]) for ep in episodes],
+            rewards=np.concatenate([np.asarray(ep["rewards"]).reshape(-1) for ep in episodes]) if all(with_rewards) else None,
+            seeds=[int(ep.get("seed", UNKNOWN_SEED)) if ep.get("seed") is not None else UNKNOWN_SEED for ep in episodes],
+        )
+
+    @classmethod
+    def load(cls, path: PathLike) -> "Demonstrations":
+        """Load a file written by :meth:`save`; clear errors for a missing or corrupt file."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"demonstrations file not found: {path}")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
+            raise ValueError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
+        missing = {"observations", "actions", "episode_lengths"} - set(arrays)
+        if missing:
+            raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
+        try:
+            return cls(
+                observations=arrays["observations"],
+                actions=arrays["actions"],
+                episode_lengths=arrays["episode_lengths"],
+                rewards=arrays.get("rewards"),
+                seeds=arrays.get("seeds"),
+            )
+        except ValueError as e:
+            raise ValueError(f"demonstrations file {path}: {e}") from e
+
+    def save(self, path: PathLike) -> None:
+        """Write a compressed npz atomically (temp file + rename)."""
+        arrays: Dict[str, np.ndarray] = {
+            "format_version": np.asarray(FORMAT_VERSION),
+            "observations": self.observations,
+            "actions": self.actions,
+            "episode_lengths": self.episode_lengths,
+            "seeds": self.seeds,
+        }
+        if self.rewards is not None:
+            arrays["rewards"] = self.rewards
+        with atomic_path(path, suffix=".npz") as tmp:
+            np.savez_compressed(tmp, **arrays)
+
+    # -- views --------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.observations)
+
+    @property
+    def n_episodes(self) -> int:
+        return int(self.episode_lengths.size)
+
+    @property
+    def episode_starts(self) -> np.ndarray:
+        """Index of the first step of each episode, (n_episodes,)."""
+        return np.concatenate([[0], np.cumsum(self.episode_lengths)[:-1]]).astype(np.int64)
+
+    @property
+    def episode_returns(self) -> Optional[np.ndarray]:
+        """Sum of rewards of each episode, or None without rewards."""
+        if self.rewards is None:
+            return None
+        return np.add.reduceat(self.rewards.astype(np.float64), self.episode_starts)
+
+    def episode(self, index: int) -> Dict[str, Any]:
+        """One episode as a dict: observations, actions, rewards (or None), seed."""
+        if not -self.n_episodes <= index < self.n_episodes:
+            raise IndexError(f"episode {index} out of range for {self.n_episodes} episodes")
+        index %= self.n_episodes
+        start = int(self.episode_starts[index])
+        sl = slice(start, start + int(self.episode_lengths[index]))
+        return {
+            "observations": self.observations[sl],
+            "actions": self.actions[sl],
+            "rewards": None if self.rewards is None else self.rewards[sl],
+            "seed": int(self.seeds[index]),
+        }
+
+    def select(self, episode_indices: Iterable[int]) -> "Demonstrations":
+        """A new Demonstrations holding only those episodes, in the order given."""
+        indices = [int(i) for i in episode_indices]
+        if not indices:
+            raise ValueError("select() needs at least one episode index")
+        for i in indices:
+            if not 0 <= i < self.n_episodes:
+                raise IndexError(f"episode {i} out of range for {self.n_episodes} episodes")
+        return Demonstrations.from_episodes([self.episode(i) for i in indices])
+
+    def __repr__(self) -> str:
+        return (
+            f"Demonstrations(n_episodes={self.n_episodes}, n_steps={len(self)}, "
+            f"obs_shape={self.observations.shape[1:]}, action_shape={self.actions.shape[1:]})"
+        )
+
+    # -- validation ---------------------------------------------------------------------------
+    def check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> "Demonstrations":
+        """Check the demos against an env's spaces; return the demos to train on.
+
+        Raises ``ValueError`` naming the mismatch (unsupported space, observation or action shape,
+        Discrete action out of range or not an integer). Box actions outside the bounds are clipped
+        with a ``UserWarning``; the returned object is then a clipped copy, otherwise ``self``.
+        """
+        if not isinstance(observation_space, spaces.Box):
+            raise ValueError(f"only Box observation spaces are supported, got {observation_space}")
+        if self.observations.shape[1:] != observation_space.shape:
+            raise ValueError(
+                f"observation shape {self.observations.shape[1:]} of the demonstrations does not match "
+                f"the observation space shape {observation_space.shape}"
+            )
+        if isinstance(action_space, spaces.Discrete):
+            acts = self.actions.reshape(len(self.actions), -1)
+            if acts.shape[1] != 1:
+                raise ValueError(f"Discrete action space needs scalar actions; demos have shape {self.actions.shape[1:]}")
+            if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
+                raise ValueError("Discrete action space needs integer actions; the demonstrations hold fractions")
+            lo, hi = int(action_space.start), int(action_space.start + action_space.n - 1)
+            if acts.min() < lo or acts.max() > hi:
+                raise ValueError(
+                    f"demonstration actions span [{acts.min()}, {acts.max()}] but the Discrete space allows [{lo}, {hi}]"
+                )
+            if self.actions.dtype != np.int64 or self.actions.ndim != 1:
+                return Demonstrations(self.observations, acts[:, 0].astype(np.int64), self.episode_lengths, self.rewards, self.seeds)
+            return self
+        if not isinstance(action_space, spaces.Box):
+            raise ValueError(f"only Box and Discrete action spaces are supported, got {action_space}")
+        if self.actions.shape[1:] != action_space.shape:
+            raise ValueError(
+                f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
+                f"the action space shape {action_space.shape}"
+            )
+        low = action_space.low.astype(np.float32)
+        high = action_space.high.astype(np.float32)
+        excess = np.maximum(self.actions - high, low - self.actions)
+        n_out = int(np.sum(np.any(excess.reshape(len(excess), -1) > 1e-6, axis=1)))
+        if n_out == 0:
+            return self
+        warnings.warn(
+            f"{n_out} of {len(self)} demonstration actions lie outside the action bounds "
+            f"(largest excess {float(excess.max()):.4g}); clipping them to the bounds",
+            UserWarning,
+            stacklevel=2,
+        )
+        clipped = np.clip(self.actions, low, high)
+        return Demonstrations(self.observations, clipped, self.episode_lengths, self.rewards, self.seeds)
+
+
+def as_demonstrations(demos: Union[Demonstrations, PathLike, List[Mapping[str, Any]]]) -> Demonstrations:
+    """Accept a Demonstrations, a path to a saved file, or a list of episode dicts."""
+    if isinstance(demos, Demonstrations):
+        return demos
+    if isinstance(demos, (str, Path)):
+        return Demonstrations.load(demos)
+    if isinstance(demos, list):
+        return Demonstrations.from_episodes(demos)
+    raise TypeError(f"expected Demonstrations, a path or a list of episode dicts; got {type(demos).__name__}")

@@ -1,0 +1,1 @@
+"""The paper's experiment: trial grid (methods x envs x seeds) and its report."""
