@@ -1,0 +1,211 @@
+"""Reward rules (pure numpy, with per-env state) and the VecEnvWrapper that applies one.
+
+A rule maps the disagreement ``u`` of each env at one step (and the true env reward, for the rules
+that need it) to the reward the agent trains on:
+
+* :class:`CMZReward` (the paper): ``r_i = -alpha * (u_i - ubar_i)``, then
+  ``ubar_{i+1} = ema * ubar_i + (1 - ema) * u_i``, with ``ubar_0 = u0``. ``ubar`` is kept per env of
+  the VecEnv and carries across episode boundaries: the point is a long-run mean of zero, so that
+  ending an episode early is not a way to escape negative reward.
+* :class:`DRILReward`: ``+1`` if ``u_i <= threshold`` else ``-1`` (DRIL's clipped cost).
+* :class:`ZeroReward` and :class:`EnvReward`: the paper's "no reward" and "environment reward"
+  comparisons, sharing everything else with CMZ-DRIL.
+
+:class:`DisagreementReward` computes ``u`` on the observation each env acted on (as DRIL's code
+does), replaces the reward with the rule's, and keeps the true one in ``info["env_reward"]``.
+"""
+from __future__ import annotations
+
+from typing import Any, Dict, List, Optional, Protocol
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+
+from sb3_cmzdril.demos import Demonstrations
+
+
+class DisagreementModel(Protocol):
+    """Anything that scores observations (and optionally actions) with a disagreement per row."""
+
+    def disagreement(self, obs: np.ndarray, actions: Optional[np.ndarray] = None) -> np.ndarray: ...
+
+
+class RewardRule:
+    """Base class: a stateless rule; subclasses with per-env state override the state methods."""
+
+    #: the name used by ``CMZDRIL(reward=...)`` and the command line
+    name = "base"
+
+    def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def get_state(self) -> np.ndarray:
+        """Per-env state as an array (empty for stateless rules), for saving with a model."""
+        return np.zeros(0)
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Restore what :meth:`get_state` returned."""
+
+
+class CMZReward(RewardRule):
+    """Continuous mean-zero reward ``r_i = -alpha * (u_i - ubar_i)`` with a per-env EMA ``ubar``.
+
+    :param alpha: reward scale (> 0); the paper uses 10.
+    :param ema: EMA factor ``g`` in (0, 1); the paper uses 0.99.
+    :param u0: initial ``ubar`` of every env; the paper uses 0.
+    """
+
+    name = "cmz"
+
+    def __init__(self, alpha: float = 10.0, ema: float = 0.99, u0: float = 0.0) -> None:
+        if not alpha > 0:
+            raise ValueError(f"alpha must be > 0, got {alpha}")
+        if not 0.0 < ema < 1.0:
+            raise ValueError(f"ema must lie in (0, 1), got {ema}")
+        if not np.isfinite(u0):
+            raise ValueError(f"u0 must be finite, got {u0}")
+        self.alpha = float(alpha)
+        self.ema = float(ema)
+        self.u0 = float(u0)
+        self.ubar: Optional[np.ndarray] = None
+
+    def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        if self.ubar is None or self.ubar.shape != u.shape:
+            if self.ubar is not None:
+                raise ValueError(f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.size} disagreements")
+            self.ubar = np.full(u.shape, self.u0, dtype=np.float64)
+        reward = -self.alpha * (u - self.ubar)
+        self.ubar *= self.ema
+        self.ubar += (1.0 - self.ema) * u
+        return reward.astype(np.float32)
+
+    def get_state(self) -> np.ndarray:
+        return np.zeros(0) if self.ubar is None else self.ubar.copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        state = np.asarray(state, dtype=np.float64).reshape(-1)
+        self.ubar = state.copy() if state.size else None
+
+    def __repr__(self) -> str:
+        return f"CMZReward(alpha={self.alpha}, ema={self.ema}, u0={self.u0})"
+
+
+class DRILReward(RewardRule):
+    """DRIL's reward: ``+1`` where ``u <= threshold``, ``-1`` elsewhere."""
+
+    name = "dril"
+
+    def __init__(self, threshold: float) -> None:
+        if not np.isfinite(threshold):
+            raise ValueError(f"threshold must be finite, got {threshold}")
+        self.threshold = float(threshold)
+
+    @classmethod
+    def from_quantile(cls, ensemble: Any, demos: Demonstrations, q: float = 0.98) -> "DRILReward":
+        """Threshold = the q-quantile of u over the demonstrations, with the expert's actions."""
+        from sb3_cmzdril.ensemble import quantile_of_disagreement
+
+        return cls(quantile_of_disagreement(ensemble, demos, q))
+
+    def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        return np.where(u <= self.threshold, 1.0, -1.0).astype(np.float32)
+
+    def __repr__(self) -> str:
+        return f"DRILReward(threshold={self.threshold:.6g})"
+
+
+class ZeroReward(RewardRule):
+    """Reward 0 everywhere: PPO then only regularises the BC epochs (the paper's "no reward")."""
+
+    name = "zero"
+
+    def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        return np.zeros(u.shape, dtype=np.float32)
+
+
+class EnvReward(RewardRule):
+    """The true environment reward (the paper's upper bound)."""
+
+    name = "env"
+
+    def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        return np.asarray(env_rewards, dtype=np.float32)
+
+
+class DisagreementReward(VecEnvWrapper):
+    """Replace a VecEnv's reward with a rule of the ensemble's disagreement.
+
+    Works with any SB3 algorithm and any VecEnv (Dummy or Subproc). Put it *below* VecNormalize so
+    the ensemble sees raw observations (``CMZDRIL`` does this itself). Each step's ``infos[i]`` gets
+    ``"env_reward"`` (the reward the env returned) and ``"disagreement"`` (u_i).
+
+    :param venv: the environments to wrap (Box observations).
+    :param ensemble: anything with ``disagreement(obs, actions) -> (n_envs,)``, e.g. a fitted
+        :class:`~sb3_cmzdril.ensemble.BCEnsemble`. ``needs_actions`` on it (default True) says
+        whether to pass the actions.
+    :param rule: the reward rule, e.g. ``CMZReward()``.
+    """
+
+    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule) -> None:
+        super().__init__(venv)
+        if not hasattr(ensemble, "disagreement"):
+            raise TypeError(f"ensemble must have a disagreement(obs, actions) method; got {type(ensemble).__name__}")
+        if not isinstance(rule, RewardRule):
+            raise TypeError(f"rule must be a RewardRule (CMZReward, DRILReward, ...); got {type(rule).__name__}")
+        self.ensemble = ensemble
+        self.rule = rule
+        self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
+        self._last_obs: Optional[np.ndarray] = None
+        self._actions: Optional[np.ndarray] = None
+        self._stats = np.zeros(3)  # sum u, sum shaped reward, count
+
+    def reset(self) -> VecEnvObs:
+        obs = self.venv.reset()
+        self._last_obs = obs
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+        self.venv.step_async(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._last_obs is None:
+            raise RuntimeError("DisagreementReward.step_wait() before reset(): the acted-on observation is unknown")
+        obs, env_rewards, dones, infos = self.venv.step_wait()
+        u = self.ensemble.disagreement(self._last_obs, self._actions if self._pass_actions else None)
+        rewards = self.rule(u, env_rewards)
+        for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist()):
+            info["env_reward"] = r_env
+            info["disagreement"] = u_i
+        # After an auto-reset, obs holds the new episode's first observation: the next one acted on.
+        self._last_obs = obs
+        self._stats += (u.sum(), rewards.sum(), u.size)
+        return obs, rewards, dones, infos
+
+    def pop_stats(self) -> Dict[str, float]:
+        """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""
+        total_u, total_r, count = self._stats
+        self._stats = np.zeros(3)
+        if count == 0:
+            return {}
+        return {"disagreement_mean": total_u / count, "shaped_reward_mean": total_r / count}
+
+
+def make_rule(name: str, **kwargs: Any) -> RewardRule:
+    """Build a rule from its name: ``cmz`` (alpha, ema, u0), ``dril`` (threshold), ``zero``, ``env``."""
+    rules: Dict[str, Any] = {r.name: r for r in (CMZReward, DRILReward, ZeroReward, EnvReward)}
+    if name not in rules:
+        raise ValueError(f"unknown reward {name!r}; choose one of {sorted(rules)}")
+    return rules[name](**kwargs)
+
+
+__all__: List[str] = [
+    "RewardRule",
+    "CMZReward",
+    "DRILReward",
+    "ZeroReward",
+    "EnvReward",
+    "DisagreementReward",
+    "make_rule",
+]
