@@ -129,6 +129,7 @@ class CMZDRIL(PPO):
         if not isinstance(self.action_space, (spaces.Box, spaces.Discrete)):
             raise ValueError(f"CMZDRIL supports Box and Discrete action spaces, got {self.action_space}")
         seed = 0 if self.seed is None else int(self.seed)
+        self.ensemble_hidden = tuple(self.ensemble_hidden)  # a loaded model gets a JSON list back
         self.ensemble = BCEnsemble(
             self.observation_space, self.action_space, self.ensemble_size, self.ensemble_hidden, self.disagreement, seed
         ).to(self.device)

@@ -265,20 +265,23 @@ class BCEnsemble(nn.Module):
             probs = out[:, np.arange(batch), a]  # (E, B)
             u = probs.std(axis=0).astype(np.float64)
             return u * u if self.disagreement_form == "quadratic" else u
-        mean = out.mean(axis=0)
-        dev = out - mean
+        # Deviations from member 0 (a shifted variance): exactly 0 when the members agree, where
+        # deviations from the float32 mean would leave rounding noise.
+        dev = (out[1:] - out[0]).astype(np.float64)
         if self.disagreement_form == "std":
-            dev *= dev
-            return np.sqrt(dev.mean(axis=0)).mean(axis=1).astype(np.float64)
+            mean_dev = dev.sum(axis=0) / self.n_members
+            var = (dev * dev).sum(axis=0) / self.n_members - mean_dev * mean_dev
+            return np.sqrt(np.maximum(var, 0.0)).mean(axis=1)
         if actions is None:
             raise ValueError("the 'quadratic' disagreement needs the agent's actions")
         a = np.asarray(actions, dtype=np.float32).reshape(batch, -1)
         if a.shape[1] != self.out_dim:
             raise ValueError(f"actions have {a.shape[1]} dimensions, the action space {self.out_dim}")
         p = self._numpy_params()
-        a = np.clip(a, p["low"], p["high"])
-        proj = np.einsum("eba,ba->eb", dev, a)
-        return (proj * proj).mean(axis=0).astype(np.float64)
+        a = np.clip(a, p["low"], p["high"]).astype(np.float64)
+        proj = np.einsum("eba,ba->eb", dev, a)  # (d_e . a) for members 1..E-1; member 0 contributes 0
+        mean_proj = proj.sum(axis=0) / self.n_members
+        return np.maximum((proj * proj).sum(axis=0) / self.n_members - mean_proj * mean_proj, 0.0)
 
     # -- persistence ---------------------------------------------------------------------------
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:

@@ -1,0 +1,167 @@
+"""CMZDRIL end to end: pretraining, wrapping, BC epochs, logging, save/load, Discrete, errors."""
+from __future__ import annotations
+
+import csv
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from conftest import TINY
+from sb3_cmzdril import CMZDRIL, CMZReward, DisagreementReward, DRILReward
+from sb3_cmzdril.demos import Demonstrations
+
+
+@pytest.mark.parametrize("reward", ["cmz", "dril", "zero", "env"])
+def test_every_reward_mode_learns_and_logs(reward, pendulum_demos, tmp_path):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward=reward, **TINY)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(192)
+    assert model.num_timesteps == 192
+    with open(tmp_path / "progress.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {"rollout/disagreement_mean", "rollout/shaped_reward_mean", "train/bc_nll"} <= set(rows[0])
+    assert any(r["train/bc_nll"] for r in rows)
+    rule = model.reward_wrapper().rule
+    assert {"cmz": CMZReward, "dril": DRILReward}.get(reward, type(rule)) is type(rule)
+    if reward == "dril":
+        assert model.dril_threshold is not None and model.dril_threshold > 0
+
+
+def test_pretraining_lowers_the_nll_of_expert_actions(pendulum_demos):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "bc_pretrain_epochs": 30})
+    info = model.pretrain()
+    assert info["bc_nll_after"] < info["bc_nll_before"] - 0.3
+    assert model.pretrain() is info  # pretraining happens once
+
+
+def test_bc_epoch_after_each_update_and_disabled(pendulum_demos):
+    calls = []
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=2, **TINY)
+    original = model.bc.epoch
+    model.bc.epoch = lambda *a, **k: calls.append(1) or original(*a, **k)
+    model.learn(128)  # pretraining epochs, then 2 updates x 2 epochs
+    assert len(calls) == TINY["bc_pretrain_epochs"] + 4
+    off = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=0, **TINY)
+    off.pretrain()
+    before = [p.detach().clone() for p in off.policy.parameters()]
+    off.bc.epoch = lambda *a, **k: pytest.fail("no BC epoch expected")
+    off.learn(64)
+    assert any(not np.allclose(b, p.detach()) for b, p in zip(before, off.policy.parameters()))  # PPO still updated
+
+
+def test_wrapper_reports_true_return_to_monitor_and_callbacks(pendulum_demos):
+    seen = []
+
+    class Grab(BaseCallback):
+        def _on_step(self) -> bool:
+            seen.append((self.locals["infos"][0], float(self.locals["rewards"][0])))
+            return True
+
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    model.learn(256, callback=Grab(), progress_bar=True)
+    info, shaped = seen[10]
+    assert {"env_reward", "disagreement"} <= set(info)
+    assert shaped != pytest.approx(info["env_reward"])
+    # Pendulum episodes last 200 steps: Monitor's return is the sum of the true rewards, not the shaped ones
+    episodes = [i["episode"]["r"] for i, _ in seen if "episode" in i]
+    assert len(episodes) == 1
+    assert episodes[0] == pytest.approx(sum(i["env_reward"] for i, _ in seen[:200]), rel=1e-5)
+
+
+def test_save_load_identity_and_continued_learning(pendulum_demos, tmp_path):
+    env = DummyVecEnv([lambda: gym.make("Pendulum-v1"), lambda: gym.make("Pendulum-v1")])
+    model = CMZDRIL("MlpPolicy", env, demonstrations=pendulum_demos, **TINY)
+    model.learn(256)
+    model.save(tmp_path / "agent.zip")
+    loaded = CMZDRIL.load(tmp_path / "agent.zip", env=DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 2))
+    obs = pendulum_demos.observations[:50] + 0.3
+    assert np.array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    assert np.array_equal(model.ensemble.member_outputs(obs), loaded.ensemble.member_outputs(obs))
+    assert np.array_equal(model.reward_rule.get_state(), loaded.reward_rule.get_state())
+    assert loaded.reward_rule.get_state().shape == (2,)
+    assert np.array_equal(loaded.demonstrations.observations, pendulum_demos.observations)
+    assert np.array_equal(loaded.demonstrations.seeds, pendulum_demos.seeds)
+    assert loaded.alpha == 10.0 and loaded.ensemble_hidden == (16, 16)
+    bc_state = loaded.bc.optimizer.state_dict()["state"]
+    assert bc_state and all(v["step"] > 0 for v in bc_state.values())  # BC optimiser moments restored
+    loaded.learn(128, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 256 + 128
+    assert loaded.reward_wrapper().rule is loaded.reward_rule
+    # no env: still predicts
+    assert CMZDRIL.load(tmp_path / "agent.zip").predict(obs[:1], deterministic=True)[0].shape == (1, 1)
+
+
+def test_load_with_other_demonstrations_and_other_n_envs(pendulum_demos, tmp_path):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    model.learn(64)
+    model.save(tmp_path / "a.zip")
+    one = pendulum_demos.select([0])
+    with pytest.warns(UserWarning, match="reward state is for 1 envs but the model now has 3"):
+        loaded = CMZDRIL.load(tmp_path / "a.zip", env=DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 3), demonstrations=one)
+    assert loaded.demonstrations.n_episodes == 1
+    assert np.allclose(loaded.reward_rule.get_state(), model.reward_rule.get_state()[0])
+    loaded.learn(192, reset_num_timesteps=False)
+
+
+def test_vecnormalize_sits_above_the_reward_wrapper(pendulum_demos):
+    venv = VecNormalize(DummyVecEnv([lambda: Monitor(gym.make("Pendulum-v1"))]), norm_reward=False)
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
+    model.learn(128)
+    assert isinstance(model.env, VecNormalize) and isinstance(model.env.venv, DisagreementReward)
+    wrapper = model.reward_wrapper()
+    raw = wrapper._last_obs
+    assert np.allclose(np.linalg.norm(raw[:, :2], axis=1), 1.0, atol=1e-5)  # cos/sin: raw, not normalised
+    assert model._demo_obs_transform() == venv.normalize_obs
+
+
+def test_discrete_cartpole_end_to_end(cartpole_demos, tmp_path):
+    for reward in ("cmz", "dril"):
+        model = CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, reward=reward, **TINY)
+        model.learn(128)
+        assert model.ensemble.discrete
+        model.save(tmp_path / f"{reward}.zip")
+        loaded = CMZDRIL.load(tmp_path / f"{reward}.zip", env=gym.make("CartPole-v1"))
+        obs = cartpole_demos.observations[:20]
+        assert np.array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+        loaded.learn(64, reset_num_timesteps=False)
+
+
+def test_demonstrations_from_a_path(pendulum_demos, tmp_path):
+    pendulum_demos.save(tmp_path / "demos.npz")
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=str(tmp_path / "demos.npz"), **TINY)
+    assert isinstance(model.demonstrations, Demonstrations) and len(model.demonstrations) == len(pendulum_demos)
+
+
+def test_errors(pendulum_demos, cartpole_demos, tmp_path):
+    with pytest.raises(ValueError, match="reward must be one of"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward="gail")
+    with pytest.raises(ValueError, match="alpha must be > 0"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, alpha=-1.0)
+    with pytest.raises(ValueError, match="dril_quantile"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, dril_quantile=0.0)
+    with pytest.raises(ValueError, match="bc_epochs_per_update must be >= 0"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)
+    with pytest.raises(ValueError, match="CMZDRIL needs demonstrations"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", **TINY).learn(64)
+    with pytest.raises(ValueError, match=r"observation shape \(4,\).*\(3,\)"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=cartpole_demos, **TINY).learn(64)
+    with pytest.raises(FileNotFoundError, match="missing.npz"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=str(tmp_path / "missing.npz"))
+    with pytest.raises(ValueError, match="Box and Discrete action"):
+        CMZDRIL("MlpPolicy", MultiDiscreteEnv())
+
+
+class MultiDiscreteEnv(gym.Env):
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.MultiDiscrete([2, 3])
+
+    def reset(self, *, seed=None, options=None):
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action):
+        return np.zeros(2, np.float32), 0.0, True, False, {}
