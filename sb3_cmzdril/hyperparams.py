@@ -1,0 +1,324 @@
+"""rl-zoo-style hyperparameter files: ``env id -> settings``, falling back to ``default``.
+
+The format is rl-baselines3-zoo's (``hyperparams/<algo>.yml``): top-level keys are environment ids
+(plus an optional ``default``), each mapping to the settings of one run. A few keys are the zoo's
+*special keys* (how to build the environment and how long to train); every other key goes straight to
+the algorithm's constructor, after the zoo's pre-processing:
+
+* ``learning_rate`` (and ``clip_range``, ``clip_range_vf``) may be ``lin_<float>``: a schedule that
+  decreases linearly from ``<float>`` to 0 over training, as in the zoo;
+* ``train_freq: [1, "episode"]`` becomes a tuple;
+* ``policy_kwargs`` / ``replay_buffer_kwargs`` / ``env_kwargs`` / ``normalize`` may be strings such as
+  ``"dict(log_std_init=-3, net_arch=[400, 300], activation_fn=nn.ReLU)"``. The zoo ``eval``s them; we
+  parse them with :mod:`ast` and accept only literals, lists/tuples/dicts, ``dict(...)`` with keyword
+  arguments, and ``nn.<Name>`` / ``th.nn.<Name>`` / ``torch.nn.<Name>`` (torch.nn module classes) or
+  ``th.optim.<Name>`` (optimizer classes). Anything else raises :class:`ValueError` naming the text.
+
+The environment lookup follows the zoo, extended to module-prefixed ids: the exact id, then the id
+without its ``module:`` prefix (``sb3_cmzdril:WaypointNav-v0`` -> ``WaypointNav-v0``), then
+``default``; otherwise a :class:`KeyError`-free :class:`ValueError` lists the available keys.
+"""
+from __future__ import annotations
+
+import ast
+import copy
+import dataclasses
+from pathlib import Path
+from typing import Any, Dict, Iterable, Optional, Union
+
+import yaml
+
+#: Keys the zoo handles itself; everything else is an algorithm constructor argument.
+SPECIAL_KEYS = (
+    "n_timesteps",
+    "policy",
+    "n_envs",
+    "normalize",
+    "env_wrapper",
+    "vec_env_wrapper",
+    "callback",
+    "policy_kwargs",
+    "env_kwargs",
+    "frame_stack",
+)
+#: Keys that may hold a zoo schedule string (``lin_<float>``).
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+#: Keys that may hold a python-expression string in the zoo (parsed safely here).
+EXPRESSION_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "env_kwargs", "normalize")
+
+DEFAULT_KEY = "default"
+REPO_HYPERPARAMS_DIR = Path(__file__).resolve().parent.parent / "hyperparams"
+
+
+class LinearSchedule:
+    """The zoo's ``lin_<v>``: ``progress_remaining * initial_value`` (from ``v`` down to 0).
+
+    A module-level class (not a closure) so models saved with it load anywhere.
+    """
+
+    def __init__(self, initial_value: float) -> None:
+        self.initial_value = float(initial_value)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return progress_remaining * self.initial_value
+
+    def __repr__(self) -> str:
+        return f"lin_{self.initial_value:g}"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, LinearSchedule) and other.initial_value == self.initial_value
+
+
+def parse_schedule(value: Any, key: str = "learning_rate") -> Any:
+    """``lin_<float>`` -> :class:`LinearSchedule`; numbers pass through; other strings -> ValueError."""
+    if isinstance(value, str):
+        kind, sep, number = value.partition("_")
+        if kind == "lin" and sep:
+            try:
+                return LinearSchedule(float(number))
+            except ValueError:
+                pass
+        raise ValueError(f"invalid schedule for {key}: {value!r} (expected a number or 'lin_<float>', e.g. 'lin_7.3e-4')")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) and not callable(value):
+        raise ValueError(f"invalid value for {key}: {value!r}")
+    return value
+
+
+# -- safe expression parsing ----------------------------------------------------------------------
+_MODULE_ALIASES = {
+    ("nn",): "nn",
+    ("th", "nn"): "nn",
+    ("torch", "nn"): "nn",
+    ("optim",): "optim",
+    ("th", "optim"): "optim",
+    ("torch", "optim"): "optim",
+}
+
+
+def _attribute_chain(node: ast.AST) -> Optional[list]:
+    names = []
+    while isinstance(node, ast.Attribute):
+        names.append(node.attr)
+        node = node.value
+    if not isinstance(node, ast.Name):
+        return None
+    names.append(node.id)
+    return names[::-1]
+
+
+def _resolve_torch_class(chain: list) -> Any:
+    import torch
+
+    *module, name = chain
+    kind = _MODULE_ALIASES.get(tuple(module))
+    if kind is None or not name.isidentifier() or name.startswith("_"):
+        return None
+    obj = getattr(torch.nn if kind == "nn" else torch.optim, name, None)
+    base = torch.nn.Module if kind == "nn" else torch.optim.Optimizer
+    if isinstance(obj, type) and issubclass(obj, base):
+        return obj
+    return None
+
+
+def safe_eval(text: str) -> Any:
+    """Evaluate a zoo kwargs string without ``eval``.
+
+    Accepted: numbers, strings, True/False/None, negative numbers, lists, tuples, dicts,
+    ``dict(key=value, ...)``, and torch classes written ``nn.X``, ``th.nn.X``, ``torch.nn.X``
+    (``nn.Module`` subclasses) or ``th.optim.X`` (optimizers). Raises ValueError otherwise.
+    """
+    if not isinstance(text, str):
+        raise ValueError(f"expected an expression string, got {type(text).__name__}")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as e:
+        raise ValueError(f"cannot parse {text!r}: {e.msg}") from e
+    source = text.strip()
+
+    def fail(node: ast.AST, why: str = "not allowed") -> ValueError:
+        segment = ast.get_source_segment(source, node) or ast.dump(node)
+        return ValueError(f"{why}: {segment!r} in {text!r} (only literals, lists, dicts, dict(...) and nn.<Name> are accepted)")
+
+    def conv(node: ast.AST) -> Any:
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, (int, float, str, bool, type(None))):
+                return node.value
+            raise fail(node)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+            value = conv(node.operand)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise fail(node)
+            return -value if isinstance(node.op, ast.USub) else value
+        if isinstance(node, ast.List):
+            return [conv(e) for e in node.elts]
+        if isinstance(node, ast.Tuple):
+            return tuple(conv(e) for e in node.elts)
+        if isinstance(node, ast.Dict):
+            if any(k is None for k in node.keys):
+                raise fail(node, "'**' unpacking is not allowed")
+            return {conv(k): conv(v) for k, v in zip(node.keys, node.values)}
+        if isinstance(node, ast.Call):
+            if isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+                if any(kw.arg is None for kw in node.keywords):
+                    raise fail(node, "'**' unpacking is not allowed")
+                return {kw.arg: conv(kw.value) for kw in node.keywords}
+            raise fail(node, "function call not allowed")
+        if isinstance(node, ast.Attribute):
+            chain = _attribute_chain(node)
+            cls = _resolve_torch_class(chain) if chain else None
+            if cls is None:
+                raise fail(node, "unknown or disallowed attribute")
+            return cls
+        raise fail(node)
+
+    return conv(tree.body)
+
+
+# -- loading -------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class Hyperparams:
+    """One entry of a zoo hyperparameter file, split into its parts.
+
+    ``algo_kwargs`` go to the algorithm's constructor (``policy_kwargs`` is kept separate so callers
+    can merge their own); :meth:`model_kwargs` gives both together. ``raw`` is the entry as written
+    in the file (JSON-friendly; use it for metadata).
+    """
+
+    env_id: str
+    key: str
+    path: Optional[str]
+    raw: Dict[str, Any]
+    n_timesteps: Optional[int] = None
+    policy: Optional[str] = None
+    n_envs: int = 1
+    policy_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    env_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    normalize: Any = None
+    env_wrapper: Any = None
+    vec_env_wrapper: Any = None
+    callback: Any = None
+    frame_stack: Any = None
+    algo_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def model_kwargs(self) -> Dict[str, Any]:
+        """Constructor kwargs: ``algo_kwargs`` plus ``policy_kwargs`` when there are any."""
+        kwargs = dict(self.algo_kwargs)
+        if self.policy_kwargs:
+            kwargs["policy_kwargs"] = dict(self.policy_kwargs)
+        return kwargs
+
+    def check_supported(
+        self,
+        unsupported: Iterable[str] = ("normalize", "env_wrapper", "vec_env_wrapper", "callback", "frame_stack"),
+        what: str = "this command",
+    ) -> None:
+        """Raise ValueError for special keys that are set but that the caller does not implement."""
+        used = [k for k in unsupported if getattr(self, k) not in (None, False)]
+        if used:
+            raise ValueError(
+                f"hyperparameters {self.key!r} in {self.path} set {used}, which {what} does not support; "
+                "remove them or use rl-zoo3 for this environment"
+            )
+
+
+def _entry_key(available: Iterable[str], env_id: str) -> Optional[str]:
+    keys = list(available)
+    if env_id in keys:
+        return env_id
+    if ":" in env_id:
+        short = env_id.rsplit(":", 1)[1]
+        if short in keys:
+            return short
+    if DEFAULT_KEY in keys:
+        return DEFAULT_KEY
+    return None
+
+
+def split_hyperparams(entry: Dict[str, Any], env_id: str = "", key: str = "", path: Optional[str] = None) -> Hyperparams:
+    """Split one zoo entry (a dict) into special keys and algorithm kwargs, with pre-processing."""
+    if not isinstance(entry, dict):
+        raise ValueError(f"hyperparameters {key!r} in {path}: expected a mapping, got {type(entry).__name__}")
+    raw = copy.deepcopy(entry)
+    values = copy.deepcopy(entry)
+    where = f"hyperparameters {key!r}" + (f" in {path}" if path else "")
+    for k in EXPRESSION_KEYS:
+        if isinstance(values.get(k), str):
+            try:
+                values[k] = safe_eval(values[k])
+            except ValueError as e:
+                raise ValueError(f"{where}, {k}: {e}") from e
+    for k in SCHEDULE_KEYS:
+        if k in values:
+            try:
+                values[k] = parse_schedule(values[k], k)
+            except ValueError as e:
+                raise ValueError(f"{where}: {e}") from e
+    if isinstance(values.get("train_freq"), list):
+        values["train_freq"] = tuple(values["train_freq"])
+    hp = Hyperparams(env_id=env_id, key=key, path=path, raw=raw)
+    if values.get("n_timesteps") is not None:
+        try:
+            hp.n_timesteps = int(float(values["n_timesteps"]))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{where}: n_timesteps must be a number, got {values['n_timesteps']!r}") from e
+    policy = values.get("policy")
+    if policy is not None:
+        if not isinstance(policy, str) or "." in policy:
+            raise ValueError(f"{where}: policy must be a registered policy name such as 'MlpPolicy', got {policy!r}")
+        hp.policy = policy
+    hp.n_envs = int(values.get("n_envs", 1))
+    if hp.n_envs < 1:
+        raise ValueError(f"{where}: n_envs must be >= 1, got {hp.n_envs}")
+    for k in ("policy_kwargs", "env_kwargs"):
+        v = values.get(k)
+        if v is None:
+            v = {}
+        if not isinstance(v, dict):
+            raise ValueError(f"{where}: {k} must be a dict, got {v!r}")
+        setattr(hp, k, v)
+    for k in ("normalize", "env_wrapper", "vec_env_wrapper", "callback", "frame_stack"):
+        setattr(hp, k, values.get(k))
+    hp.algo_kwargs = {k: v for k, v in values.items() if k not in SPECIAL_KEYS}
+    return hp
+
+
+def read_hyperparams_file(path: Union[str, Path]) -> Dict[str, Any]:
+    """The whole YAML file as a dict; clear errors for a missing or malformed file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"hyperparameter file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as e:
+        raise ValueError(f"hyperparameter file {path} is not valid YAML: {e}") from e
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"hyperparameter file {path}: top level must map env ids to settings")
+    return data
+
+
+def load_hyperparams(path: Union[str, Path], env_id: str) -> Hyperparams:
+    """Load the entry for ``env_id`` from a zoo YAML file (exact id, id without ``module:``, ``default``)."""
+    data = read_hyperparams_file(path)
+    key = _entry_key(data.keys(), env_id)
+    if key is None:
+        raise ValueError(
+            f"no hyperparameters for {env_id!r} in {path} and no {DEFAULT_KEY!r} entry; "
+            f"available: {sorted(map(str, data.keys()))}"
+        )
+    return split_hyperparams(data[key] or {}, env_id=env_id, key=key, path=str(path))
+
+
+def default_hyperparams_path(algo: str) -> Path:
+    """``hyperparams/<algo>.yml`` of the source checkout (the package is meant to be installed editable).
+
+    When the package is installed from a wheel the folder does not exist: pass ``--hyperparams``.
+    """
+    path = REPO_HYPERPARAMS_DIR / f"{algo}.yml"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"default hyperparameter file {path} not found (it lives in the repository's hyperparams/ "
+            "folder); pass one explicitly with --hyperparams / hyperparams_path="
+        )
+    return path

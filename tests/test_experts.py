@@ -1,0 +1,260 @@
+"""train-expert (tiny SAC on Pendulum: files, resume, interruption) and collect-demos."""
+import json
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.experts import (
+    SCRIPTED_EXPERTS,
+    collect_demos,
+    load_expert_model,
+    register_scripted_expert,
+    run_episode,
+    train_expert,
+)
+
+ENV = "Pendulum-v1"
+# Tiny SAC, 50-step episodes: a few hundred steps train in a couple of seconds.
+TINY_YAML = """
+Pendulum-v1:
+  n_timesteps: 20000
+  policy: 'MlpPolicy'
+  learning_rate: !!float 1e-3
+  learning_starts: 50
+  buffer_size: 2000
+  batch_size: 32
+  env_kwargs: "dict(max_episode_steps=50)"
+  policy_kwargs: "dict(net_arch=[16, 16])"
+"""
+FAST = dict(eval_freq=100, n_eval_episodes=1, checkpoint_freq=100, final_eval_episodes=2, progress_bar=False)
+
+
+@pytest.fixture(scope="module")
+def tiny_yaml(tmp_path_factory):
+    p = tmp_path_factory.mktemp("hp") / "sac.yml"
+    p.write_text(TINY_YAML)
+    return p
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_yaml, tmp_path_factory):
+    """One tiny expert trained through the CLI entry point (200 steps)."""
+    out = tmp_path_factory.mktemp("expert") / "Pendulum-v1"
+    rc = main([
+        "train-expert", "--env", ENV, "--timesteps", "200", "--seed", "3", "--hyperparams", str(tiny_yaml),
+        "-o", str(out), "--eval-freq", "100", "--eval-episodes", "1", "--checkpoint-freq", "100",
+        "--final-eval-episodes", "2", "--no-progress",
+    ])
+    assert rc == 0
+    return out
+
+
+def _state(out: Path) -> dict:
+    return json.loads((out / "checkpoints" / "state.json").read_text())
+
+
+def _buffer(out: Path):
+    model = SAC.load(out / "checkpoints" / _state(out)["model_file"], device="cpu")
+    model.load_replay_buffer(out / "checkpoints" / _state(out)["replay_buffer_file"])
+    return model
+
+
+def test_train_expert_writes_model_and_metadata(trained):
+    assert sorted(p.name for p in trained.iterdir()) == ["checkpoints", "metadata.json", "model.zip"]
+    model = SAC.load(trained / "model.zip", device="cpu")
+    assert model.policy.actor.latent_pi[0].out_features == 16  # the YAML's net_arch was used
+    meta = json.loads((trained / "metadata.json").read_text())
+    assert meta["env_id"] == ENV and meta["algo"] == "sac" and meta["seed"] == 3
+    assert meta["total_timesteps"] == 200
+    assert meta["model_timesteps"] in (100, 200)
+    assert meta["eval"]["n_episodes"] == 2 and len(meta["eval"]["episode_returns"]) == 2
+    assert np.isfinite(meta["eval"]["mean_reward"]) and meta["eval"]["deterministic"] is True
+    assert meta["hyperparams"]["values"]["policy_kwargs"] == "dict(net_arch=[16, 16])"
+    assert meta["hyperparams"]["key"] == ENV
+    for pkg in ("stable_baselines3", "gymnasium", "mujoco", "torch", "python"):
+        assert meta["versions"][pkg]
+    assert "train-expert" in meta["command"] or meta["command"]  # sys.argv of the process
+    assert meta["wall_time_s"] >= 0 and [e["timesteps"] for e in meta["evaluations"]] == [100, 200]
+    # no temporary files left behind
+    assert not [p for p in trained.rglob(".*") if p.is_file()]
+
+
+def test_resume_continues_to_total(tiny_yaml, tmp_path):
+    out = tmp_path / "run"
+    train_expert(ENV, timesteps=200, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    first = _buffer(out)
+    assert first.num_timesteps == 200 and first.replay_buffer.size() == 200
+    obs_first = first.replay_buffer.observations[:200].copy()
+
+    train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    state = _state(out)
+    assert state["num_timesteps"] == 300 and state["resumes"] == 1
+    second = _buffer(out)
+    # continued from the checkpoint: 300 in total (not 200 + 300), and the first 200 transitions kept
+    assert second.num_timesteps == 300 and second.replay_buffer.size() == 300
+    np.testing.assert_array_equal(second.replay_buffer.observations[:200], obs_first)
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["total_timesteps"] == 300 and meta["resumes"] == 1
+    assert [e["timesteps"] for e in meta["evaluations"]] == [100, 200, 300]
+    # only the latest checkpoint is kept
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "best.json", "model_300_steps.zip", "replay_buffer_300_steps.pkl", "state.json"]
+
+    # asking for fewer steps than done trains nothing more
+    train_expert(ENV, timesteps=250, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    assert _state(out)["num_timesteps"] == 300
+
+
+class _Crash(BaseCallback):
+    def __init__(self, at: int):
+        super().__init__()
+        self.at = at
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.at:
+            raise KeyboardInterrupt("simulated interruption")
+        return True
+
+
+def test_interruption_leaves_resumable_checkpoint_and_keeps_best(tiny_yaml, tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train_expert(ENV, timesteps=400, seed=1, hyperparams_path=tiny_yaml, output_dir=out, _callback=_Crash(250), **FAST)
+    assert not (out / "metadata.json").exists()
+    assert _state(out)["num_timesteps"] == 200
+    SAC.load(out / "model.zip", device="cpu")  # the best-so-far model is complete and loadable
+    assert not [p for p in out.rglob(".*") if p.is_file()]  # no temporary files left
+    # a hard kill (SIGKILL) mid-write would leave a temporary file: the next run removes it
+    stale = out / "checkpoints" / ".replay_buffer_300_steps.pkl.abc123.tmp.pkl"
+    stale.write_bytes(b"half written")
+
+    # pretend an earlier evaluation scored very high: a resumed run must not overwrite model.zip
+    best = json.loads((out / "checkpoints" / "best.json").read_text())
+    best["mean_reward"] = 1e9
+    (out / "checkpoints" / "best.json").write_text(json.dumps(best))
+    before = (out / "model.zip").read_bytes()
+
+    train_expert(ENV, timesteps=400, seed=1, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    assert _state(out)["num_timesteps"] == 400 and _state(out)["resumes"] == 1
+    assert (out / "model.zip").read_bytes() == before
+    assert not stale.exists()
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["total_timesteps"] == 400 and meta["best_periodic_eval"]["mean_reward"] == 1e9
+
+
+def test_train_expert_rejects_unsupported_keys_and_other_runs(tmp_path, tiny_yaml):
+    p = tmp_path / "norm.yml"
+    p.write_text("Pendulum-v1:\n  normalize: true\n  n_timesteps: 100\n")
+    with pytest.raises(ValueError, match="normalize"):
+        train_expert(ENV, hyperparams_path=p, output_dir=tmp_path / "x", **FAST)
+    out = tmp_path / "other"
+    (out / "checkpoints").mkdir(parents=True)
+    (out / "checkpoints" / "state.json").write_text(json.dumps({"env_id": "Hopper-v5", "algo": "sac"}))
+    with pytest.raises(ValueError, match="Hopper-v5"):
+        train_expert(ENV, timesteps=100, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+
+
+def test_second_process_on_same_folder_is_refused(tmp_path, tiny_yaml):
+    from sb3_cmzdril.experts import _lock_output
+
+    ckpt = tmp_path / "run" / "checkpoints"
+    ckpt.mkdir(parents=True)
+    held = _lock_output(ckpt)  # as if another train-expert were running there
+    try:
+        with pytest.raises(ValueError, match="already running"):
+            train_expert(ENV, timesteps=100, hyperparams_path=tiny_yaml, output_dir=tmp_path / "run", **FAST)
+    finally:
+        held.close()
+
+
+# -- collect-demos -------------------------------------------------------------------------------
+def test_collect_demos_round_trip_and_seeds(trained, tmp_path, capsys):
+    path = tmp_path / "demos.npz"
+    rc = main(["collect-demos", "--expert", str(trained), "--env", ENV, "--episodes", "2", "--seed", "7", "-o", str(path)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "mean" in printed and "200" in printed
+    demos = Demonstrations.load(path)
+    assert demos.n_episodes == 2 and list(demos.seeds) == [7, 8]
+    assert list(demos.episode_lengths) == [200, 200] and demos.rewards is not None
+    assert demos.observations.shape == (400, 3) and demos.actions.shape == (400, 1)
+
+    # replaying a recorded seed with the same expert reproduces the episode exactly
+    expert = load_expert_model(trained / "model.zip")
+    env = gym.make(ENV)
+    for i in range(2):
+        ep = run_episode(expert, env, int(demos.seeds[i]))
+        rec = demos.episode(i)
+        np.testing.assert_array_equal(ep["observations"].astype(np.float32), rec["observations"])
+        np.testing.assert_array_equal(ep["actions"].astype(np.float32), rec["actions"])
+        np.testing.assert_allclose(ep["rewards"], rec["rewards"], rtol=1e-6)
+
+
+def test_collect_demos_zip_without_metadata(trained, tmp_path):
+    """A bare zip elsewhere: the algorithm is inferred from the zip itself."""
+    zip_path = tmp_path / "bare.zip"
+    shutil.copy(trained / "model.zip", zip_path)
+    demos = collect_demos(zip_path, ENV, n_episodes=1, seed=0, verbose=False)
+    assert demos.n_episodes == 1 and list(demos.seeds) == [0]
+
+
+class _PendulumPD:
+    """Swing-free PD controller around the upright position (a scripted expert for the tests)."""
+
+    def __init__(self, env):
+        self.high = float(env.action_space.high[0])
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        obs = np.asarray(obs, dtype=np.float64)
+        theta = np.arctan2(obs[..., 1], obs[..., 0])
+        torque = np.clip(-10.0 * theta - 2.0 * obs[..., 2], -self.high, self.high)
+        return torque[..., None].astype(np.float32), None
+
+
+def test_scripted_expert_via_cli(tmp_path):
+    register_scripted_expert("test-pendulum-pd", _PendulumPD)
+    assert "test-pendulum-pd" in SCRIPTED_EXPERTS
+    path = tmp_path / "pd.npz"
+    assert main(["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV, "--episodes", "2", "--seed", "0",
+                 "-o", str(path)]) == 0
+    demos = Demonstrations.load(path)
+    assert demos.n_episodes == 2 and list(demos.seeds) == [0, 1]
+    again = collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=0, verbose=False)
+    np.testing.assert_array_equal(again.observations, demos.observations)
+
+
+def test_clear_errors_for_bad_experts(tmp_path, capsys):
+    missing = tmp_path / "missing" / "model.zip"
+    with pytest.raises(FileNotFoundError, match=str(missing)):
+        collect_demos(missing, ENV, n_episodes=1, verbose=False)
+    empty_dir = tmp_path / "empty"
+    empty_dir.mkdir()
+    with pytest.raises(FileNotFoundError, match="has no model.zip"):
+        collect_demos(empty_dir, ENV, n_episodes=1, verbose=False)
+    corrupt = tmp_path / "corrupt.zip"
+    corrupt.write_bytes(b"this is not a zip file")
+    with pytest.raises(ValueError, match=str(corrupt)):
+        collect_demos(corrupt, ENV, n_episodes=1, verbose=False)
+    register_scripted_expert("test-pendulum-pd", _PendulumPD)
+    with pytest.raises(ValueError, match=r"no-such-expert.*test-pendulum-pd"):
+        collect_demos("no-such-expert", ENV, n_episodes=1, verbose=False)
+    # the CLI reports them as errors (exit status 2) naming the path
+    assert main(["collect-demos", "--expert", str(corrupt), "--env", ENV, "-o", str(tmp_path / "d.npz")]) == 2
+    assert str(corrupt) in capsys.readouterr().err
+    assert not (tmp_path / "d.npz").exists()
+
+
+def test_corrupt_checkpoint_is_reported(trained, tmp_path, tiny_yaml):
+    out = tmp_path / "run"
+    shutil.copytree(trained, out)
+    ckpt = out / "checkpoints" / _state(out)["model_file"]
+    ckpt.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match=str(ckpt)):
+        train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, **FAST)

@@ -1,0 +1,190 @@
+"""rl-zoo-style hyperparameter loading: lookup/fallback, special keys, safe policy_kwargs, schedules."""
+from pathlib import Path
+
+import pytest
+import torch.nn as nn
+import torch.optim
+
+from sb3_cmzdril.hyperparams import (
+    LinearSchedule,
+    default_hyperparams_path,
+    load_hyperparams,
+    parse_schedule,
+    safe_eval,
+    split_hyperparams,
+)
+
+YAML = """
+Pendulum-v1:
+  n_timesteps: 20000
+  policy: 'MlpPolicy'
+  learning_rate: !!float 1e-3
+WaypointNav-v0:
+  n_timesteps: !!float 1e5
+  policy: 'MlpPolicy'
+  n_envs: 4
+  learning_rate: lin_3e-4
+  clip_range: lin_0.2
+  train_freq: [1, "episode"]
+  env_kwargs: "dict(n_waypoints=3)"
+  policy_kwargs: "dict(log_std_init=-3, net_arch=[400, 300], activation_fn=nn.ReLU)"
+default:
+  n_timesteps: !!float 1e6
+  policy: 'MlpPolicy'
+  gamma: 0.98
+"""
+
+
+@pytest.fixture
+def yml(tmp_path):
+    p = tmp_path / "algo.yml"
+    p.write_text(YAML)
+    return p
+
+
+def test_exact_id(yml):
+    hp = load_hyperparams(yml, "Pendulum-v1")
+    assert hp.key == "Pendulum-v1"
+    assert hp.n_timesteps == 20000 and hp.policy == "MlpPolicy"
+    assert hp.algo_kwargs == {"learning_rate": 1e-3}
+    assert hp.model_kwargs() == {"learning_rate": 1e-3}
+    assert hp.raw == {"n_timesteps": 20000, "policy": "MlpPolicy", "learning_rate": 1e-3}
+
+
+def test_prefixed_id_falls_back_to_plain_id(yml):
+    hp = load_hyperparams(yml, "sb3_cmzdril:WaypointNav-v0")
+    assert hp.key == "WaypointNav-v0"
+    assert hp.n_timesteps == 100_000 and hp.n_envs == 4
+    assert hp.env_kwargs == {"n_waypoints": 3}
+    assert hp.policy_kwargs == {"log_std_init": -3, "net_arch": [400, 300], "activation_fn": nn.ReLU}
+    # special keys are split off; the rest goes to the constructor (schedules parsed, train_freq a tuple)
+    assert set(hp.algo_kwargs) == {"learning_rate", "clip_range", "train_freq"}
+    assert hp.algo_kwargs["learning_rate"] == LinearSchedule(3e-4)
+    assert hp.algo_kwargs["train_freq"] == (1, "episode")
+    assert hp.model_kwargs()["policy_kwargs"]["activation_fn"] is nn.ReLU
+    # the raw entry is kept as written (for metadata)
+    assert hp.raw["policy_kwargs"].startswith("dict(")
+
+
+def test_default_fallback(yml):
+    hp = load_hyperparams(yml, "HalfCheetah-v5")
+    assert hp.key == "default" and hp.env_id == "HalfCheetah-v5"
+    assert hp.algo_kwargs == {"gamma": 0.98} and hp.n_timesteps == 1_000_000
+
+
+def test_missing_entry_lists_keys(tmp_path):
+    p = tmp_path / "x.yml"
+    p.write_text("Pendulum-v1:\n  n_timesteps: 10\nCartPole-v1:\n  n_timesteps: 10\n")
+    with pytest.raises(ValueError, match=r"HalfCheetah-v5.*available: \['CartPole-v1', 'Pendulum-v1'\]"):
+        load_hyperparams(p, "HalfCheetah-v5")
+
+
+def test_missing_or_bad_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.yml"):
+        load_hyperparams(tmp_path / "nope.yml", "Pendulum-v1")
+    bad = tmp_path / "bad.yml"
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ValueError, match="bad.yml"):
+        load_hyperparams(bad, "a")
+
+
+def test_safe_eval_accepts_zoo_strings():
+    assert safe_eval("dict(log_std_init=-3.67, net_arch=[64, 64])") == {"log_std_init": -3.67, "net_arch": [64, 64]}
+    assert safe_eval("dict(net_arch=dict(pi=[64], vf=[64]), ortho_init=False, activation_fn=th.nn.Tanh)") == {
+        "net_arch": {"pi": [64], "vf": [64]},
+        "ortho_init": False,
+        "activation_fn": nn.Tanh,
+    }
+    assert safe_eval("{'norm_obs': True, 'norm_reward': False}") == {"norm_obs": True, "norm_reward": False}
+    assert safe_eval("dict(optimizer_class=torch.optim.Adam, x=(1, 'a', None))") == {
+        "optimizer_class": torch.optim.Adam,
+        "x": (1, "a", None),
+    }
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "__import__('os').system('x')",
+        "dict(a=__import__('os').system('x'))",
+        "dict(net_arch=[64]*2)",
+        "nn.Module.__subclasses__()",
+        "nn.functional",
+        "nn.init.zeros_",
+        "os.system",
+        "dict(**kw)",
+        "print",
+        "lambda: 0",
+        "[x for x in range(3)]",
+        "dict(1, a=2)",
+        "nn.ReLU()",
+    ],
+)
+def test_safe_eval_rejects(text):
+    with pytest.raises(ValueError) as info:
+        safe_eval(text)
+    assert repr(text) in str(info.value) or text in str(info.value)
+
+
+def test_malicious_policy_kwargs_in_yaml_rejected(tmp_path):
+    p = tmp_path / "evil.yml"
+    p.write_text("Pendulum-v1:\n  policy_kwargs: \"__import__('os').system('touch pwned')\"\n")
+    with pytest.raises(ValueError, match=r"policy_kwargs.*__import__"):
+        load_hyperparams(p, "Pendulum-v1")
+    assert not Path("pwned").exists() and not (tmp_path / "pwned").exists()
+
+
+def test_lin_schedule():
+    sched = parse_schedule("lin_7.3e-4")
+    assert isinstance(sched, LinearSchedule)
+    assert sched(1.0) == pytest.approx(7.3e-4)
+    assert sched(0.5) == pytest.approx(3.65e-4)
+    assert sched(0.0) == 0.0
+    assert repr(sched) == "lin_0.00073"
+    assert parse_schedule(3e-4) == 3e-4
+    for bad in ("lin_abc", "exp_0.1", "0.001x"):
+        with pytest.raises(ValueError, match="schedule"):
+            parse_schedule(bad)
+
+
+def test_bad_schedule_in_yaml_names_key(tmp_path):
+    p = tmp_path / "s.yml"
+    p.write_text("default:\n  learning_rate: cos_1e-3\n")
+    with pytest.raises(ValueError, match="learning_rate"):
+        load_hyperparams(p, "X-v0")
+
+
+def test_check_supported_rejects_unimplemented_special_keys():
+    hp = split_hyperparams({"normalize": True, "n_timesteps": 10}, env_id="X-v0", key="X-v0", path="f.yml")
+    with pytest.raises(ValueError, match=r"normalize.*train-expert"):
+        hp.check_supported(what="train-expert")
+    hp = split_hyperparams({"frame_stack": 4, "env_wrapper": ["a.B"]}, key="k")
+    with pytest.raises(ValueError, match=r"env_wrapper.*frame_stack"):
+        hp.check_supported()
+    split_hyperparams({"normalize": False}, key="k").check_supported()  # false is the same as absent
+    hp = split_hyperparams({"normalize": "dict(norm_obs=True, norm_reward=False)"}, key="k")
+    assert hp.normalize == {"norm_obs": True, "norm_reward": False}
+    hp.check_supported(unsupported=("frame_stack",))  # callers that implement normalize may allow it
+
+
+def test_policy_must_be_a_name():
+    with pytest.raises(ValueError, match="policy"):
+        split_hyperparams({"policy": "os.system"}, key="k")
+
+
+def test_repo_sac_yml_has_zoo_values():
+    path = default_hyperparams_path("sac")
+    assert path.name == "sac.yml" and path.parent.name == "hyperparams"
+    for env_id in ("HalfCheetah-v5", "Hopper-v5"):
+        hp = load_hyperparams(path, env_id)
+        assert hp.key == env_id
+        assert hp.n_timesteps == 1_000_000 and hp.policy == "MlpPolicy"
+        assert hp.algo_kwargs == {"learning_starts": 10000} and hp.policy_kwargs == {}
+    hp = load_hyperparams(path, "Pendulum-v1")
+    assert hp.n_timesteps == 20000 and hp.algo_kwargs == {"learning_rate": 1e-3}
+    assert load_hyperparams(path, "Unknown-v0").key == "default"
+
+
+def test_missing_default_file_is_explained():
+    with pytest.raises(FileNotFoundError, match="--hyperparams"):
+        default_hyperparams_path("no-such-algo")
