@@ -184,6 +184,8 @@ class BCEnsemble(nn.Module):
     # -- numpy inference (scoring) -----------------------------------------------------------
     def _numpy_params(self) -> Dict[str, Any]:
         if self._np_cache is None:
+            if not bool(self.fitted):
+                raise RuntimeError("BCEnsemble is not fitted: call fit(demonstrations) first")
             self._np_cache = {
                 # [E, in, out] so that h @ W needs no transpose per call.
                 "W": [w.detach().cpu().numpy().transpose(0, 2, 1).copy() for w in self.weights],
@@ -204,15 +206,13 @@ class BCEnsemble(nn.Module):
             raise ValueError(f"observations of shape {obs.shape[1:]} do not match the ensemble's {self.obs_shape}")
         if not np.isfinite(obs).all():
             raise ValueError("observations contain NaN or inf")
-        if not bool(self.fitted):
-            raise RuntimeError("BCEnsemble is not fitted: call fit(demonstrations) first")
         return obs.reshape(len(obs), self.obs_dim)
 
     def member_outputs(self, obs: np.ndarray) -> np.ndarray:
         """Each member's output on a batch: (E, B, act_dim) clipped actions for Box, (E, B, n)
         probabilities for Discrete. The returned array is a reused buffer: copy it to keep it."""
-        x = self._check_obs(obs)
         p = self._numpy_params()
+        x = self._check_obs(obs)
         bufs = p["bufs"].get(len(x))
         if bufs is None:
             sizes = [*self.hidden_sizes, self.out_dim]
@@ -235,7 +235,8 @@ class BCEnsemble(nn.Module):
             np.exp(h, out=h)
             np.divide(h, h.sum(axis=2, keepdims=True), out=h)
         else:
-            np.clip(h, p["low"], p["high"], out=h)
+            np.minimum(h, p["high"], out=h)
+            np.maximum(h, p["low"], out=h)
         return h
 
     def predict(self, obs: np.ndarray) -> np.ndarray:
@@ -267,18 +268,24 @@ class BCEnsemble(nn.Module):
             return u * u if self.disagreement_form == "quadratic" else u
         # Deviations from member 0 (a shifted variance): exactly 0 when the members agree, where
         # deviations from the float32 mean would leave rounding noise.
-        dev = (out[1:] - out[0]).astype(np.float64)
+        dev = out[1:] - out[0]
         if self.disagreement_form == "std":
-            mean_dev = dev.sum(axis=0) / self.n_members
-            var = (dev * dev).sum(axis=0) / self.n_members - mean_dev * mean_dev
-            return np.sqrt(np.maximum(var, 0.0)).mean(axis=1)
+            mean_dev = np.add.reduce(dev, axis=0)
+            mean_dev /= self.n_members
+            var = np.add.reduce(dev * dev, axis=0)
+            var /= self.n_members
+            var -= mean_dev * mean_dev
+            np.maximum(var, 0.0, out=var)
+            np.sqrt(var, out=var)
+            return np.add.reduce(var, axis=1).astype(np.float64) / self.out_dim
         if actions is None:
             raise ValueError("the 'quadratic' disagreement needs the agent's actions")
         a = np.asarray(actions, dtype=np.float32).reshape(batch, -1)
         if a.shape[1] != self.out_dim:
             raise ValueError(f"actions have {a.shape[1]} dimensions, the action space {self.out_dim}")
         p = self._numpy_params()
-        a = np.clip(a, p["low"], p["high"]).astype(np.float64)
+        a = np.clip(a, p["low"], p["high"])
+        dev = dev.astype(np.float64)
         proj = np.einsum("eba,ba->eb", dev, a)  # (d_e . a) for members 1..E-1; member 0 contributes 0
         mean_proj = proj.sum(axis=0) / self.n_members
         return np.maximum((proj * proj).sum(axis=0) / self.n_members - mean_proj * mean_proj, 0.0)

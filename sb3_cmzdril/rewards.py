@@ -75,7 +75,8 @@ class CMZReward(RewardRule):
             if self.ubar is not None:
                 raise ValueError(f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.size} disagreements")
             self.ubar = np.full(u.shape, self.u0, dtype=np.float64)
-        reward = -self.alpha * (u - self.ubar)
+        reward = u - self.ubar
+        reward *= -self.alpha
         self.ubar *= self.ema
         self.ubar += (1.0 - self.ema) * u
         return reward.astype(np.float32)
@@ -158,7 +159,8 @@ class DisagreementReward(VecEnvWrapper):
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
         self._last_obs: Optional[np.ndarray] = None
         self._actions: Optional[np.ndarray] = None
-        self._stats = np.zeros(3)  # sum u, sum shaped reward, count
+        self._sum_u = self._sum_reward = 0.0
+        self._count = 0
 
     def reset(self) -> VecEnvObs:
         obs = self.venv.reset()
@@ -180,13 +182,16 @@ class DisagreementReward(VecEnvWrapper):
             info["disagreement"] = u_i
         # After an auto-reset, obs holds the new episode's first observation: the next one acted on.
         self._last_obs = obs
-        self._stats += (u.sum(), rewards.sum(), u.size)
+        self._sum_u += float(np.add.reduce(u))
+        self._sum_reward += float(np.add.reduce(rewards))
+        self._count += u.size
         return obs, rewards, dones, infos
 
     def pop_stats(self) -> Dict[str, float]:
         """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""
-        total_u, total_r, count = self._stats
-        self._stats = np.zeros(3)
+        count, self._count = self._count, 0
+        total_u, total_r = self._sum_u, self._sum_reward
+        self._sum_u = self._sum_reward = 0.0
         if count == 0:
             return {}
         return {"disagreement_mean": total_u / count, "shaped_reward_mean": total_r / count}

@@ -165,3 +165,11 @@ class MultiDiscreteEnv(gym.Env):
 
     def step(self, action):
         return np.zeros(2, np.float32), 0.0, True, False, {}
+
+
+def test_tensorboard_logging(pendulum_demos, tmp_path):
+    pytest.importorskip("tensorboard", reason="tensorboard is in the test extra")
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, tensorboard_log=str(tmp_path), **TINY)
+    model.learn(128, tb_log_name="run")
+    events = list(tmp_path.glob("run_1/events.out.tfevents.*"))
+    assert events and events[0].stat().st_size > 0
