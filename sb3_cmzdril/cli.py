@@ -101,6 +101,235 @@ def _run_collect_demos(args) -> int:
 _COMMANDS: list = [_add_train_expert, _add_collect_demos]
 
 
+# -- train / evaluate / benchmark / report (issue 5) ---------------------------------------------
+_METHODS_HELP = "bc (pretrained policy only), zero, env, dril or cmz"
+
+
+def _add_run_options(p, what: str) -> None:
+    """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
+    from sb3_cmzdril.experiments.runs import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
+
+    p.add_argument("--n-demos", type=int, default=None,
+                   help="training episodes per trial (default: n_demos of the YAML entry: 1 for MuJoCo, 5 for WaypointNav)")
+    p.add_argument("--eval-episodes", type=int, default=DEFAULT_EVAL_EPISODES,
+                   help=f"held-out expert episodes per evaluation (default {DEFAULT_EVAL_EPISODES})")
+    p.add_argument("--timesteps", type=int, default=None, help="total PPO steps per run (default: n_timesteps of the YAML)")
+    p.add_argument("--eval-every", type=int, default=1, help="evaluate every k PPO updates (default 1: every epoch)")
+    p.add_argument("--checkpoint-every", type=int, default=DEFAULT_CHECKPOINT_EVERY,
+                   help=f"checkpoint model.zip every k PPO updates (default {DEFAULT_CHECKPOINT_EVERY})")
+    p.add_argument("--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/cmzdril.yml)")
+    p.add_argument("--no-progress", action="store_true", help=f"no {what}")
+
+
+def _add_train(sub) -> None:
+    p = sub.add_parser(
+        "train",
+        help="one run: an env, a method, a trial seed; writes eval.csv, config.json, model.zip, done.json; resumable",
+        description=(
+            "Train one imitator. The demo pool's episodes are split with --seed S (numpy default_rng(S) "
+            "permutation: first --n-demos train, the next --eval-episodes are held out for evaluation); "
+            "S also seeds the networks and the env. Writes OUTPUT/config.json (how to reproduce it), "
+            "OUTPUT/eval.csv (return, Fréchet distance and action MSE against the held-out expert "
+            "episodes, per epoch from epoch 0 = the BC-pretrained policy), OUTPUT/model.zip (checkpoint "
+            "every --checkpoint-every updates) and OUTPUT/done.json at the end. Running the same command "
+            "again skips a finished run and continues an interrupted one from its checkpoint."
+        ),
+    )
+    p.add_argument("--env", required=True, help="environment id (anything gym.make accepts)")
+    p.add_argument("--reward", required=True, metavar="METHOD", help=_METHODS_HELP)
+    p.add_argument("--demos", default=None, help="demo pool npz (default: experts/<EnvName>/demos.npz)")
+    p.add_argument("--seed", type=int, default=0, help="trial seed: data split, networks and env (default 0)")
+    _add_run_options(p, "progress bar")
+    p.add_argument("-o", "--output", default=None, help="run folder (default: runs/<EnvName>/<method>/trial<seed>)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
+    p.set_defaults(func=_run_train)
+
+
+def _run_train(args) -> int:
+    import torch
+
+    from sb3_cmzdril.experiments.runs import plan_run, run_experiment
+    from sb3_cmzdril.experts import command_line
+
+    torch.set_num_threads(max(1, args.threads))
+    spec = plan_run(
+        args.env, args.reward, args.seed, demos=args.demos, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
+        timesteps=args.timesteps, output_dir=args.output, hyperparams=args.hyperparams, eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every, command=command_line(),
+    )
+    result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
+    if result["status"] == "skipped":
+        print(f"{spec.output_dir} is already finished (done.json); nothing to do")
+    window = result.get("final_window")
+    if window:
+        print(
+            f"{result['status']}: {spec.label} -> {spec.output_dir}; epochs {window['first_epoch']}-{window['last_epoch']}: "
+            f"return {window['return']:.2f}, Fréchet {window['frechet']:.4g}, action MSE {window['action_mse']:.4g}"
+        )
+    else:
+        print(f"{result['status']} at {result.get('num_timesteps')} steps: {spec.output_dir} (run again to continue)")
+    return 0 if result["status"] in ("done", "skipped") else 1
+
+
+def _add_evaluate(sub) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="replay expert episodes' starts with a model: return, Fréchet distance and action MSE per episode",
+        description=(
+            "Evaluate a model zip (a CMZDRIL run's model.zip, or any SB3 model such as an expert) against "
+            "expert episodes: each episode's reset seed is replayed with the model's deterministic actions "
+            "and compared with the expert's path (discrete Fréchet distance) and actions (MSE). "
+            "The demo pool, env_kwargs and VecNormalize statistics are taken from the model's run folder "
+            "(config.json, vecnormalize.pkl) when it has them."
+        ),
+    )
+    p.add_argument("--model", required=True, help="model zip")
+    p.add_argument("--env", required=True, help="environment id")
+    p.add_argument("--demos", default=None,
+                   help="demonstrations npz (default: the demo pool in config.json beside the model, else experts/<EnvName>/demos.npz)")
+    p.add_argument("--episodes", default=None,
+                   help="comma-separated episode indices of the demos file (default: all; a run's held-out ones are eval_episodes in its config.json)")
+    p.add_argument("--env-kwargs", default=None,
+                   help='e.g. "dict(max_steps=200)" (default: env_kwargs of config.json beside the model, if any)')
+    p.add_argument("--vecnormalize", default=None, help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any)")
+    p.set_defaults(func=_run_evaluate)
+
+
+def _run_evaluate(args) -> int:
+    import json
+    from pathlib import Path
+
+    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.experiments.runs import CONFIG_FILE, VECNORMALIZE_FILE, default_demos_path, load_evaluation_model
+    from sb3_cmzdril.hyperparams import safe_eval
+    from sb3_cmzdril.metrics import evaluate_against_expert
+
+    model_path = Path(args.model)
+    folder = model_path.parent
+    # A run folder's config.json knows how the model was trained and evaluated.
+    run_config = json.loads((folder / CONFIG_FILE).read_text()) if (folder / CONFIG_FILE).is_file() else {}
+    if args.env_kwargs is not None:
+        env_kwargs = safe_eval(args.env_kwargs)
+        if not isinstance(env_kwargs, dict):
+            raise ValueError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
+    else:
+        env_kwargs = run_config.get("env_kwargs") or {}
+    demos_path = Path(args.demos or run_config.get("demos") or default_demos_path(args.env))
+    demos = Demonstrations.load(demos_path)
+    indices = list(range(demos.n_episodes))
+    if args.episodes:
+        try:
+            indices = [int(i) for i in args.episodes.split(",") if i.strip()]
+        except ValueError:
+            raise ValueError(f"--episodes must be comma-separated integers, got {args.episodes!r}") from None
+    selected = demos.select(indices)
+    vecnormalize = Path(args.vecnormalize) if args.vecnormalize else folder / VECNORMALIZE_FILE
+    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize if vecnormalize.is_file() else None)
+    result = evaluate_against_expert(model, args.env, selected, obs_transform=transform, env_kwargs=env_kwargs or None)
+
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{model_path} on {args.env}: {selected.n_episodes} episodes of {demos_path}")
+    for column in ("episode", "seed", "return", "expert return", "Fréchet", "action MSE", "length"):
+        table.add_column(column, justify="right")
+    for row, index in enumerate(indices):
+        table.add_row(
+            str(index), str(int(result.seeds[row])), f"{result.returns[row]:.2f}", f"{result.expert_returns[row]:.2f}",
+            f"{result.frechet[row]:.4g}", f"{result.episode_action_mse[row]:.4g}", str(int(result.lengths[row])),
+        )
+    table.add_section()
+    table.add_row(
+        "mean", "", f"{result.mean_return:.2f} ± {result.std_return:.2f}", f"{float(result.expert_returns.mean()):.2f}",
+        f"{result.mean_frechet:.4g}", f"{result.action_mse:.4g}", f"{result.mean_length:.1f}",
+    )
+    Console().print(table)
+    return 0
+
+
+def _add_benchmark(sub) -> None:
+    p = sub.add_parser(
+        "benchmark",
+        help="the paper's trial grid (envs x methods x trials) on local processes or Ray; resumable",
+        description=(
+            "Run every method on every env for --trials trials. Trial t splits the env's demo pool "
+            "(DEMOS_DIR/<EnvName>/demos.npz) with numpy default_rng(t) into --n-demos training and "
+            "--eval-episodes evaluation episodes and uses t as network/env seed: all methods of a trial "
+            "share data and seeds. Runs go to OUTPUT/<EnvName>/<method>/trial<t>/ (see `train`), --workers "
+            "at a time, one torch thread each. Running the command again skips finished runs and continues "
+            "interrupted ones from their checkpoints; a failed run leaves error.txt and the others go on."
+        ),
+    )
+    p.add_argument("--env", required=True, help="environment id(s), comma-separated")
+    from sb3_cmzdril.experiments.runs import METHODS
+
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)")
+    p.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5, as the paper)")
+    p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
+    _add_run_options(p, "progress display")
+    p.add_argument("--demos-dir", default="experts", help="folder holding <EnvName>/demos.npz (default: experts)")
+    p.add_argument("--backend", default="local", help="local (process pool, default) or ray")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address for ray.init (default: start a local Ray)")
+    p.add_argument("-o", "--output", default="runs", help="runs folder (default: runs)")
+    p.set_defaults(func=_run_benchmark)
+
+
+def _run_benchmark(args) -> int:
+    from sb3_cmzdril.experiments.grid import benchmark, summarize_outcomes
+    from sb3_cmzdril.experts import command_line
+
+    try:
+        outcomes = benchmark(
+            args.env, args.methods, args.trials, args.output, workers=args.workers, backend=args.backend,
+            ray_address=args.ray_address, progress=not args.no_progress, command=command_line(),
+            timesteps=args.timesteps, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
+            eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, demos_dir=args.demos_dir,
+            hyperparams=args.hyperparams,
+        )
+    except ImportError as e:  # the optional Ray backend without ray installed
+        print(f"sb3-cmzdril benchmark: error: {e}", file=sys.stderr)
+        return 2
+    print(summarize_outcomes(outcomes))
+    return 1 if any(o["status"] == "failed" for o in outcomes) else 0
+
+
+def _add_report(sub) -> None:
+    p = sub.add_parser(
+        "report",
+        help="Table I (markdown + CSV) and the paper's Fig. 1/2 (PNG) from a runs folder",
+        description=(
+            "Read RUNS_DIR/<EnvName>/<method>/trial<t>/eval.csv and write OUTPUT/results.md (Table I: mean "
+            "(std) over trials of each run's metrics averaged over its last --window epochs; the gap closed "
+            "by CMZ-DRIL between no reward and env reward; the runs behind each number; the commands), "
+            "OUTPUT/table1.csv and the figures fig1_bc_dril_cmz.png and fig2_cmz_env_zero.png."
+        ),
+    )
+    p.add_argument("runs_dir", metavar="RUNS_DIR", help="the benchmark's output folder")
+    p.add_argument("-o", "--output", default="docs", help="output folder (default: docs)")
+    from sb3_cmzdril.experiments.runs import TABLE_WINDOW
+
+    p.add_argument("--window", type=int, default=TABLE_WINDOW,
+                   help=f"epochs averaged at the end of each run (default {TABLE_WINDOW}, as the paper)")
+    p.add_argument("--no-paper", action="store_true", help="leave out the paper's Table I reference numbers")
+    p.set_defaults(func=_run_report)
+
+
+def _run_report(args) -> int:
+    from sb3_cmzdril.experiments.report import PAPER_TABLE_I, write_report
+    from sb3_cmzdril.experts import command_line
+
+    path = write_report(
+        args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
+        command=command_line(),
+    )
+    print(path)
+    return 0
+
+
+_COMMANDS += [_add_train, _add_evaluate, _add_benchmark, _add_report]
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -1,0 +1,429 @@
+"""The paper's trial grid (envs x methods x trials), run by a local process pool or by Ray.
+
+Trial ``t`` draws its training and evaluation episodes from the env's demo pool with
+``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.runs.split_episodes`) and uses ``t``
+as network and env seed, so every method of a trial sees the same data and starts from the same
+BC-pretrained policy (the paper: "The same training and evaluation data were used for BC, DRIL, and
+CMZ-DRIL"). Runs go to ``RUNS_DIR/<EnvName>/<method>/trial<t>/`` (layout: :mod:`.runs`).
+
+Both backends execute :func:`execute_run` one run per worker (one CPU and one torch thread each):
+
+* ``local``: a ``ProcessPoolExecutor`` with the ``spawn`` context (no forked torch/OpenMP state);
+* ``ray``: the same function as a ``ray.remote(num_cpus=1)`` task, on ``ray.init(address=...)`` or
+  a local instance (an already initialised Ray is used as it is). Ray is optional:
+  ``pip install 'sb3-cmzdril[ray]'``. Paths are absolute, so a cluster needs a shared filesystem.
+
+At most ``workers`` runs are in flight at a time (so "running" in the progress display is exact).
+Finished runs (done.json) are skipped without starting a worker, interrupted ones continue from their
+checkpoint, and a failed run leaves its traceback in ``<run>/error.txt`` without stopping the others.
+"""
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import contextlib
+import json
+import multiprocessing
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
+
+from sb3_cmzdril._atomic import PathLike, atomic_write_text
+from sb3_cmzdril.experiments.runs import (
+    DEFAULT_CHECKPOINT_EVERY,
+    DEFAULT_EVAL_EPISODES,
+    DONE_FILE,
+    ERROR_FILE,
+    LOG_FILE,
+    METHODS,
+    RunSpec,
+    check_env_id,
+    check_method,
+    default_demos_path,
+    default_output_dir,
+    latest_epoch,
+    plan_run,
+    run_experiment,
+)
+
+BACKENDS = ("local", "ray")
+#: One line per benchmark invocation in RUNS_DIR (command, grid, outcome): the runs' history.
+BENCHMARK_LOG = "benchmark.jsonl"
+
+
+def parse_list(text: Union[str, Sequence[str]]) -> List[str]:
+    """``"a,b, c"`` (or a list) -> ``["a", "b", "c"]``, duplicates removed, order kept."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    return list(dict.fromkeys(i.strip() for i in items if i.strip()))
+
+
+def plan_grid(
+    env_ids: Union[str, Sequence[str]],
+    methods: Union[str, Sequence[str]] = METHODS,
+    trials: Union[int, Sequence[int]] = 5,
+    runs_dir: PathLike = "runs",
+    *,
+    timesteps: Optional[int] = None,
+    n_demos: Optional[int] = None,
+    n_eval_episodes: int = DEFAULT_EVAL_EPISODES,
+    eval_every: int = 1,
+    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
+    demos_dir: PathLike = "experts",
+    hyperparams: Optional[PathLike] = None,
+    command: Optional[str] = None,
+) -> List[RunSpec]:
+    """Every run of the grid, validated before anything starts (unknown env or method, missing or
+    too small demo pool, bad counts raise here).
+
+    :param trials: a number T (trials 0..T-1) or the trial indices themselves.
+    :param n_demos: training episodes per trial (default: the YAML's per-env ``n_demos``: 1 for the
+        MuJoCo envs, 5 for WaypointNav, as in the paper).
+    :param demos_dir: demo pools are ``<demos_dir>/<EnvName>/demos.npz``.
+    Order: trial, then env, then method, so that whole trials finish first.
+    """
+    envs = parse_list(env_ids)
+    names = parse_list(methods)
+    if not envs:
+        raise ValueError("no environment given")
+    if not names:
+        raise ValueError("no method given")
+    for method in names:
+        check_method(method)
+    for env_id in envs:
+        check_env_id(env_id)
+    indices = list(range(int(trials))) if isinstance(trials, int) else [int(t) for t in trials]
+    if not indices:
+        raise ValueError(f"need at least one trial, got {trials!r}")
+    return [
+        plan_run(
+            env_id, method, trial,
+            demos=default_demos_path(env_id, demos_dir), n_demos=n_demos, n_eval_episodes=n_eval_episodes,
+            timesteps=timesteps, output_dir=default_output_dir(env_id, method, trial, runs_dir),
+            hyperparams=hyperparams, eval_every=eval_every, checkpoint_every=checkpoint_every, command=command,
+        )
+        for trial in indices
+        for env_id in envs
+        for method in names
+    ]
+
+
+# -- the worker side -------------------------------------------------------------------------------
+def _init_worker() -> None:
+    """One torch thread per run: two single-threaded runs beat one two-threaded run (DESIGN.md)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def _write_error(spec: RunSpec, text: str) -> None:
+    out = Path(spec.output_dir)
+    header = f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} {spec.label} failed\n{spec}\n\n"
+    atomic_write_text(out / ERROR_FILE, header + text)
+
+
+def _outcome(spec: RunSpec, status: str, seconds: float, error: Optional[str] = None) -> Dict[str, Any]:
+    return {"label": spec.label, "run_dir": spec.output_dir, "status": status, "seconds": round(seconds, 1), "error": error}
+
+
+def execute_run(spec: RunSpec) -> Dict[str, Any]:
+    """Worker entry point of both backends: one run, its output in ``<run>/log.txt``, never raising
+    for a failed run (the traceback goes to ``<run>/error.txt``; the outcome says ``failed``)."""
+    _init_worker()
+    t0 = time.time()
+    out = Path(spec.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        with open(out / LOG_FILE, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+            print(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} {spec.label}", flush=True)
+            result = run_experiment(spec)
+            print(f"=== {result['status']} after {time.time() - t0:.0f} s", flush=True)
+    except Exception as e:  # any failure is this run's alone: record it and let the grid go on
+        _write_error(spec, traceback.format_exc())
+        return _outcome(spec, "failed", time.time() - t0, f"{type(e).__name__}: {e}")
+    return _outcome(spec, result["status"], time.time() - t0)
+
+
+# -- backends --------------------------------------------------------------------------------------
+class _LocalBackend:
+    """A spawn-context process pool, rebuilt if a worker dies (BrokenProcessPool)."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        self.context = multiprocessing.get_context("spawn")
+        self.pool = self._new_pool()
+
+    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, mp_context=self.context, initializer=_init_worker)
+
+    def submit(self, spec: RunSpec) -> concurrent.futures.Future:
+        try:
+            return self.pool.submit(execute_run, spec)
+        except concurrent.futures.process.BrokenProcessPool:
+            self.pool.shutdown(wait=False, cancel_futures=True)
+            self.pool = self._new_pool()
+            return self.pool.submit(execute_run, spec)
+
+    def wait(self, handles: List[Any], timeout: float) -> List[Any]:
+        done, _ = concurrent.futures.wait(handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
+        return list(done)
+
+    def result(self, handle: concurrent.futures.Future) -> Dict[str, Any]:
+        return handle.result()
+
+    def close(self, interrupted: bool = False) -> None:
+        self.pool.shutdown(wait=not interrupted, cancel_futures=interrupted)
+
+
+class _RayBackend:
+    """``execute_run`` as Ray tasks with one CPU each; starts (and stops) a local Ray if none is up."""
+
+    def __init__(self, workers: int, address: Optional[str]) -> None:
+        try:
+            import ray
+        except ImportError as e:
+            raise ImportError(
+                "the Ray backend needs the optional 'ray' package: pip install 'sb3-cmzdril[ray]' (or use --backend local)"
+            ) from e
+        self.ray = ray
+        self.owned = not ray.is_initialized()
+        if self.owned:
+            if address:
+                ray.init(address=address)
+            else:
+                ray.init(num_cpus=workers, include_dashboard=False)
+        # max_retries=0: a run that crashed its worker is reported, not silently restarted.
+        self.task = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+
+    def submit(self, spec: RunSpec) -> Any:
+        return self.task.remote(spec)
+
+    def wait(self, handles: List[Any], timeout: float) -> List[Any]:
+        ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
+        return ready
+
+    def result(self, handle: Any) -> Dict[str, Any]:
+        return self.ray.get(handle)
+
+    def close(self, interrupted: bool = False) -> None:
+        if self.owned:
+            self.ray.shutdown()
+
+
+def _backend(name: str, workers: int, ray_address: Optional[str]):
+    if name == "local":
+        if ray_address:
+            raise ValueError("--ray-address needs --backend ray")
+        return _LocalBackend(workers)
+    if name == "ray":
+        return _RayBackend(workers, ray_address)
+    raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+
+
+# -- progress display --------------------------------------------------------------------------------
+class GridProgress:
+    """Runs done / total and which are running (with their latest evaluated epoch).
+
+    A rich progress bar on a terminal; otherwise (nohup, CI, a notebook log) one line per event and
+    a heartbeat line every ``heartbeat_s`` seconds.
+    """
+
+    def __init__(self, total: int, enabled: bool = True, heartbeat_s: float = 300.0) -> None:
+        self.total = total
+        self.enabled = enabled
+        self.heartbeat_s = heartbeat_s
+        self.counts: collections.Counter = collections.Counter()
+        self.running: Dict[str, RunSpec] = {}
+        self._progress = None
+        self._task = None
+        self._last_line = time.time()
+        if enabled and sys.stderr.isatty():
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+            from rich.text import Text
+
+            display = self
+
+            class _Progress(Progress):
+                """The bar, then one line per running run (a long list would squeeze the bar to nothing)."""
+
+                def get_renderables(self):
+                    yield self.make_tasks_table(self.tasks)
+                    for line in display._running_lines():
+                        yield Text(f"  running: {line}", overflow="ellipsis", no_wrap=True)
+
+            self._progress = _Progress(
+                TextColumn("runs"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                TextColumn("{task.description}"), transient=False,
+            )
+            self._progress.start()
+            self._task = self._progress.add_task("", total=total)
+
+    @property
+    def finished_count(self) -> int:
+        return sum(self.counts.values())
+
+    def _running_lines(self) -> List[str]:
+        lines = []
+        for label, spec in self.running.items():
+            epoch = latest_epoch(spec.output_dir)
+            lines.append(label if epoch is None else f"{label} (epoch {epoch})")
+        return lines
+
+    def _counts_text(self) -> str:
+        return ", ".join(f"{n} {k}" for k, n in sorted(self.counts.items()))
+
+    def _status_text(self) -> str:
+        counts = self._counts_text()
+        return f"{self.finished_count}/{self.total} finished{', ' + counts if counts else ''}; running: {', '.join(self._running_lines()) or '-'}"
+
+    def _line(self, event: str) -> None:
+        self._last_line = time.time()
+        if self._progress is not None:
+            self._progress.console.print(f"[{time.strftime('%H:%M:%S')}] {event}")
+            self.refresh()
+        elif self.enabled:
+            print(f"[{time.strftime('%H:%M:%S')}] {event} | {self._status_text()}", flush=True)
+
+    def started(self, spec: RunSpec) -> None:
+        self.running[spec.label] = spec
+        self._line(f"started {spec.label}")
+
+    def skipped(self, specs: Sequence[RunSpec]) -> None:
+        """Runs finished before this invocation: one line for all of them."""
+        if specs:
+            self.counts["skipped"] += len(specs)
+            self._line(f"{len(specs)} runs already finished (done.json), skipped")
+
+    def finished(self, spec: RunSpec, result: Dict[str, Any]) -> None:
+        self.running.pop(spec.label, None)
+        self.counts[result["status"]] += 1
+        detail = f": {result['error']} (see {Path(spec.output_dir) / ERROR_FILE})" if result.get("error") else ""
+        took = f" in {result['seconds']:.0f} s" if result.get("seconds") else ""
+        self._line(f"{result['status']} {spec.label}{took}{detail}")
+
+    def refresh(self) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task, completed=self.finished_count, description=self._counts_text())
+        elif self.enabled and time.time() - self._last_line >= self.heartbeat_s:
+            self._line("still working")
+
+    def close(self) -> None:
+        if self._progress is not None:
+            self.refresh()
+            self._progress.stop()
+            self._progress = None
+
+
+# -- the grid ---------------------------------------------------------------------------------------
+def run_grid(
+    specs: Sequence[RunSpec],
+    workers: int = 1,
+    backend: str = "local",
+    ray_address: Optional[str] = None,
+    progress: bool = True,
+) -> List[Dict[str, Any]]:
+    """Execute the runs, ``workers`` at a time; returns one outcome per spec, in spec order.
+
+    Outcome: ``{"label", "run_dir", "status", "seconds", "error"}`` with status ``skipped`` (done
+    before), ``done``, ``stopped`` or ``failed``.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+    if isinstance(workers, bool) or int(workers) < 1:
+        raise ValueError(f"workers must be >= 1, got {workers!r}")
+    workers = int(workers)
+    labels = [s.output_dir for s in specs]
+    if len(set(labels)) != len(labels):
+        raise ValueError("two runs of the grid share an output folder")
+    display = GridProgress(len(specs), enabled=progress)
+    outcomes: Dict[str, Dict[str, Any]] = {}
+    todo: collections.deque = collections.deque()
+    skipped = []
+    for spec in specs:
+        if (Path(spec.output_dir) / DONE_FILE).is_file():
+            outcomes[spec.output_dir] = _outcome(spec, "skipped", 0.0)
+            skipped.append(spec)
+        else:
+            todo.append(spec)
+    display.skipped(skipped)
+    runner = _backend(backend, workers, ray_address) if todo else None
+    interrupted = True
+    try:
+        running: Dict[Any, RunSpec] = {}
+        while todo or running:
+            while todo and len(running) < workers:
+                spec = todo.popleft()
+                running[runner.submit(spec)] = spec
+                display.started(spec)
+            for handle in runner.wait(list(running), timeout=1.0):
+                spec = running.pop(handle)
+                try:
+                    outcome = runner.result(handle)
+                except Exception as e:  # the worker itself died (killed, out of memory, Ray task error)
+                    _write_error(spec, "".join(traceback.format_exception(type(e), e, e.__traceback__)))
+                    outcome = _outcome(spec, "failed", 0.0, f"{type(e).__name__}: {e}")
+                outcomes[spec.output_dir] = outcome
+                display.finished(spec, outcome)
+            display.refresh()
+        interrupted = False
+    finally:
+        if runner is not None:
+            runner.close(interrupted=interrupted)
+        display.close()
+    return [outcomes[s.output_dir] for s in specs]
+
+
+def benchmark(
+    env_ids: Union[str, Sequence[str]],
+    methods: Union[str, Sequence[str]] = METHODS,
+    trials: Union[int, Sequence[int]] = 5,
+    runs_dir: PathLike = "runs",
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    ray_address: Optional[str] = None,
+    progress: bool = True,
+    command: Optional[str] = None,
+    **plan_kwargs: Any,
+) -> List[Dict[str, Any]]:
+    """:func:`plan_grid` + :func:`run_grid`, and a line in ``RUNS_DIR/benchmark.jsonl`` recording
+    the command, the grid and the outcome of this invocation. ``plan_kwargs`` go to :func:`plan_grid`."""
+    if backend not in BACKENDS:  # before planning: a typo should not wait for the pool checks
+        raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+    specs = plan_grid(env_ids, methods, trials, runs_dir, command=command, **plan_kwargs)
+    started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    t0 = time.time()
+    outcomes = run_grid(specs, workers=workers, backend=backend, ray_address=ray_address, progress=progress)
+    counts = collections.Counter(o["status"] for o in outcomes)
+    record = {
+        "started_at": started,
+        "wall_time_s": round(time.time() - t0, 1),
+        "command": command,
+        "envs": parse_list(env_ids),
+        "methods": parse_list(methods),
+        "trials": sorted({s.seed for s in specs}),
+        "workers": workers,
+        "backend": backend,
+        "outcome": dict(counts),
+        "failed": [o["label"] for o in outcomes if o["status"] == "failed"],
+    }
+    log = Path(runs_dir) / BENCHMARK_LOG
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a", encoding="utf-8") as f:
+        f.write(json.dumps(record) + "\n")
+    return outcomes
+
+
+def summarize_outcomes(outcomes: Iterable[Dict[str, Any]]) -> str:
+    """One line: how many runs ended how, and which failed (with their error files)."""
+    outcomes = list(outcomes)
+    counts = collections.Counter(o["status"] for o in outcomes)
+    text = f"{len(outcomes)} runs: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+    failed = [o for o in outcomes if o["status"] == "failed"]
+    if failed:
+        text += "\nfailed:\n" + "\n".join(f"  {o['label']}: {o['error']} ({Path(o['run_dir']) / ERROR_FILE})" for o in failed)
+    return text
+
+
+__all__ = ["BACKENDS", "plan_grid", "run_grid", "benchmark", "execute_run", "parse_list", "summarize_outcomes", "GridProgress"]

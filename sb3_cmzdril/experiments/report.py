@@ -1,0 +1,496 @@
+"""Table I and Figures 1-2 of the paper, computed from the runs' eval.csv files.
+
+* :func:`load_runs` finds every ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/eval.csv`` (env, method and
+  trial come from the run's config.json when there is one, else from the path).
+* :func:`table_one` — per env and method: mean (std over trials) of each run's evaluation return,
+  Fréchet distance and action MSE averaged over its last 100 epochs (all of them if fewer; BC has
+  one evaluation, at epoch 0). The std is the population std (numpy's ddof=0) over trials.
+* :func:`gap_closed` — (cmz - zero) / (env - zero) per env and metric: how much of the gap between
+  "no reward" and the true env reward CMZ-DRIL closes (the paper: about 50% for the reward).
+* :func:`plot_figure` — one row per env, one column per metric (reward, Fréchet distance, action
+  MSE) against the epoch; each trial's curve smoothed with a Gaussian filter (sigma 2 evaluations,
+  ``scipy.ndimage.gaussian_filter1d``, as the paper), then the mean over trials with a ±1 std band.
+  BC, evaluated once, is a horizontal line (mean over trials, ±1 std band).
+* :func:`write_report` — results.md, table1.csv, fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png.
+
+Reference numbers from elsewhere (the paper's Table I: :data:`PAPER_TABLE_I`) enter only through
+``references`` and are printed as separate, labelled tables: never mixed with measured numbers.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import re
+import time
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from sb3_cmzdril._atomic import PathLike, atomic_path, atomic_write_text
+from sb3_cmzdril.experiments.runs import (
+    CONFIG_FILE,
+    ERROR_FILE,
+    EVAL_CSV,
+    METHODS,
+    STATE_FILE,
+    TABLE_WINDOW,
+    read_eval_csv,
+    run_status,
+    window_means,
+)
+
+#: How methods are named in tables and legends (the paper's names).
+METHOD_LABELS: Dict[str, str] = {
+    "bc": "BC",
+    "dril": "DRIL",
+    "cmz": "CMZ-DRIL",
+    "zero": "No reward",
+    "env": "Env. reward",
+}
+#: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods.
+METHOD_ORDER: Tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env")
+#: Column order of envs: the paper's (PyUXV, Half Cheetah, Hopper); others follow alphabetically.
+ENV_ORDER: Tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
+#: Table metrics: (key in window_means, column header, eval.csv column).
+METRICS: Tuple[Tuple[str, str, str], ...] = (
+    ("return", "Return", "return_mean"),
+    ("frechet", "Fréchet distance", "frechet_mean"),
+    ("action_mse", "Action MSE", "action_mse"),
+)
+#: The paper's figures: which methods each compares.
+FIGURES: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (
+    ("fig1_bc_dril_cmz.png", "Fig. 1: CMZ-DRIL, BC and DRIL", ("bc", "dril", "cmz")),
+    ("fig2_cmz_env_zero.png", "Fig. 2: CMZ-DRIL, env. reward and no reward", ("cmz", "env", "zero")),
+)
+SMOOTHING_SIGMA = 2.0
+_COLORS = {"bc": "tab:gray", "dril": "tab:orange", "cmz": "tab:blue", "zero": "tab:red", "env": "tab:green"}
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceTable:
+    """Numbers reported elsewhere, keyed ``env -> method -> (mean, std)``, shown in their own table."""
+
+    title: str
+    note: str
+    values: Mapping[str, Mapping[str, Tuple[float, float]]]
+
+
+#: The paper's Table I: mean (std) reward over the last 100 training epochs, 5 trials, one demo
+#: episode for the MuJoCo envs (v1, mujoco-py) and five for PyUXV. Our envs stand in for theirs.
+PAPER_TABLE_I = ReferenceTable(
+    title="The paper's Table I (reported numbers, copied from the paper, not produced by this code)",
+    note=(
+        "Mean (std) reward over the last 100 training epochs. The paper's envs: PyUXV (our stand-in: "
+        "WaypointNav-v0), MuJoCo Half Cheetah and Hopper version 1 (we run -v5); DRIL was not tested on PyUXV."
+    ),
+    values={
+        "WaypointNav-v0": {"bc": (-52.6, 45.0), "cmz": (-34.8, 29.4)},
+        "HalfCheetah-v5": {"bc": (708.0, 162.0), "dril": (277.0, 60.9), "cmz": (1690.0, 360.0)},
+        "Hopper-v5": {"bc": (704.0, 248.0), "dril": (244.0, 23.0), "cmz": (1140.0, 514.0)},
+    },
+)
+
+
+# -- loading ------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class RunRecord:
+    """One run's evaluation history and where it came from."""
+
+    env: str  #: env name without module prefix
+    method: str
+    trial: int
+    path: Path  #: the run folder
+    columns: Dict[str, np.ndarray]  #: eval.csv as columns, sorted by epoch
+    status: str  #: done / partial / failed / new (see runs.run_status)
+    config: Dict[str, Any]
+
+    def relative(self, root: Path) -> str:
+        return _relative(self.path, root)
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.relative_to(root))
+    except ValueError:
+        return str(path)
+
+
+_TRIAL = re.compile(r"^trial(\d+)$")
+
+
+def _read_json_or_empty(path: Path) -> Dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def load_runs(runs_dir: PathLike) -> List[RunRecord]:
+    """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial."""
+    root = Path(runs_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"runs folder not found: {root}")
+    records = []
+    for csv_path in sorted(root.rglob(EVAL_CSV)):
+        folder = csv_path.parent
+        config = _read_json_or_empty(folder / CONFIG_FILE)
+        match = _TRIAL.match(folder.name)
+        env = config.get("env_name") or folder.parent.parent.name
+        method = config.get("method") or folder.parent.name
+        trial = config.get("seed", int(match.group(1)) if match else None)
+        if method not in METHODS or trial is None:
+            continue  # not a run of the grid's layout
+        columns = read_eval_csv(csv_path)
+        if columns["epoch"].size == 0:
+            continue
+        records.append(RunRecord(env, method, int(trial), folder, columns, run_status(folder), config))
+    return sorted(records, key=lambda r: (_env_key(r.env), METHOD_ORDER.index(r.method), r.trial))
+
+
+def _env_key(env: str) -> Tuple[int, str]:
+    return (ENV_ORDER.index(env), env) if env in ENV_ORDER else (len(ENV_ORDER), env)
+
+
+def _group(records: Iterable[RunRecord]) -> Dict[Tuple[str, str], List[RunRecord]]:
+    groups: Dict[Tuple[str, str], List[RunRecord]] = {}
+    for r in records:
+        groups.setdefault((r.env, r.method), []).append(r)
+    return groups
+
+
+# -- Table I ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class TableRow:
+    """One (env, method) cell group of Table I."""
+
+    env: str
+    method: str
+    runs: List[RunRecord]
+    per_run: Dict[str, List[float]]  #: metric -> each run's window mean, in run order
+    window: int
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.runs)
+
+    def mean(self, metric: str) -> float:
+        return float(np.mean(self.per_run[metric]))
+
+    def std(self, metric: str) -> float:
+        return float(np.std(self.per_run[metric]))  # population std over trials (ddof=0)
+
+
+def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> List[TableRow]:
+    """Table I rows, one per (env, method) present, in the report's order."""
+    rows = []
+    for (env, method), runs in _group(records).items():
+        means = [window_means(r.columns, window) for r in runs]
+        per_run = {key: [m[key] for m in means] for key, _, _ in METRICS}
+        rows.append(TableRow(env, method, runs, per_run, window))
+    return rows
+
+
+def gap_closed(rows: Sequence[TableRow]) -> Dict[str, Dict[str, Optional[float]]]:
+    """env -> metric -> (cmz - zero) / (env - zero), None where a method is missing or env == zero."""
+    by = {(r.env, r.method): r for r in rows}
+    result: Dict[str, Dict[str, Optional[float]]] = {}
+    for env in dict.fromkeys(r.env for r in rows):
+        cmz, zero, true = by.get((env, "cmz")), by.get((env, "zero")), by.get((env, "env"))
+        result[env] = {}
+        for key, _, _ in METRICS:
+            if cmz is None or zero is None or true is None or true.mean(key) == zero.mean(key):
+                result[env][key] = None
+            else:
+                result[env][key] = (cmz.mean(key) - zero.mean(key)) / (true.mean(key) - zero.mean(key))
+    return result
+
+
+def fmt(value: Optional[float]) -> str:
+    """About three significant digits, as the paper prints (1690, 60.9, -52.6, 0.0123)."""
+    if value is None or not math.isfinite(value):
+        return "n/a"
+    magnitude = abs(value)
+    if magnitude >= 100:
+        return f"{value:.0f}"
+    if magnitude >= 10:
+        return f"{value:.1f}"
+    if magnitude >= 1:
+        return f"{value:.2f}"
+    return f"{value:.3g}"
+
+
+def fmt_mean_std(mean: float, std: float) -> str:
+    return f"{fmt(mean)} ({fmt(std)})"
+
+
+def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
+    """Table I as CSV, full precision, with each number's run folders (relative to ``runs_dir``)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header = ["env", "method", "n_trials", "window_epochs"]
+    for key, _, _ in METRICS:
+        header += [f"{key}_mean", f"{key}_std"]
+    writer.writerow(header + ["run_dirs"])
+    for r in rows:
+        values: List[Any] = [r.env, r.method, r.n_trials, r.window]
+        for key, _, _ in METRICS:
+            values += [repr(r.mean(key)), repr(r.std(key))]
+        writer.writerow(values + [";".join(run.relative(runs_dir) for run in r.runs)])
+    return out.getvalue()
+
+
+# -- figures ------------------------------------------------------------------------------------------------
+def _smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(epochs, mean, std) over trials of each trial's smoothed curve; epochs not reached by every
+    trial use the trials that reached them (an unfinished trial shortens nothing)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    epochs = np.unique(np.concatenate([r.columns["epoch"] for r in runs]))
+    grid = np.full((len(runs), len(epochs)), np.nan)
+    for i, r in enumerate(runs):
+        values = r.columns[column]
+        smooth = gaussian_filter1d(values, sigma, mode="nearest") if sigma > 0 and len(values) > 1 else values
+        grid[i, np.searchsorted(epochs, r.columns["epoch"])] = smooth
+    return epochs, np.nanmean(grid, axis=0), np.nanstd(grid, axis=0)  # every column has a trial
+
+
+def plot_figure(
+    records: Sequence[RunRecord],
+    methods: Sequence[str],
+    path: PathLike,
+    title: str = "",
+    sigma: float = SMOOTHING_SIGMA,
+) -> Optional[Path]:
+    """The paper's Fig. 1/2 layout for ``methods``; None (nothing written) when none of them ran."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    groups = _group(r for r in records if r.method in methods)
+    if not groups:
+        return None
+    envs = sorted({env for env, _ in groups}, key=_env_key)
+    fig = Figure(figsize=(13, 3.2 * len(envs) + 0.8), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(envs), len(METRICS), squeeze=False)
+    for row, env in enumerate(envs):
+        for col, (_, label, column) in enumerate(METRICS):
+            ax = axes[row, col]
+            xmax = max((r.columns["epoch"][-1] for (e, m), runs in groups.items() if e == env and m != "bc" for r in runs), default=1)
+            for method in methods:
+                runs = groups.get((env, method))
+                if not runs:
+                    continue
+                name = f"{METHOD_LABELS[method]} (n={len(runs)})"
+                color = _COLORS[method]
+                if method == "bc":
+                    # BC is evaluated once (epoch 0): a horizontal line over the training epochs.
+                    values = np.array([r.columns[column][0] for r in runs])
+                    mean, std = float(values.mean()), float(values.std())
+                    ax.axhline(mean, color=color, linestyle="--", label=name)
+                    ax.axhspan(mean - std, mean + std, color=color, alpha=0.12, linewidth=0)
+                    continue
+                epochs, mean, std = _smoothed_band(runs, column, sigma)
+                ax.plot(epochs, mean, color=color, label=name)
+                ax.fill_between(epochs, mean - std, mean + std, color=color, alpha=0.2, linewidth=0)
+            ax.set_xlim(0, max(1, xmax))
+            ax.set_xlabel("epoch (PPO update)")
+            ax.set_title(f"{env}: {label}", fontsize=10)
+            ax.grid(alpha=0.3)
+            if col == 0:
+                ax.legend(fontsize=8, loc="best")
+    fig.suptitle(
+        (title + "\n" if title else "")
+        + f"mean over trials, band ±1 std; curves Gaussian-smoothed (sigma {sigma:g} evaluations)",
+        fontsize=11,
+    )
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    return path
+
+
+# -- results.md ---------------------------------------------------------------------------------------------
+def _md_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _paper_layout(values: Mapping[Tuple[str, str], str], envs: Sequence[str], methods: Sequence[str]) -> str:
+    """Methods as rows and envs as columns, the way the paper prints Table I."""
+    return _md_table(["Method", *envs], ([METHOD_LABELS[m], *(values.get((e, m), "—") for e in envs)] for m in methods))
+
+
+def reference_markdown(reference: ReferenceTable) -> str:
+    """A reference table in the paper's layout, with its title and note."""
+    envs = sorted(reference.values, key=_env_key)
+    methods = [m for m in METHOD_ORDER if any(m in reference.values[e] for e in envs)]
+    cells = {(e, m): fmt_mean_std(*v) for e in envs for m, v in reference.values[e].items()}
+    return f"### {reference.title}\n\n{reference.note}\n\n{_paper_layout(cells, envs, methods)}\n"
+
+
+def _eval_episodes(records: Sequence[RunRecord]) -> str:
+    counts = sorted({int(r.columns["n_episodes"][-1]) for r in records})
+    return " or ".join(map(str, counts))
+
+
+def _commands(records: Sequence[RunRecord], root: Path) -> Tuple[List[str], List[str]]:
+    """(commands that created the runs, other commands that resumed them), each listed once."""
+    created = list(dict.fromkeys(str(r.config["command"]) for r in records if r.config.get("command")))
+    resumed: List[str] = []
+    for r in records:
+        for segment in _read_json_or_empty(r.path / STATE_FILE).get("segments", [])[1:]:
+            command = segment.get("command")
+            if command and command not in created and command not in resumed:
+                resumed.append(str(command))
+    log = root / "benchmark.jsonl"
+    if log.is_file():
+        for line in log.read_text(encoding="utf-8").splitlines():
+            try:
+                command = json.loads(line).get("command")
+            except ValueError:
+                continue
+            if command and command not in created and command not in resumed:
+                resumed.append(str(command))
+    return created, resumed
+
+
+def render_markdown(
+    rows: Sequence[TableRow],
+    records: Sequence[RunRecord],
+    runs_dir: Path,
+    figures: Sequence[Tuple[str, Path]],
+    references: Sequence[ReferenceTable],
+    report_command: Optional[str],
+    window: int,
+) -> str:
+    envs = sorted({r.env for r in rows}, key=_env_key)
+    methods = [m for m in METHOD_ORDER if any(r.method == m for r in rows)]
+    unfinished = [r for r in records if r.status != "done"]
+    listed = {r.path for r in records}
+    # Runs that failed before their first evaluation have no numbers, but must not vanish silently.
+    failed_empty = sorted(p.parent for p in runs_dir.rglob(ERROR_FILE) if p.parent not in listed and run_status(p.parent) == "failed")
+    parts = [
+        "# Results",
+        "",
+        f"Computed by `sb3_cmzdril.experiments.report` from the `eval.csv` files under `{runs_dir}` "
+        f"({len(records)} runs) on {time.strftime('%Y-%m-%d %H:%M %Z')}. Every number below is computed "
+        "from those files; none is typed in.",
+    ]
+    if unfinished:
+        parts += ["", f"**{len(unfinished)} run(s) are not finished** (their numbers use the epochs they reached): "
+                  + ", ".join(f"`{r.relative(runs_dir)}` ({r.status})" for r in unfinished)]
+    if failed_empty:
+        parts += ["", f"**{len(failed_empty)} run(s) failed without any evaluation** (see their error.txt): "
+                  + ", ".join(f"`{_relative(p, runs_dir)}`" for p in failed_empty)]
+    parts += [
+        "",
+        "## Table I",
+        "",
+        f"Mean (std over trials) of each run's evaluation metric averaged over its last {window} epochs "
+        "(all epochs if it has fewer; BC: its single evaluation of the pretrained policy, at epoch 0). "
+        f"An evaluation replays the starts of the trial's held-out expert episodes ({_eval_episodes(records)} "
+        "per trial) with the deterministic policy: return is the true env return, Fréchet the discrete "
+        "Fréchet distance to the expert's path, action MSE the squared error of the policy's actions "
+        "on the expert's observations. std is the population std (ddof=0).",
+        "",
+        _md_table(
+            ["Env", "Method", "Trials", *(label for _, label, _ in METRICS)],
+            ([r.env, METHOD_LABELS[r.method], str(r.n_trials), *(fmt_mean_std(r.mean(k), r.std(k)) for k, _, _ in METRICS)] for r in rows),
+        ),
+        "",
+        "Return only, in the paper's layout:",
+        "",
+        _paper_layout({(r.env, r.method): fmt_mean_std(r.mean("return"), r.std("return")) for r in rows}, envs, methods),
+        "",
+        "## Gap closed by CMZ-DRIL",
+        "",
+        "(CMZ-DRIL - no reward) / (env. reward - no reward) of the Table I means: 0 = no better than PPO+BC "
+        "without reward, 1 = as good as training on the true reward (the paper: about 50% for the reward). "
+        "For Fréchet distance and action MSE, where lower is better, the same ratio measures how far "
+        "CMZ-DRIL moves from no reward toward env. reward.",
+        "",
+    ]
+    gaps = gap_closed(rows)
+    parts += [
+        _md_table(["Env", *(label for _, label, _ in METRICS)],
+                  ([env, *(("n/a" if g[k] is None else f"{100 * g[k]:.0f}%") for k, _, _ in METRICS)] for env, g in gaps.items())),
+        "",
+    ]
+    if figures:
+        parts += ["## Figures", ""]
+        for title, path in figures:
+            parts += [f"**{title}.** One row per env, one column per metric against the epoch; each trial's "
+                      f"curve is smoothed with a Gaussian filter (sigma {SMOOTHING_SIGMA:g} evaluations), then "
+                      "the line is the mean over trials and the band ±1 std. BC (evaluated once) is the dashed "
+                      "horizontal line with its ±1 std band.", "", f"![{title}]({path.name})", ""]
+    if references:
+        parts += ["## Reference numbers", ""]
+        parts += [reference_markdown(ref) for ref in references]
+    parts += ["## Where each number comes from", ""]
+    for r in rows:
+        parts.append(f"- {r.env} / {METHOD_LABELS[r.method]}: " + ", ".join(
+            f"`{run.relative(runs_dir)}` ({run.status}, epochs {int(run.columns['epoch'][0])}-{int(run.columns['epoch'][-1])})"
+            for run in r.runs))
+    created, resumed = _commands(records, runs_dir)
+    parts += ["", "## Commands", "", "Runs created by:", ""]
+    parts += [f"    {c}" for c in created] or ["    (not recorded)"]
+    if resumed:
+        parts += ["", "Also run (resumes, other invocations):", ""] + [f"    {c}" for c in resumed]
+    parts += ["", "This report:", "", f"    {report_command or 'sb3-cmzdril report ' + str(runs_dir)}", ""]
+    return "\n".join(parts)
+
+
+def write_report(
+    runs_dir: PathLike,
+    output_dir: PathLike = "docs",
+    *,
+    window: int = TABLE_WINDOW,
+    references: Sequence[ReferenceTable] = (PAPER_TABLE_I,),
+    command: Optional[str] = None,
+    sigma: float = SMOOTHING_SIGMA,
+) -> Path:
+    """Write results.md, table1.csv and the figures into ``output_dir``; returns results.md's path.
+
+    :param references: extra tables of numbers from elsewhere (default: the paper's Table I), each
+        shown separately and labelled; pass ``()`` for none.
+    :param command: the report command line to record (the CLI passes its own).
+    """
+    root = Path(runs_dir)
+    records = load_runs(root)
+    if not records:
+        raise ValueError(f"no runs with evaluations under {root} (expected <EnvName>/<method>/trial<t>/{EVAL_CSV})")
+    if int(window) < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    out = Path(output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = table_one(records, int(window))
+    atomic_write_text(out / "table1.csv", table_csv(rows, root))
+    figures = []
+    for filename, title, methods in FIGURES:
+        path = plot_figure(records, methods, out / filename, title, sigma)
+        if path is not None:
+            figures.append((title, path))
+    text = render_markdown(rows, records, root, figures, references, command, int(window))
+    atomic_write_text(out / "results.md", text)
+    return out / "results.md"
+
+
+__all__ = [
+    "METHOD_LABELS",
+    "PAPER_TABLE_I",
+    "ReferenceTable",
+    "RunRecord",
+    "TableRow",
+    "load_runs",
+    "table_one",
+    "gap_closed",
+    "table_csv",
+    "plot_figure",
+    "write_report",
+    "fmt",
+]

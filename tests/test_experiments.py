@@ -1,0 +1,365 @@
+"""The experiment grid, one run, resuming, the report and the CLI commands train/evaluate/benchmark/report.
+
+Everything runs on Pendulum-v1 cut to 50-step episodes with tiny networks (16x16), 64-step rollouts
+and 1-2 evaluation episodes, so a run takes about a second plus process start-up.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+
+from conftest import pendulum_expert, record
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.experiments import grid, report, runs
+from sb3_cmzdril.experiments.grid import plan_grid, run_grid
+from sb3_cmzdril.experiments.runs import plan_run, run_experiment, split_episodes
+
+ENV = "Pendulum-v1"
+POOL_EPISODES = 6
+TINY_YAML = """
+default:
+  n_timesteps: 256
+  policy: 'MlpPolicy'
+  n_steps: 64
+  batch_size: 32
+  n_epochs: 2
+  ensemble_hidden: [16, 16]
+  ensemble_epochs: 5
+  bc_pretrain_epochs: 5
+  env_kwargs: "dict(max_episode_steps=50)"
+  policy_kwargs: "dict(net_arch=[16, 16])"
+  n_demos: 1
+"""
+GRID = dict(timesteps=256, n_eval_episodes=2, eval_every=1, checkpoint_every=2)
+
+
+class Interrupt(BaseCallback):
+    """Dies like a killed process would, once training has passed ``at`` steps."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def _on_rollout_start(self) -> None:
+        if self.model.num_timesteps >= self.at:
+            raise KeyboardInterrupt("simulated interruption")
+
+    def _on_step(self) -> bool:
+        return True
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """A demo pool in the <demos_dir>/<EnvName>/demos.npz layout and the tiny hyperparameters."""
+    root = tmp_path_factory.mktemp("exp")
+    pool = root / "experts" / ENV / "demos.npz"
+    pool.parent.mkdir(parents=True)
+    record(ENV, pendulum_expert, n_episodes=POOL_EPISODES, max_steps=50, seed=100).save(pool)
+    hp = root / "cmzdril.yml"
+    hp.write_text(TINY_YAML)
+    return {"root": root, "demos_dir": root / "experts", "pool": pool, "hp": hp}
+
+
+def _rows(path: Path) -> list:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _config(run_dir) -> dict:
+    return json.loads((Path(run_dir) / "config.json").read_text())
+
+
+# -- the data split ---------------------------------------------------------------------------------
+def test_split_is_disjoint_seeded_and_checked():
+    for trial in range(5):
+        train, held_out = split_episodes(10, 3, 5, trial)
+        order = np.random.default_rng(trial).permutation(10)
+        assert train == order[:3].tolist() and held_out == order[3:8].tolist()
+        assert not set(train) & set(held_out)
+        assert split_episodes(10, 3, 5, trial) == (train, held_out)
+    with pytest.raises(ValueError, match="6 episodes but 5 training \\+ 2 evaluation"):
+        split_episodes(6, 5, 2, 0)
+
+
+def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):
+    path = tmp_path / "eval.csv"
+    header = "epoch,timesteps,return_mean,return_std,frechet_mean,frechet_std,action_mse,length_mean,n_episodes"
+    rows = [f"{e},{64 * e},-1.5,0,2,0,0.25,50,1" for e in range(4)]
+    path.write_text("\n".join([header, *rows, "4,25"]))  # a process killed while writing epoch 4's row
+    assert runs._discard_rows_after(path, 128) == 2
+    assert path.read_text().splitlines() == [header, *rows[:3]]
+    assert (tmp_path / "eval.discarded.csv").read_text().splitlines() == [header, rows[3], "4,25"]
+    columns = runs.read_eval_csv(path)
+    assert columns["epoch"].tolist() == [0, 1, 2] and columns["action_mse"].tolist() == [0.25] * 3
+
+
+# -- the grid: local processes, interruption, resume, failure ------------------------------------------
+@pytest.fixture(scope="module")
+def grid_runs(setup):
+    """2 methods x 2 trials on the local process pool, one run interrupted first, one run failing."""
+    runs_dir = setup["root"] / "runs"
+    specs = plan_grid(ENV, "bc,cmz", 2, runs_dir, demos_dir=setup["demos_dir"], hyperparams=setup["hp"],
+                      command="pytest grid", **GRID)
+    interrupted = next(s for s in specs if s.method == "cmz" and s.seed == 1)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(interrupted, callbacks=[Interrupt(at=192)])
+    before = (Path(interrupted.output_dir) / "eval.csv").read_text()
+
+    bad_hp = setup["root"] / "bad.yml"
+    bad_hp.write_text(TINY_YAML.replace("n_demos: 1", "n_demos: 1\n  ensemble_size: 1"))  # fails in the worker
+    failing = dataclasses.replace(specs[0], method="zero", hyperparams=str(bad_hp),
+                                  output_dir=str(runs_dir / "broken" / "zero" / "trial0"))
+    outcomes = run_grid([*specs, failing], workers=2, backend="local", progress=True)
+    return {"runs_dir": runs_dir, "specs": specs, "outcomes": outcomes, "interrupted": interrupted,
+            "before": before, "failing": failing}
+
+
+def test_grid_runs_every_spec_and_reports_the_failure(grid_runs):
+    statuses = [o["status"] for o in grid_runs["outcomes"]]
+    assert statuses == ["done"] * 4 + ["failed"]
+    error = Path(grid_runs["failing"].output_dir) / "error.txt"
+    assert "Traceback" in error.read_text() and "at least 2 members" in error.read_text()
+    assert "at least 2 members" in grid_runs["outcomes"][-1]["error"]
+    for spec in grid_runs["specs"]:
+        out = Path(spec.output_dir)
+        assert out == grid_runs["runs_dir"] / ENV / spec.method / f"trial{spec.seed}"
+        assert {"config.json", "eval.csv", "done.json", "model.zip", "state.json", "log.txt"} <= {p.name for p in out.iterdir()}
+        epochs = [int(r["epoch"]) for r in _rows(out / "eval.csv")]
+        assert epochs == ([0] if spec.method == "bc" else [0, 1, 2, 3, 4])
+
+
+def test_every_method_of_a_trial_uses_the_same_data(grid_runs):
+    by_trial = {}
+    for spec in grid_runs["specs"]:
+        config = _config(spec.output_dir)
+        assert config["seed"] == config["network_seed"] == config["env_seed"] == spec.seed
+        assert not set(config["train_episodes"]) & set(config["eval_episodes"])
+        assert len(config["train_episodes"]) == 1 and len(config["eval_episodes"]) == 2
+        assert (config["train_episodes"], config["eval_episodes"]) == split_episodes(POOL_EPISODES, 1, 2, spec.seed)
+        first_row = _rows(Path(spec.output_dir) / "eval.csv")[0]
+        by_trial.setdefault(spec.seed, []).append((config["train_episodes"], config["eval_episodes"], config["demos_sha256"], first_row))
+    for entries in by_trial.values():
+        assert len(entries) == 2
+        (train_a, eval_a, sha_a, row_a), (train_b, eval_b, sha_b, row_b) = entries
+        assert (train_a, eval_a, sha_a) == (train_b, eval_b, sha_b)
+        # Same data and seeds: BC and CMZ-DRIL start from the same pretrained policy (epoch 0).
+        assert row_a == row_b
+
+
+def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
+    out = Path(grid_runs["interrupted"].output_dir)
+    state = json.loads((out / "state.json").read_text())
+    assert [s["from_timesteps"] for s in state["segments"]] == [0, 128]
+    assert state["segments"][1]["discarded_eval_rows"] == 1 and state["num_timesteps"] == 256
+    # Rows up to the checkpoint are kept as they were; the row evaluated after it moved aside.
+    before = grid_runs["before"].splitlines()
+    after = (out / "eval.csv").read_text().splitlines()
+    assert after[:4] == before[:4]  # header + epochs 0, 1, 2 (checkpoint at epoch 2 = 128 steps)
+    assert (out / "eval.discarded.csv").read_text().splitlines()[1:] == before[4:]
+    assert [int(r["epoch"]) for r in _rows(out / "eval.csv")] == [0, 1, 2, 3, 4]
+    assert sorted(p.name for p in (out / "logs").iterdir()) == ["progress_0.csv", "progress_128.csv"]
+    done = json.loads((out / "done.json").read_text())
+    assert done["num_timesteps"] == 256 and done["segments"] == 2
+
+
+def test_finished_runs_are_skipped(grid_runs):
+    done = {s.output_dir: (Path(s.output_dir) / "done.json").stat().st_mtime_ns for s in grid_runs["specs"]}
+    csvs = {s.output_dir: (Path(s.output_dir) / "eval.csv").read_bytes() for s in grid_runs["specs"]}
+    outcomes = run_grid(grid_runs["specs"], workers=2, progress=False)
+    assert [o["status"] for o in outcomes] == ["skipped"] * 4
+    for spec in grid_runs["specs"]:
+        assert (Path(spec.output_dir) / "done.json").stat().st_mtime_ns == done[spec.output_dir]
+        assert (Path(spec.output_dir) / "eval.csv").read_bytes() == csvs[spec.output_dir]
+
+
+# -- report ----------------------------------------------------------------------------------------
+def _by_hand(run_dir: Path, window: int) -> dict:
+    rows = _rows(run_dir / "eval.csv")
+    last = int(rows[-1]["epoch"])
+    kept = [r for r in rows if int(r["epoch"]) > last - window]
+    return {k: sum(float(r[c]) for r in kept) / len(kept)
+            for k, c in (("return", "return_mean"), ("frechet", "frechet_mean"), ("action_mse", "action_mse"))}
+
+
+@pytest.mark.parametrize("window", [100, 2])
+def test_report_numbers_equal_hand_computed_means(grid_runs, tmp_path, window):
+    runs_dir = grid_runs["runs_dir"]
+    rc = main(["report", str(runs_dir), "-o", str(tmp_path), "--window", str(window)])
+    assert rc == 0
+    text = (tmp_path / "results.md").read_text()
+    table = {(r["env"], r["method"]): r for r in _rows(tmp_path / "table1.csv")}
+    assert set(table) == {(ENV, "bc"), (ENV, "cmz")}  # the failed run has no evaluations
+    for method in ("bc", "cmz"):
+        per_trial = [_by_hand(runs_dir / ENV / method / f"trial{t}", window) for t in (0, 1)]
+        row = table[(ENV, method)]
+        assert row["run_dirs"] == f"{ENV}/{method}/trial0;{ENV}/{method}/trial1"
+        cells = []
+        for key in ("return", "frechet", "action_mse"):
+            values = [p[key] for p in per_trial]
+            mean = sum(values) / 2
+            std = math.sqrt(sum((v - mean) ** 2 for v in values) / 2)
+            assert float(row[f"{key}_mean"]) == pytest.approx(mean, rel=1e-12)
+            assert float(row[f"{key}_std"]) == pytest.approx(std, rel=1e-9, abs=1e-12)
+            cells.append(report.fmt_mean_std(mean, std))
+        assert f"| {ENV} | {report.METHOD_LABELS[method]} | 2 | " + " | ".join(cells) + " |" in text
+    for png in ("fig1_bc_dril_cmz.png", "fig2_cmz_env_zero.png"):
+        assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"]({png})" in text
+    assert "pytest grid" in text  # the command that produced the runs, from config.json
+    assert "This report:" in text
+    assert "failed without any evaluation" in text and "`broken/zero/trial0`" in text
+    assert "paper's Table I" in text and "1690 (360)" in text  # the labelled reference table
+
+
+def _fake_run(root: Path, method: str, trial: int, returns, frechet, mse) -> None:
+    """A run folder with a hand-written eval.csv (the report must not care who wrote it)."""
+    out = root / "HalfCheetah-v5" / method / f"trial{trial}"
+    out.mkdir(parents=True)
+    lines = ["epoch,timesteps,return_mean,return_std,frechet_mean,frechet_std,action_mse,length_mean,n_episodes"]
+    lines += [f"{e},{e * 2048},{r},0,{f},0,{m},1000,5" for e, (r, f, m) in enumerate(zip(returns, frechet, mse))]
+    (out / "eval.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_report_gap_closed_and_window_on_synthetic_runs(tmp_path):
+    runs_dir = tmp_path / "runs"
+    n = 150  # more than the 100-epoch window: the first 50 epochs must not count
+    for trial, shift in ((0, 0.0), (1, 20.0)):
+        _fake_run(runs_dir, "zero", trial, [-1e6] * 50 + [100 + shift] * 100, [5.0] * n, [0.5] * n)
+        _fake_run(runs_dir, "env", trial, [-1e6] * 50 + [300 + shift] * 100, [1.0] * n, [0.3] * n)
+        _fake_run(runs_dir, "cmz", trial, [-1e6] * 50 + [200 + shift] * 100, [4.0] * n, [0.4] * n)
+        _fake_run(runs_dir, "bc", trial, [50 + shift], [6.0], [0.6])
+    path = report.write_report(runs_dir, tmp_path / "docs", references=())
+    text = path.read_text()
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 210 (10.0) | 4.00 (0) | 0.4 (0) |" in text
+    assert "| HalfCheetah-v5 | BC | 2 | 60.0 (10.0) | 6.00 (0) | 0.6 (0) |" in text
+    assert "| HalfCheetah-v5 | 50% | 25% | 50% |" in text  # (210-110)/(310-110), (4-5)/(1-5), (0.4-0.5)/(0.3-0.5)
+    assert "paper's Table I" not in text
+    gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))
+    assert gaps["HalfCheetah-v5"]["return"] == pytest.approx(0.5)
+
+
+# -- Ray backend ------------------------------------------------------------------------------------------
+def test_ray_backend_runs_the_grid(setup, tmp_path):
+    ray = pytest.importorskip("ray")
+    specs = plan_grid(ENV, "bc,cmz", 2, tmp_path / "runs", demos_dir=setup["demos_dir"], hyperparams=setup["hp"],
+                      **{**GRID, "timesteps": 128})
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        outcomes = run_grid(specs, workers=2, backend="ray", progress=False)
+    finally:
+        ray.shutdown()
+    assert [o["status"] for o in outcomes] == ["done"] * 4
+    for spec in specs:
+        assert json.loads((Path(spec.output_dir) / "done.json").read_text())["num_timesteps"] == (0 if spec.method == "bc" else 128)
+
+
+# -- the train / evaluate CLI ---------------------------------------------------------------------------------
+def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
+    out = tmp_path / "cmz"
+    args = ["train", "--env", ENV, "--reward", "cmz", "--demos", str(setup["pool"]), "--n-demos", "2",
+            "--eval-episodes", "1", "--seed", "3", "--timesteps", "128", "--hyperparams", str(setup["hp"]),
+            "-o", str(out), "--no-progress"]
+    assert main(args) == 0
+    config = _config(out)
+    assert config["method"] == "cmz" and config["seed"] == 3 and config["timesteps"] == 128
+    assert (config["train_episodes"], config["eval_episodes"]) == split_episodes(POOL_EPISODES, 2, 1, 3)
+    assert config["hyperparams_values"]["n_steps"] == 64 and config["versions"]["stable_baselines3"]
+    assert "train --env Pendulum-v1 --reward cmz" in config["train_command"]
+    assert [int(r["epoch"]) for r in _rows(out / "eval.csv")] == [0, 1, 2]
+    assert json.loads((out / "done.json").read_text())["status"] == "done"
+    assert main(args) == 0 and "already finished" in capsys.readouterr().out
+
+    episodes = ",".join(map(str, config["eval_episodes"]))
+    assert main(["evaluate", "--model", str(out / "model.zip"), "--env", ENV, "--demos", str(setup["pool"]),
+                 "--episodes", episodes]) == 0
+    printed = capsys.readouterr().out
+    assert "mean" in printed and "Fréchet" in printed
+    # The evaluate command and the run's last evaluation agree (same episodes, same env_kwargs).
+    last = _rows(out / "eval.csv")[-1]
+    assert f"{float(last['return_mean']):.2f}" in printed
+
+
+def test_train_cli_bc_and_normalize(setup, tmp_path):
+    bc = tmp_path / "bc"
+    assert main(["train", "--env", ENV, "--reward", "bc", "--demos", str(setup["pool"]), "--eval-episodes", "1",
+                 "--hyperparams", str(setup["hp"]), "-o", str(bc), "--no-progress"]) == 0
+    assert [int(r["epoch"]) for r in _rows(bc / "eval.csv")] == [0]
+    assert _config(bc)["timesteps"] == 0
+
+    hp = tmp_path / "norm.yml"
+    hp.write_text(TINY_YAML + '  normalize: "dict(norm_obs=True, norm_reward=False)"\n')
+    spec = plan_run(ENV, "env", 0, demos=setup["pool"], n_eval_episodes=1, timesteps=192, hyperparams=hp,
+                    output_dir=tmp_path / "norm", checkpoint_every=1)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(spec, callbacks=[Interrupt(at=128)])
+    assert (tmp_path / "norm" / "vecnormalize.pkl").is_file()
+    longer = dataclasses.replace(spec, timesteps=256)  # a resume may also extend the run
+    assert run_experiment(longer)["num_timesteps"] == 256
+    assert _config(tmp_path / "norm")["timesteps"] == 256 and "--timesteps 256" in _config(tmp_path / "norm")["train_command"]
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+    import gymnasium as gym
+
+    stats = VecNormalize.load(str(tmp_path / "norm" / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(ENV)]))
+    assert stats.obs_rms.count > 250  # statistics carried across the resume (128 fresh steps would not)
+    assert main(["evaluate", "--model", str(tmp_path / "norm" / "model.zip"), "--env", ENV,
+                 "--demos", str(setup["pool"]), "--episodes", "0"]) == 0
+
+
+# -- clear errors -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--methods", "bc,magic"], "unknown method 'magic'"),
+        (["--env", "NoSuchEnv-v0"], "unknown environment 'NoSuchEnv-v0'"),
+        (["--demos-dir", "/nonexistent"], "demo pool not found"),
+        (["--n-demos", "5"], "6 episodes but 5 training \\+ 2 evaluation"),
+        (["--backend", "carrier-pigeon"], "unknown backend"),
+        (["--hyperparams", "TYPO"], "\\['n_step'\\] are not CMZDRIL/PPO arguments"),
+    ],
+)
+def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
+    args = ["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "2",
+            "--demos-dir", str(setup["demos_dir"]), "--hyperparams", str(setup["hp"]), "-o", str(tmp_path / "r")]
+    if extra == ["--hyperparams", "TYPO"]:
+        typo = tmp_path / "typo.yml"
+        typo.write_text(TINY_YAML + "  n_step: 32\n")
+        extra = ["--hyperparams", str(typo)]
+    args += extra  # later options win in argparse
+    assert main(args) == 2
+    import re
+
+    assert re.search(message, capsys.readouterr().err)
+    assert not (tmp_path / "r" / ENV).exists()  # nothing started
+
+
+def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
+    assert main(["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "2",
+                 "--demos-dir", str(setup["demos_dir"]), "--hyperparams", str(setup["hp"]),
+                 "-o", str(tmp_path / "r"), "--backend", "ray"]) == 2
+    assert "pip install 'sb3-cmzdril[ray]'" in capsys.readouterr().err
+
+    base = ["train", "--env", ENV, "--demos", str(setup["pool"]), "--hyperparams", str(setup["hp"]), "--eval-episodes", "1"]
+    assert main([*base, "--reward", "gail", "-o", str(tmp_path / "x")]) == 2
+    assert "unknown method 'gail'" in capsys.readouterr().err
+    assert main(["train", "--env", "sb3_cmzdril:Nope-v0", "--reward", "cmz", "--demos", str(setup["pool"])]) == 2
+    assert "unknown environment" in capsys.readouterr().err
+    # A folder holding another run is not silently mixed with a new one.
+    out = tmp_path / "bc"
+    assert main([*base, "--reward", "bc", "-o", str(out), "--seed", "0"]) == 0
+    (out / "done.json").unlink()
+    assert main([*base, "--reward", "bc", "-o", str(out), "--seed", "1"]) == 2
+    assert "holds a different run" in capsys.readouterr().err
+
+
+def test_grid_module_names():
+    assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz")
+    assert grid.parse_list("cmz, bc,cmz,,") == ["cmz", "bc"]
