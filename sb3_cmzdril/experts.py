@@ -675,9 +675,34 @@ def collect_demos(
         _print_summary(demos, f"{description} on {env_id}: {demos.n_episodes} episodes, {len(demos)} steps")
     if output is not None:
         demos.save(output)
+        _record_demos_provenance(Path(output), description, env_id, demos, seed, env_kwargs)
         if verbose:
-            print(f"saved {output}")
+            print(f"saved {output} (provenance in {Path(output).parent / 'metadata.json'})")
     return demos
+
+
+def _record_demos_provenance(
+    output: Path, description: str, env_id: str, demos: Demonstrations, seed: int, env_kwargs: Optional[Dict[str, Any]]
+) -> None:
+    """Add a ``demos`` section to the ``metadata.json`` beside the demos file (creating the file for
+    a scripted expert), so a shipped pool says which expert, command and seeds made it."""
+    meta_path = output.parent / "metadata.json"
+    meta = _read_json(meta_path) if meta_path.is_file() else {"env_id": env_id, "expert": description, "versions": _versions()}
+    returns = demos.episode_returns
+    meta["demos"] = {
+        "file": output.name,
+        "expert": description,
+        "env_id": env_id,
+        "env_kwargs": _jsonable(env_kwargs or {}),
+        "episodes": demos.n_episodes,
+        "steps": len(demos),
+        "seeds": [int(seed), int(seed) + demos.n_episodes - 1],
+        "mean_return": float(np.mean(returns)),
+        "std_return": float(np.std(returns)),
+        "mean_length": float(np.mean(demos.episode_lengths)),
+        "command": command_line(),
+    }
+    _write_json(meta_path, meta)
 
 
 def command_line(argv: Optional[Sequence[str]] = None) -> str:

@@ -258,3 +258,13 @@ def test_corrupt_checkpoint_is_reported(trained, tmp_path, tiny_yaml):
     ckpt.write_bytes(b"garbage")
     with pytest.raises(ValueError, match=str(ckpt)):
         train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+
+
+def test_collect_demos_records_provenance_beside_the_file(tmp_path):
+    out = tmp_path / "pool" / "demos.npz"
+    demos = collect_demos("waypoint-reactive", "sb3_cmzdril:WaypointNav-v0", n_episodes=2, seed=5, output=out, verbose=False)
+    meta = json.loads((out.parent / "metadata.json").read_text())
+    assert meta["expert"] == "scripted:waypoint-reactive"
+    rec = meta["demos"]
+    assert rec["episodes"] == 2 and rec["seeds"] == [5, 6] and rec["steps"] == len(demos)
+    assert rec["mean_return"] == pytest.approx(float(np.mean(demos.episode_returns)))
