@@ -29,6 +29,7 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
+from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril.bc import BehaviourCloner
@@ -66,6 +67,12 @@ class CMZDRIL(PPO):
     :param bc_epochs_per_update: NLL epochs after each PPO update (paper: 1; 0 disables).
     :param bc_batch_size: minibatch size of the NLL epochs.
     :param bc_learning_rate: Adam step size of the NLL epochs.
+    :param batch_scoring: score each rollout's steps in one ensemble forward after collecting it
+        (and correct the rollout buffer) instead of one forward per env step: the same rewards at a
+        fraction of the cost. Per-step scoring is used anyway under a reward-normalising
+        VecNormalize, which must see the shaped reward at step time. With batch scoring, step
+        ``infos`` carry ``"env_reward"`` but not ``"disagreement"`` and callbacks see reward 0 during
+        the rollout; the logger gets the rollout's mean u and reward.
     """
 
     def __init__(
@@ -88,6 +95,7 @@ class CMZDRIL(PPO):
         bc_epochs_per_update: int = 1,
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
+        batch_scoring: bool = True,
         _init_setup_model: bool = True,
         **ppo_kwargs: Any,
     ) -> None:
@@ -117,6 +125,7 @@ class CMZDRIL(PPO):
         self.bc_epochs_per_update = int(bc_epochs_per_update)
         self.bc_batch_size = int(bc_batch_size)
         self.bc_learning_rate = float(bc_learning_rate)
+        self.batch_scoring = bool(batch_scoring)
         self.pretrain_info: Dict[str, float] = {}
         self._imitation_ready = False
         super().__init__(policy, env, _init_setup_model=False, **ppo_kwargs)
@@ -271,15 +280,17 @@ class CMZDRIL(PPO):
         if self.env is None:
             raise ValueError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
         assert self.reward_rule is not None
+        vec_normalize = self.get_vec_normalize_env()
+        batch = self.batch_scoring and not (vec_normalize is not None and vec_normalize.norm_reward)
         wrapper = self.reward_wrapper()
         if wrapper is not None:
-            wrapper.ensemble, wrapper.rule = self.ensemble, self.reward_rule
+            wrapper.ensemble, wrapper.rule, wrapper.batch = self.ensemble, self.reward_rule, batch
             return
         lowest: Optional[VecEnvWrapper] = None
         base: VecEnv = self.env
         while isinstance(base, VecEnvWrapper):
             lowest, base = base, base.venv
-        wrapper = DisagreementReward(base, self.ensemble, self.reward_rule)
+        wrapper = DisagreementReward(base, self.ensemble, self.reward_rule, batch=batch)
         if lowest is None:
             self.env = wrapper
         else:
@@ -312,6 +323,11 @@ class CMZDRIL(PPO):
     ) -> bool:
         keep_going = super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
         wrapper = self.reward_wrapper()
+        if wrapper is not None and wrapper.batch:
+            if keep_going:
+                self._apply_batch_rewards(wrapper, rollout_buffer)
+            else:
+                wrapper.discard_pending()  # aborted by a callback: the buffer will not be trained on
         if wrapper is not None:
             for key, value in wrapper.pop_stats().items():
                 self.logger.record(f"rollout/{key}", value)
@@ -319,6 +335,15 @@ class CMZDRIL(PPO):
             if state.size:
                 self.logger.record("rollout/ubar_mean", float(state.mean()))
         return keep_going
+
+    def _apply_batch_rewards(self, wrapper: DisagreementReward, rollout_buffer: RolloutBuffer) -> None:
+        _, shaped = wrapper.score_pending()
+        # The buffer holds reward 0 per step plus SB3's bootstrap gamma*V(s_T) at time-limit
+        # truncations; adding the shaped rewards keeps that bootstrap.
+        rollout_buffer.rewards += shaped
+        with th.no_grad():
+            last_values = self.policy.predict_values(obs_as_tensor(self._last_obs, self.device))
+        rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=self._last_episode_starts)
 
     def train(self) -> None:
         super().train()

@@ -37,6 +37,10 @@ from sb3_cmzdril.demos import Demonstrations
 DISAGREEMENT_FORMS = ("std", "quadratic")
 # Demo observation dimensions that never vary would otherwise be divided by ~0 when standardised.
 _MIN_OBS_STD = 1e-2
+# Up to this batch size numpy (no dispatch overhead) is faster; above it torch's batched matmul
+# is (numpy's float32 matmul ran at ~1 GFLOP/s here: 40 ms per layer for 2048 observations,
+# against 2.5 ms for torch.bmm).
+_NUMPY_MAX_BATCH = 32
 
 
 class BCEnsemble(nn.Module):
@@ -210,9 +214,11 @@ class BCEnsemble(nn.Module):
 
     def member_outputs(self, obs: np.ndarray) -> np.ndarray:
         """Each member's output on a batch: (E, B, act_dim) clipped actions for Box, (E, B, n)
-        probabilities for Discrete. The returned array is a reused buffer: copy it to keep it."""
+        probabilities for Discrete. The returned array may be a reused buffer: copy it to keep it."""
         p = self._numpy_params()
         x = self._check_obs(obs)
+        if len(x) > _NUMPY_MAX_BATCH:
+            return self._torch_outputs(x)
         bufs = p["bufs"].get(len(x))
         if bufs is None:
             sizes = [*self.hidden_sizes, self.out_dim]
@@ -238,6 +244,15 @@ class BCEnsemble(nn.Module):
             np.minimum(h, p["high"], out=h)
             np.maximum(h, p["low"], out=h)
         return h
+
+    def _torch_outputs(self, x: np.ndarray) -> np.ndarray:
+        with th.inference_mode():
+            out = self(th.as_tensor(x, device=self.obs_mean.device))
+            if self.discrete:
+                out = th.softmax(out, dim=2)
+            else:
+                out = th.max(th.min(out, self.action_high), self.action_low)
+            return out.cpu().numpy()
 
     def predict(self, obs: np.ndarray) -> np.ndarray:
         """The ensemble's mean action (Box, clipped) or most probable action (Discrete), (B, ...)."""

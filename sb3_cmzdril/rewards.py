@@ -16,7 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional, Protocol
+from typing import Any, Dict, List, Optional, Protocol, Tuple
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -39,6 +39,11 @@ class RewardRule:
 
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         raise NotImplementedError
+
+    def sequence(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        """Rewards of T consecutive steps at once: ``u``, ``env_rewards`` and the result are
+        (T, n_envs); the same as T calls of the rule, state included."""
+        return np.stack([self(u_t, r_t) for u_t, r_t in zip(u, env_rewards)]) if len(u) else np.zeros(u.shape, np.float32)
 
     def get_state(self) -> np.ndarray:
         """Per-env state as an array (empty for stateless rules), for saving with a model."""
@@ -81,6 +86,22 @@ class CMZReward(RewardRule):
         self.ubar += (1.0 - self.ema) * u
         return reward.astype(np.float32)
 
+    def sequence(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        # The EMA is a first-order linear filter, y_t = g*y_{t-1} + (1-g)*u_{t-1} with y_0 = ubar:
+        # scipy runs it over all steps and envs at once and hands back the state after the last step.
+        from scipy.signal import lfilter
+
+        u = np.asarray(u, dtype=np.float64)
+        if len(u) == 0:
+            return np.zeros(u.shape, np.float32)
+        if self.ubar is None:
+            self.ubar = np.full(u.shape[1:], self.u0, dtype=np.float64)
+        elif self.ubar.shape != u.shape[1:]:
+            raise ValueError(f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.shape[1:]} disagreements per step")
+        ubar, final = lfilter([0.0, 1.0 - self.ema], [1.0, -self.ema], u, axis=0, zi=self.ubar[None])
+        self.ubar = final[0]
+        return (-self.alpha * (u - ubar)).astype(np.float32)
+
     def get_state(self) -> np.ndarray:
         return np.zeros(0) if self.ubar is None else self.ubar.copy()
 
@@ -112,6 +133,8 @@ class DRILReward(RewardRule):
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         return np.where(u <= self.threshold, 1.0, -1.0).astype(np.float32)
 
+    sequence = __call__  # stateless and elementwise
+
     def __repr__(self) -> str:
         return f"DRILReward(threshold={self.threshold:.6g})"
 
@@ -124,6 +147,8 @@ class ZeroReward(RewardRule):
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         return np.zeros(u.shape, dtype=np.float32)
 
+    sequence = __call__
+
 
 class EnvReward(RewardRule):
     """The true environment reward (the paper's upper bound)."""
@@ -132,6 +157,8 @@ class EnvReward(RewardRule):
 
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         return np.asarray(env_rewards, dtype=np.float32)
+
+    sequence = __call__
 
 
 class DisagreementReward(VecEnvWrapper):
@@ -146,9 +173,14 @@ class DisagreementReward(VecEnvWrapper):
         :class:`~sb3_cmzdril.ensemble.BCEnsemble`. ``needs_actions`` on it (default True) says
         whether to pass the actions.
     :param rule: the reward rule, e.g. ``CMZReward()``.
+    :param batch: score later, in one batch. Each step then returns reward 0 and records the
+        observation acted on (and the action); :meth:`score_pending` later returns the shaped
+        rewards of all recorded steps at once (one ensemble forward instead of one per step, and
+        the rule over the whole sequence). For an algorithm that can correct its buffer after the
+        rollout (``CMZDRIL`` does); ``infos`` then carry ``"env_reward"`` but not ``"disagreement"``.
     """
 
-    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule) -> None:
+    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule, batch: bool = False) -> None:
         super().__init__(venv)
         if not hasattr(ensemble, "disagreement"):
             raise TypeError(f"ensemble must have a disagreement(obs, actions) method; got {type(ensemble).__name__}")
@@ -157,6 +189,8 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
+        self.batch = bool(batch)
+        self._pending: List[tuple] = []  # batch mode: (acted-on obs, actions, env rewards) per step
         self._last_obs: Optional[np.ndarray] = None
         self._actions: Optional[np.ndarray] = None
         self._sum_u = self._sum_reward = 0.0
@@ -175,6 +209,12 @@ class DisagreementReward(VecEnvWrapper):
         if self._last_obs is None:
             raise RuntimeError("DisagreementReward.step_wait() before reset(): the acted-on observation is unknown")
         obs, env_rewards, dones, infos = self.venv.step_wait()
+        if self.batch:
+            for info, r_env in zip(infos, env_rewards.tolist()):
+                info["env_reward"] = r_env
+            self._pending.append((self._last_obs, self._actions, env_rewards))
+            self._last_obs = obs
+            return obs, np.zeros(len(env_rewards), np.float32), dones, infos
         u = self.ensemble.disagreement(self._last_obs, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist()):
@@ -186,6 +226,28 @@ class DisagreementReward(VecEnvWrapper):
         self._sum_reward += float(np.add.reduce(rewards))
         self._count += u.size
         return obs, rewards, dones, infos
+
+    def score_pending(self) -> Tuple[np.ndarray, np.ndarray]:
+        """Batch mode: ``(u, rewards)`` of every step recorded since the last call, each
+        (T, n_envs), in step order; the rule's state advances over them as if stepped one by one."""
+        pending, self._pending = self._pending, []
+        n_envs = self.num_envs
+        if not pending:
+            return np.zeros((0, n_envs)), np.zeros((0, n_envs), np.float32)
+        obs = np.stack([p[0] for p in pending])
+        flat_obs = obs.reshape((-1,) + obs.shape[2:])
+        actions = np.stack([np.asarray(p[1]) for p in pending]) if self._pass_actions else None
+        flat_actions = None if actions is None else actions.reshape((len(flat_obs),) + actions.shape[2:])
+        u = self.ensemble.disagreement(flat_obs, flat_actions).reshape(len(pending), n_envs)
+        rewards = self.rule.sequence(u, np.stack([p[2] for p in pending]))
+        self._sum_u += float(u.sum())
+        self._sum_reward += float(rewards.sum())
+        self._count += u.size
+        return u, rewards
+
+    def discard_pending(self) -> None:
+        """Batch mode: forget recorded steps that will not be scored (an aborted rollout)."""
+        self._pending = []
 
     def pop_stats(self) -> Dict[str, float]:
         """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""

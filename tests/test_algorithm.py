@@ -62,7 +62,8 @@ def test_wrapper_reports_true_return_to_monitor_and_callbacks(pendulum_demos):
             seen.append((self.locals["infos"][0], float(self.locals["rewards"][0])))
             return True
 
-    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    # per-step scoring: the wrapper fills info["disagreement"] as each step happens
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, batch_scoring=False, **TINY)
     model.learn(256, callback=Grab(), progress_bar=True)
     info, shaped = seen[10]
     assert {"env_reward", "disagreement"} <= set(info)
@@ -173,3 +174,31 @@ def test_tensorboard_logging(pendulum_demos, tmp_path):
     model.learn(128, tb_log_name="run")
     events = list(tmp_path.glob("run_1/events.out.tfevents.*"))
     assert events and events[0].stat().st_size > 0
+
+
+@pytest.mark.parametrize("reward", ["cmz", "dril", "env"])
+def test_batch_scoring_gives_the_same_rollout_as_per_step_scoring(reward, pendulum_demos):
+    # Pendulum truncates at 200 steps: the rollout includes SB3's time-limit bootstrap, which the
+    # batch correction must keep. Two envs, 3 rollouts of 160 steps each.
+    def run(batch: bool) -> CMZDRIL:
+        env = DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 2)
+        model = CMZDRIL("MlpPolicy", env, demonstrations=pendulum_demos, reward=reward, batch_scoring=batch,
+                        **{**TINY, "n_steps": 160, "batch_size": 80})
+        model.learn(3 * 320)
+        return model
+
+    batch, step = run(True), run(False)
+    assert batch.reward_wrapper().batch and not step.reward_wrapper().batch
+    for name in ("rewards", "returns", "advantages", "values"):
+        np.testing.assert_allclose(getattr(batch.rollout_buffer, name), getattr(step.rollout_buffer, name), rtol=1e-5, atol=1e-5, err_msg=name)
+    # u differs in the last float32 bits between the batched (torch) and per-step (numpy) forward
+    np.testing.assert_allclose(batch.reward_rule.get_state(), step.reward_rule.get_state(), rtol=1e-6)
+    obs = pendulum_demos.observations[:20]
+    np.testing.assert_allclose(batch.predict(obs, deterministic=True)[0], step.predict(obs, deterministic=True)[0], rtol=1e-5, atol=1e-6)
+
+
+def test_reward_normalising_vecnormalize_scores_per_step(pendulum_demos):
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=True)
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
+    model.learn(64)
+    assert not model.reward_wrapper().batch
