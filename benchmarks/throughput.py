@@ -1,9 +1,11 @@
 """Training throughput: CMZ-DRIL against plain SB3 PPO with identical settings on HalfCheetah-v5.
 
-    python benchmarks/throughput.py [--steps 20480] [--repeats 3]
+    python benchmarks/throughput.py [--steps 20480] [--repeats 3] [--per-step-scoring]
 
 Both run in this one process, interleaved (PPO, CMZ-DRIL, PPO, ...), each for the same number of
 steps with PPO's default settings and one env; the median of the repeats is reported. CMZ-DRIL uses
+its default batch scoring (one ensemble forward per rollout), or with ``--per-step-scoring`` one
+forward per env step inside the reward wrapper. It uses
 reward "cmz", one 1,000-step demonstration (the shipped expert's first episode when
 experts/HalfCheetah-v5/demos.npz exists, else 1,000 steps of a fixed linear feedback policy: the
 speed does not depend on the demo's quality) and one BC epoch after every PPO update.
@@ -65,13 +67,15 @@ def one_demo(seed: int = 0) -> tuple[Demonstrations, str]:
     return Demonstrations(np.array(observations), np.array(actions), [1000]), "1,000 steps of a fixed linear feedback policy"
 
 
-def run(kind: str, steps: int, demos: Demonstrations, seed: int) -> dict:
+def run(kind: str, steps: int, demos: Demonstrations, seed: int, batch_scoring: bool = True) -> dict:
     timer = LoopTimer()
     start = time.perf_counter()
     if kind == "ppo":
         model = PPO("MlpPolicy", ENV_ID, seed=seed, device="cpu")
     else:
-        model = CMZDRIL("MlpPolicy", ENV_ID, demonstrations=demos, reward="cmz", seed=seed, device="cpu")
+        model = CMZDRIL(
+            "MlpPolicy", ENV_ID, demonstrations=demos, reward="cmz", seed=seed, device="cpu", batch_scoring=batch_scoring
+        )
     model.learn(steps, callback=timer)
     total = time.perf_counter() - start
     return {"loop_sps": timer.steps / timer.seconds, "total_sps": timer.steps / total, "setup_s": total - timer.seconds}
@@ -82,15 +86,17 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20480, help="environment steps per run (default 10 PPO updates)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (DESIGN.md: 1 is fastest here)")
+    parser.add_argument("--per-step-scoring", action="store_true", help="CMZ-DRIL scores every env step (batch_scoring=False)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     demos, source = one_demo()
-    print(f"{ENV_ID}, {args.steps} steps per run, {args.repeats} repeats, torch threads {args.threads}")
+    scoring = "per step" if args.per_step_scoring else "batched per rollout"
+    print(f"{ENV_ID}, {args.steps} steps per run, {args.repeats} repeats, torch threads {args.threads}, CMZ-DRIL scoring {scoring}")
     print(f"demonstration: {source}, {len(demos)} steps")
     results: dict = {"ppo": [], "cmzdril": []}
     for repeat in range(args.repeats):
         for kind in ("ppo", "cmzdril"):
-            r = run(kind, args.steps, demos, seed=repeat)
+            r = run(kind, args.steps, demos, seed=repeat, batch_scoring=not args.per_step_scoring)
             results[kind].append(r)
             print(f"  repeat {repeat}: {kind:8s} loop {r['loop_sps']:7.0f} steps/s, end to end {r['total_sps']:7.0f} steps/s, set-up {r['setup_s']:.1f}s")
     med = {k: statistics.median(r["loop_sps"] for r in v) for k, v in results.items()}
