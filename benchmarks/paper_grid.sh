@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 workers=${WORKERS:-2}
 sb3-cmzdril benchmark --env sb3_cmzdril:WaypointNav-v0 --methods bc,zero,env,dril,cmz --trials 5 \
-    --timesteps 300000 --workers "$workers" --eval-every 1 --no-progress -o docs/runs
+    --timesteps 300000 --workers "$workers" --eval-every 1 -o docs/runs
 sb3-cmzdril benchmark --env HalfCheetah-v5,Hopper-v5 --methods bc,zero,env,dril,cmz --trials 5 \
-    --timesteps 300000 --workers "$workers" --eval-every 5 --no-progress -o docs/runs
+    --timesteps 300000 --workers "$workers" --eval-every 5 -o docs/runs
 sb3-cmzdril report docs/runs -o docs
