@@ -312,6 +312,8 @@ def _add_report(sub) -> None:
     p.add_argument("--window", type=int, default=TABLE_WINDOW,
                    help=f"epochs averaged at the end of each run (default {TABLE_WINDOW}, as the paper)")
     p.add_argument("--no-paper", action="store_true", help="leave out the paper's Table I reference numbers")
+    p.add_argument("--discussion", metavar="MARKDOWN",
+                   help="a hand-written markdown file (what the numbers mean), included as the Discussion section")
     p.set_defaults(func=_run_report)
 
 
@@ -321,7 +323,7 @@ def _run_report(args) -> int:
 
     path = write_report(
         args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
-        command=command_line(),
+        command=command_line(), discussion=args.discussion,
     )
     print(path)
     return 0

@@ -17,6 +17,7 @@ import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
 from conftest import pendulum_expert, record
+from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import grid, report, runs
 from sb3_cmzdril.experiments.grid import plan_grid, run_grid
@@ -244,6 +245,64 @@ def test_report_gap_closed_and_window_on_synthetic_runs(tmp_path):
     assert "paper's Table I" not in text
     gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))
     assert gaps["HalfCheetah-v5"]["return"] == pytest.approx(0.5)
+
+
+def test_report_expert_scale_comes_from_the_held_out_episodes(grid_runs, setup, tmp_path):
+    records = report.load_runs(grid_runs["runs_dir"])
+    pool = Demonstrations.load(setup["pool"])
+    per_trial = []
+    for trial in (0, 1):
+        held_out = _config(grid_runs["runs_dir"] / ENV / "cmz" / f"trial{trial}")["eval_episodes"]
+        per_trial.append(np.mean([pool.episode(i)["rewards"].sum() for i in held_out]))
+    mean, std, n = report.expert_returns(records, grid_runs["runs_dir"])[ENV]
+    assert (mean, std, n) == (pytest.approx(np.mean(per_trial)), pytest.approx(np.std(per_trial)), 2)
+    text = report.write_report(grid_runs["runs_dir"], tmp_path, references=()).read_text()
+    assert "| Expert (held-out demos) | " + report.fmt_mean_std(mean, std) + " |" in text
+
+
+def test_report_expert_scale_skips_a_pool_that_changed(grid_runs, tmp_path):
+    records = report.load_runs(grid_runs["runs_dir"])
+    for r in records:
+        r.config = {**r.config, "demos_sha256": "0" * 64}
+    assert report.expert_returns(records, tmp_path) == {}
+
+
+def _progress_csv(run_dir: Path, start: int, u, ep_len) -> None:
+    logs = run_dir / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    lines = ["time/total_timesteps,rollout/disagreement_mean,rollout/shaped_reward_mean,rollout/ep_len_mean"]
+    lines += [f"{(start + i + 1) * 64},{v},0.0,{n}" for i, (v, n) in enumerate(zip(u, ep_len))]
+    (logs / f"progress_{start * 64}.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_report_reward_signal_joins_segments_and_averages_trials(tmp_path):
+    runs_dir = tmp_path / "runs"
+    for trial, offset in ((0, 0.0), (1, 1.0)):
+        _fake_run(runs_dir, "cmz", trial, [1.0] * 3, [1.0] * 3, [0.1] * 3)
+        run = runs_dir / "HalfCheetah-v5" / "cmz" / f"trial{trial}"
+        # two segments (a resumed run), written out of order: the report sorts them by step
+        _progress_csv(run, 12, [offset + 3.0] * 12, [500] * 12)
+        _progress_csv(run, 0, [offset + 1.0] * 10 + [offset + 2.0] * 2, [100] * 12)
+    _fake_run(runs_dir, "bc", 0, [1.0], [1.0], [0.1])
+    signal = report.reward_signal(report.load_runs(runs_dir), epochs=10)
+    assert set(signal) == {("HalfCheetah-v5", "cmz")}  # BC has no rollouts
+    cell = signal[("HalfCheetah-v5", "cmz")]
+    assert cell["u"] == (pytest.approx(1.5), pytest.approx(3.5))  # mean over trials of 1+o and 3+o
+    assert cell["ep_len"] == (pytest.approx(100.0), pytest.approx(500.0))
+    assert np.isnan(cell["ubar"][0]) and cell["trials"][0] == 2
+    text = report.write_report(runs_dir, tmp_path / "docs", references=()).read_text()
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 1.50 → 3.50 | 0 → 0 | n/a → n/a | 100 → 500 |" in text
+
+
+def test_report_includes_the_discussion_and_refuses_a_missing_one(tmp_path, capsys):
+    runs_dir = tmp_path / "runs"
+    _fake_run(runs_dir, "bc", 0, [1.0], [1.0], [0.1])
+    notes = tmp_path / "notes.md"
+    notes.write_text("Ours agree with the paper on Hopper.\n")
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "docs"), "--discussion", str(notes)]) == 0
+    assert "## Discussion\n\nOurs agree with the paper on Hopper.\n" in (tmp_path / "docs" / "results.md").read_text()
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "docs"), "--discussion", str(tmp_path / "nope.md")]) == 2
+    assert "discussion file not found" in capsys.readouterr().err
 
 
 # -- Ray backend ------------------------------------------------------------------------------------------

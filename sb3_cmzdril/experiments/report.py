@@ -11,6 +11,10 @@
   MSE) against the epoch; each trial's curve smoothed with a Gaussian filter (sigma 2 evaluations,
   ``scipy.ndimage.gaussian_filter1d``, as the paper), then the mean over trials with a ±1 std band.
   BC, evaluated once, is a horizontal line (mean over trials, ±1 std band).
+* :func:`expert_returns` — per env, the true return of the expert's held-out episodes that each
+  trial was evaluated against (from the demo pool named in the run's config.json): the scale.
+* :func:`reward_signal` — per env and method, what the runs' SB3 progress logs say about the shaped
+  reward: mean disagreement u over the first and last epochs, shaped reward and EMA, episode length.
 * :func:`write_report` — results.md, table1.csv, fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png.
 
 Reference numbers from elsewhere (the paper's Table I: :data:`PAPER_TABLE_I`) enter only through
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import io
 import json
 import math
@@ -31,6 +36,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from sb3_cmzdril._atomic import PathLike, atomic_path, atomic_write_text
+from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments.runs import (
     CONFIG_FILE,
     ERROR_FILE,
@@ -243,6 +249,85 @@ def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
     return out.getvalue()
 
 
+# -- the expert's scale and the reward signal ---------------------------------------------------------
+#: Columns of SB3's progress CSV that :func:`reward_signal` summarises.
+SIGNAL_COLUMNS: Tuple[Tuple[str, str], ...] = (
+    ("u", "rollout/disagreement_mean"),
+    ("shaped", "rollout/shaped_reward_mean"),
+    ("ubar", "rollout/ubar_mean"),
+    ("ep_len", "rollout/ep_len_mean"),
+)
+#: Epochs averaged at the start and at the end of a run in :func:`reward_signal`.
+SIGNAL_EPOCHS = 10
+
+
+def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> List[Path]:
+    """Where a run's demo pool may be: the path it recorded, else experts/<EnvName>/demos.npz beside
+    the working directory or the repository holding ``runs_dir`` (a fresh clone moves the path)."""
+    tail = Path("experts") / record.env / "demos.npz"
+    found = [Path(record.config["demos"])] if record.config.get("demos") else []
+    return found + [Path.cwd() / tail] + [parent / tail for parent in runs_dir.resolve().parents]
+
+
+def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> Dict[str, Tuple[float, float, int]]:
+    """env -> (mean, std over trials, trials) of the mean true return of each trial's held-out expert
+    episodes: the episodes its evaluations replay. Trials whose pool cannot be found, whose pool's
+    sha256 differs from the one recorded, or whose pool has no rewards are left out."""
+    root = Path(runs_dir)
+    per_env: Dict[str, Dict[int, float]] = {}
+    pools: Dict[Path, Tuple[str, Any]] = {}
+    for r in records:
+        episodes = r.config.get("eval_episodes")
+        if not episodes or r.trial in per_env.get(r.env, {}):
+            continue
+        for candidate in _demo_pool_candidates(r, root):
+            if not candidate.is_file():
+                continue
+            if candidate not in pools:
+                digest = hashlib.sha256(candidate.read_bytes()).hexdigest()
+                pools[candidate] = (digest, Demonstrations.load(candidate))
+            digest, pool = pools[candidate]
+            if r.config.get("demos_sha256") not in (None, digest) or pool.episode_returns is None:
+                continue
+            per_env.setdefault(r.env, {})[r.trial] = float(np.mean(pool.episode_returns[list(episodes)]))
+            break
+    return {env: (float(np.mean(list(v.values()))), float(np.std(list(v.values()))), len(v)) for env, v in per_env.items()}
+
+
+def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
+    """The run's SB3 progress CSVs (one per segment) joined and sorted by step; {} without logs."""
+    rows: List[Dict[str, str]] = []
+    for path in sorted((record.path / "logs").glob("progress_*.csv")):
+        with open(path, newline="", encoding="utf-8") as f:
+            rows += list(csv.DictReader(f))
+    rows = [row for row in rows if row.get("time/total_timesteps")]
+    rows.sort(key=lambda row: float(row["time/total_timesteps"]))
+    columns: Dict[str, np.ndarray] = {}
+    for key, column in SIGNAL_COLUMNS:
+        values = [float(row[column]) if row.get(column) else np.nan for row in rows]
+        columns[key] = np.asarray(values, dtype=np.float64)
+    return columns
+
+
+def reward_signal(records: Sequence[RunRecord], epochs: int = SIGNAL_EPOCHS) -> Dict[Tuple[str, str], Dict[str, Tuple[float, float]]]:
+    """(env, method) -> {"u": (first, last), "shaped": (first, last), "ubar": ..., "ep_len": ...}: the
+    mean over trials of each run's rollout statistics averaged over its first and last ``epochs``
+    PPO updates. Runs without progress logs are left out; so is BC (it has no rollouts)."""
+    result: Dict[Tuple[str, str], Dict[str, Tuple[float, float]]] = {}
+    for (env, method), runs in _group(r for r in records if r.method != "bc").items():
+        logs = [log for log in map(_progress_log, runs) if log and log["u"].size]
+        if not logs:
+            continue
+        cell: Dict[str, Tuple[float, float]] = {}
+        for key, _ in SIGNAL_COLUMNS:
+            first = [np.nanmean(log[key][:epochs]) for log in logs if np.isfinite(log[key][:epochs]).any()]
+            last = [np.nanmean(log[key][-epochs:]) for log in logs if np.isfinite(log[key][-epochs:]).any()]
+            cell[key] = (float(np.mean(first)) if first else math.nan, float(np.mean(last)) if last else math.nan)
+        cell["trials"] = (float(len(logs)), float(len(logs)))
+        result[(env, method)] = cell
+    return result
+
+
 # -- figures ------------------------------------------------------------------------------------------------
 def _smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(epochs, mean, std) over trials of each trial's smoothed curve; epochs not reached by every
@@ -367,6 +452,9 @@ def render_markdown(
     references: Sequence[ReferenceTable],
     report_command: Optional[str],
     window: int,
+    experts: Optional[Mapping[str, Tuple[float, float, int]]] = None,
+    signal: Optional[Mapping[Tuple[str, str], Mapping[str, Tuple[float, float]]]] = None,
+    discussion: Optional[str] = None,
 ) -> str:
     envs = sorted({r.env for r in rows}, key=_env_key)
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rows)]
@@ -403,9 +491,16 @@ def render_markdown(
             ([r.env, METHOD_LABELS[r.method], str(r.n_trials), *(fmt_mean_std(r.mean(k), r.std(k)) for k, _, _ in METRICS)] for r in rows),
         ),
         "",
-        "Return only, in the paper's layout:",
+        "Return only, in the paper's layout"
+        + (", with the expert's return on the same held-out episodes for scale (mean (std) over trials of "
+           "each trial's mean; from the demo pool each run's config.json names):" if experts else ":"),
         "",
         _paper_layout({(r.env, r.method): fmt_mean_std(r.mean("return"), r.std("return")) for r in rows}, envs, methods),
+    ]
+    if experts:
+        parts[-1] += "\n| Expert (held-out demos) | " + " | ".join(
+            fmt_mean_std(*experts[e][:2]) if e in experts else "—" for e in envs) + " |"
+    parts += [
         "",
         "## Gap closed by CMZ-DRIL",
         "",
@@ -421,6 +516,25 @@ def render_markdown(
                   ([env, *(("n/a" if g[k] is None else f"{100 * g[k]:.0f}%") for k, _, _ in METRICS)] for env, g in gaps.items())),
         "",
     ]
+    if signal:
+        parts += [
+            "## The reward signal during training",
+            "",
+            f"From each run's SB3 progress log (`logs/progress_*.csv`): the rollout statistics averaged over "
+            f"its first and last {SIGNAL_EPOCHS} PPO updates, then over trials. u is the ensemble disagreement "
+            "of the states the agent visited (the same for every method: it is logged even where it is not the "
+            "reward), shaped is the mean reward the wrapper gave (CMZ-DRIL: -alpha (u - ubar), which should "
+            "stay near 0; DRIL: +1/-1; 0 for no reward), ubar the CMZ-DRIL EMA, length the training episodes' "
+            "mean length.",
+            "",
+            _md_table(
+                ["Env", "Method", "Trials", "u first → last", "shaped first → last", "ubar first → last", "length first → last"],
+                ([env, METHOD_LABELS[method], str(int(cell["trials"][0])),
+                  *(f"{fmt(cell[k][0])} → {fmt(cell[k][1])}" for k in ("u", "shaped", "ubar", "ep_len"))]
+                 for (env, method), cell in sorted(signal.items(), key=lambda kv: (_env_key(kv[0][0]), METHOD_ORDER.index(kv[0][1]))))
+            ),
+            "",
+        ]
     if figures:
         parts += ["## Figures", ""]
         for title, path in figures:
@@ -431,6 +545,8 @@ def render_markdown(
     if references:
         parts += ["## Reference numbers", ""]
         parts += [reference_markdown(ref) for ref in references]
+    if discussion:
+        parts += ["## Discussion", "", discussion.strip(), ""]
     parts += ["## Where each number comes from", ""]
     for r in rows:
         parts.append(f"- {r.env} / {METHOD_LABELS[r.method]}: " + ", ".join(
@@ -453,12 +569,15 @@ def write_report(
     references: Sequence[ReferenceTable] = (PAPER_TABLE_I,),
     command: Optional[str] = None,
     sigma: float = SMOOTHING_SIGMA,
+    discussion: Optional[PathLike] = None,
 ) -> Path:
     """Write results.md, table1.csv and the figures into ``output_dir``; returns results.md's path.
 
     :param references: extra tables of numbers from elsewhere (default: the paper's Table I), each
         shown separately and labelled; pass ``()`` for none.
     :param command: the report command line to record (the CLI passes its own).
+    :param discussion: a markdown file written by a person (what the numbers mean), included as the
+        report's "Discussion" section.
     """
     root = Path(runs_dir)
     records = load_runs(root)
@@ -475,7 +594,11 @@ def write_report(
         path = plot_figure(records, methods, out / filename, title, sigma)
         if path is not None:
             figures.append((title, path))
-    text = render_markdown(rows, records, root, figures, references, command, int(window))
+    if discussion is not None and not Path(discussion).is_file():
+        raise FileNotFoundError(f"discussion file not found: {discussion}")
+    notes = Path(discussion).read_text(encoding="utf-8") if discussion is not None else None
+    text = render_markdown(rows, records, root, figures, references, command, int(window),
+                           experts=expert_returns(records, root), signal=reward_signal(records), discussion=notes)
     atomic_write_text(out / "results.md", text)
     return out / "results.md"
 
@@ -489,6 +612,8 @@ __all__ = [
     "load_runs",
     "table_one",
     "gap_closed",
+    "expert_returns",
+    "reward_signal",
     "table_csv",
     "plot_figure",
     "write_report",
