@@ -1,0 +1,104 @@
+"""Where is the ensemble's disagreement u informative? A diagnostic for the paper grid's results.
+
+    python benchmarks/disagreement_coverage.py [--env HalfCheetah-v5,Hopper-v5,sb3_cmzdril:WaypointNav-v0]
+        [--trials 0,1] [--hyperparams hyperparams/cmzdril.yml] [--demos-dir experts]
+
+For each env and trial, with the benchmark's own data split (``split_episodes``) and hyperparameters,
+this pretrains a CMZDRIL model exactly as a grid run starts (NLL pretraining of the policy, the
+bootstrap ensemble) and measures the mean u
+
+* on the training demonstration's observations,
+* on the held-out expert episodes' observations (expert states the ensemble never saw),
+* along rollouts from the held-out episodes' reset seeds of: the pretrained policy sampling its
+  actions (what PPO's first rollout sees), the same policy acting deterministically (the BC
+  baseline's evaluation), and the ensemble's mean action (the members' average, another BC policy),
+
+with the true return of each rollout. The CMZ-DRIL reward can only guide the agent where u separates
+expert-like from other states: a rollout whose u stays near u's ceiling gets a reward that is
+noise around 0.
+"""
+from __future__ import annotations
+
+import argparse
+from typing import Callable, Dict, List
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from sb3_cmzdril import CMZDRIL
+from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.experiments.runs import (
+    check_env_id,
+    default_demos_path,
+    load_run_hyperparams,
+    split_episodes,
+)
+
+
+def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement, seed: int) -> Dict[str, float]:
+    """One episode from ``seed``: its true return, length and mean u of the observations acted on."""
+    obs, _ = env.reset(seed=seed)
+    total, us, done = 0.0, [], False
+    while not done:
+        us.append(float(disagreement(obs[None])[0]))
+        obs, reward, terminated, truncated, _ = env.step(act(obs))
+        total += float(reward)
+        done = terminated or truncated
+    return {"return": total, "length": float(len(us)), "u": float(np.mean(us))}
+
+
+def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> Dict[str, Dict[str, float]]:
+    hp, settings = load_run_hyperparams(hyperparams, env_id)
+    pool = Demonstrations.load(default_demos_path(env_id, demos_dir))
+    train_idx, eval_idx = split_episodes(pool.n_episodes, int(settings.get("n_demos", 1)), 5, trial)
+    train, held_out = pool.select(train_idx), pool.select(eval_idx)
+    env = gym.make(env_id, **(hp.env_kwargs or {}))
+    kwargs = hp.model_kwargs()
+    kwargs["device"] = "cpu"
+    model = CMZDRIL(hp.policy or "MlpPolicy", env, demonstrations=train, reward="cmz", seed=trial, **kwargs)
+    model.pretrain()
+    ens = model.ensemble
+    low, high = env.action_space.low, env.action_space.high
+    policies = {
+        "policy, sampled": lambda o: np.clip(model.predict(o, deterministic=False)[0], low, high),
+        "policy, deterministic (BC)": lambda o: np.clip(model.predict(o, deterministic=True)[0], low, high),
+        "ensemble mean action": lambda o: ens.predict(o[None])[0],
+    }
+    out: Dict[str, Dict[str, float]] = {
+        "training demo": {"u": float(ens.disagreement(train.observations).mean())},
+        "held-out expert episodes": {
+            "u": float(ens.disagreement(held_out.observations).mean()),
+            "return": float(np.mean(held_out.episode_returns)) if held_out.episode_returns is not None else np.nan,
+        },
+    }
+    for name, act in policies.items():
+        episodes = [rollout(env, act, ens.disagreement, int(seed)) for seed in held_out.seeds]
+        out[name] = {k: float(np.mean([e[k] for e in episodes])) for k in ("u", "return", "length")}
+    env.close()
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", default="HalfCheetah-v5,Hopper-v5,sb3_cmzdril:WaypointNav-v0")
+    parser.add_argument("--trials", default="0,1")
+    parser.add_argument("--hyperparams", default="hyperparams/cmzdril.yml")
+    parser.add_argument("--demos-dir", default="experts")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    for env_id in (check_env_id(e.strip()) for e in args.env.split(",")):
+        results: List[Dict[str, Dict[str, float]]] = [
+            measure(env_id, int(t), args.hyperparams, args.demos_dir) for t in args.trials.split(",")
+        ]
+        print(f"\n{env_id} (trials {args.trials}; mean over trials of each trial's mean over its 5 held-out seeds)")
+        print(f"{'states':30s} {'mean u':>8s} {'return':>9s} {'length':>7s}")
+        for name in results[0]:
+            row = {k: np.mean([r[name].get(k, np.nan) for r in results]) for k in ("u", "return", "length")}
+            cells = [f"{row['u']:8.3f}"] + [("" if np.isnan(row[k]) else f"{row[k]:.1f}").rjust(w)
+                                            for k, w in (("return", 9), ("length", 7))]
+            print(f"{name:30s} " + " ".join(cells))
+
+
+if __name__ == "__main__":
+    main()
