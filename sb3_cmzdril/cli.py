@@ -314,6 +314,8 @@ def _add_report(sub) -> None:
     p.add_argument("--no-paper", action="store_true", help="leave out the paper's Table I reference numbers")
     p.add_argument("--discussion", metavar="MARKDOWN",
                    help="a hand-written markdown file (what the numbers mean), included as the Discussion section")
+    p.add_argument("--readme", metavar="README",
+                   help="also replace the results block of this README with the table of ours beside the paper's")
     p.set_defaults(func=_run_report)
 
 
@@ -323,7 +325,7 @@ def _run_report(args) -> int:
 
     path = write_report(
         args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
-        command=command_line(), discussion=args.discussion,
+        command=command_line(), discussion=args.discussion, readme=args.readme,
     )
     print(path)
     return 0

@@ -305,6 +305,27 @@ def test_report_includes_the_discussion_and_refuses_a_missing_one(tmp_path, caps
     assert "discussion file not found" in capsys.readouterr().err
 
 
+def test_report_side_by_side_and_readme_block(tmp_path, capsys):
+    runs_dir = tmp_path / "runs"
+    for trial, shift in ((0, 0.0), (1, 20.0)):
+        _fake_run(runs_dir, "cmz", trial, [200 + shift] * 3, [1.0] * 3, [0.1] * 3)
+        _fake_run(runs_dir, "bc", trial, [50 + shift], [1.0], [0.1])
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# X\n\n{report.README_BEGIN}\nold table\n{report.README_END}\n\nafter\n")
+    rc = main(["report", str(runs_dir), "-o", str(tmp_path / "docs"), "--readme", str(readme)])
+    assert rc == 0
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("# X\n\n") and text.endswith(f"{report.README_END}\n\nafter\n")
+    header = "| Method | HalfCheetah-v5 (ours) | Half Cheetah v1 (paper) |"
+    assert header in text and "| CMZ-DRIL | 210 (10.0) [2] | 1690 (360) |" in text and "| BC | 60.0 (10.0) [2] | 708 (162) |" in text
+    assert "| Expert (held-out demos) | — | — |" in text  # fake runs name no demo pool
+    assert "from 4 runs" in text and header in (tmp_path / "docs" / "results.md").read_text()
+    readme.write_text("no block here\n")
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "again"), "--readme", str(readme)]) == 2
+    assert "has no results block" in capsys.readouterr().err
+    assert not (tmp_path / "again" / "results.md").exists()
+
+
 # -- Ray backend ------------------------------------------------------------------------------------------
 def test_ray_backend_runs_the_grid(setup, tmp_path):
     ray = pytest.importorskip("ray")

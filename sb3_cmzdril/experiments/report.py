@@ -418,6 +418,58 @@ def reference_markdown(reference: ReferenceTable) -> str:
     return f"### {reference.title}\n\n{reference.note}\n\n{_paper_layout(cells, envs, methods)}\n"
 
 
+#: What the paper calls the envs we stand in for (column headers of the side-by-side table).
+PAPER_ENV_NAMES: Dict[str, str] = {"WaypointNav-v0": "PyUXV", "HalfCheetah-v5": "Half Cheetah v1", "Hopper-v5": "Hopper v1"}
+#: Markers of the README block that ``write_report(readme=...)`` replaces.
+README_BEGIN = "<!-- results table: written by `sb3-cmzdril report --readme`, do not edit by hand -->"
+README_END = "<!-- end of results table -->"
+
+
+def side_by_side_markdown(
+    rows: Sequence[TableRow],
+    experts: Mapping[str, Tuple[float, float, int]],
+    reference: ReferenceTable,
+) -> str:
+    """Return (mean (std) over trials, last-100-epoch window) beside the reference's numbers, env by
+    env; the last row is the expert's return on the held-out episodes."""
+    envs = sorted({r.env for r in rows}, key=_env_key)
+    methods = [m for m in METHOD_ORDER if any(r.method == m for r in rows)]
+    ours = {(r.env, r.method): f"{fmt_mean_std(r.mean('return'), r.std('return'))} [{r.n_trials}]" for r in rows}
+    header = ["Method"]
+    for env in envs:
+        header += [f"{env} (ours)", f"{PAPER_ENV_NAMES.get(env, env)} (paper)"]
+    lines = []
+    for method in methods:
+        line = [METHOD_LABELS[method]]
+        for env in envs:
+            paper = reference.values.get(env, {}).get(method)
+            line += [ours.get((env, method), "—"), fmt_mean_std(*paper) if paper else "—"]
+        lines.append(line)
+    line = ["Expert (held-out demos)"]
+    for env in envs:
+        line += [fmt_mean_std(*experts[env][:2]) if env in experts else "—", "—"]
+    lines.append(line)
+    return _md_table(header, lines)
+
+
+def _readme_block(path: PathLike) -> Tuple[str, int, int]:
+    """(README text, end of the begin marker, start of the end marker); errors name what is missing."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"README not found: {path}")
+    text = path.read_text(encoding="utf-8")
+    start, end = text.find(README_BEGIN), text.find(README_END)
+    if start < 0 or end < start:
+        raise ValueError(f"{path} has no results block: add the lines {README_BEGIN!r} and {README_END!r} where it goes")
+    return text, start + len(README_BEGIN), end
+
+
+def update_readme(path: PathLike, block: str) -> None:
+    """Replace the text between :data:`README_BEGIN` and :data:`README_END` in ``path`` (atomically)."""
+    text, start, end = _readme_block(path)
+    atomic_write_text(path, text[:start] + "\n" + block.strip() + "\n" + text[end:])
+
+
 def _eval_episodes(records: Sequence[RunRecord]) -> str:
     counts = sorted({int(r.columns["n_episodes"][-1]) for r in records})
     return " or ".join(map(str, counts))
@@ -545,6 +597,10 @@ def render_markdown(
     if references:
         parts += ["## Reference numbers", ""]
         parts += [reference_markdown(ref) for ref in references]
+        parts += [f"### Ours beside {references[0].title.split(' (')[0]}", "",
+                  "Return, mean (std) over trials [trials]; ours on -v5 and WaypointNav-v0, the paper's on its "
+                  "own envs, experts and step budgets.", "",
+                  side_by_side_markdown(rows, experts or {}, references[0]), ""]
     if discussion:
         parts += ["## Discussion", "", discussion.strip(), ""]
     parts += ["## Where each number comes from", ""]
@@ -570,6 +626,7 @@ def write_report(
     command: Optional[str] = None,
     sigma: float = SMOOTHING_SIGMA,
     discussion: Optional[PathLike] = None,
+    readme: Optional[PathLike] = None,
 ) -> Path:
     """Write results.md, table1.csv and the figures into ``output_dir``; returns results.md's path.
 
@@ -578,6 +635,8 @@ def write_report(
     :param command: the report command line to record (the CLI passes its own).
     :param discussion: a markdown file written by a person (what the numbers mean), included as the
         report's "Discussion" section.
+    :param readme: a README holding the :data:`README_BEGIN`/:data:`README_END` block: it is replaced
+        by the side-by-side table (ours beside the first reference's numbers) and a line naming this report.
     """
     root = Path(runs_dir)
     records = load_runs(root)
@@ -596,10 +655,21 @@ def write_report(
             figures.append((title, path))
     if discussion is not None and not Path(discussion).is_file():
         raise FileNotFoundError(f"discussion file not found: {discussion}")
+    if readme is not None:
+        if not references:
+            raise ValueError("readme needs a reference table to set ours beside (do not combine with no references)")
+        _readme_block(readme)  # fail before writing anything
     notes = Path(discussion).read_text(encoding="utf-8") if discussion is not None else None
+    experts = expert_returns(records, root)
     text = render_markdown(rows, records, root, figures, references, command, int(window),
-                           experts=expert_returns(records, root), signal=reward_signal(records), discussion=notes)
+                           experts=experts, signal=reward_signal(records), discussion=notes)
     atomic_write_text(out / "results.md", text)
+    if readme is not None:
+        unfinished = sum(r.status != "done" for r in records)
+        update_readme(readme, side_by_side_markdown(rows, experts, references[0]) + (
+            f"\n\nReturn, mean (std) over trials [trials], from {len(records)} runs"
+            + (f" ({unfinished} not finished)" if unfinished else "")
+            + f"; written by `{command or 'sb3-cmzdril report'}`; details in {out.name}/results.md."))
     return out / "results.md"
 
 
@@ -613,6 +683,8 @@ __all__ = [
     "table_one",
     "gap_closed",
     "expert_returns",
+    "side_by_side_markdown",
+    "update_readme",
     "reward_signal",
     "table_csv",
     "plot_figure",
