@@ -13,4 +13,4 @@ sb3-cmzdril benchmark --env sb3_cmzdril:WaypointNav-v0 --methods bc,zero,env,dri
     --timesteps 300000 --workers "$workers" --eval-every 1 -o docs/runs
 sb3-cmzdril benchmark --env HalfCheetah-v5,Hopper-v5 --methods bc,zero,env,dril,cmz --trials 5 \
     --timesteps 300000 --workers "$workers" --eval-every 5 -o docs/runs
-sb3-cmzdril report docs/runs -o docs
+sb3-cmzdril report docs/runs -o docs --discussion docs/discussion.md --readme README.md
