@@ -280,9 +280,10 @@ def test_report_reward_signal_joins_segments_and_averages_trials(tmp_path):
     for trial, offset in ((0, 0.0), (1, 1.0)):
         _fake_run(runs_dir, "cmz", trial, [1.0] * 3, [1.0] * 3, [0.1] * 3)
         run = runs_dir / "HalfCheetah-v5" / "cmz" / f"trial{trial}"
-        # two segments (a resumed run), written out of order: the report sorts them by step
+        # two segments (a resumed run), written out of order: the report orders them by start step,
+        # and the second (from step 12 * 64) replaces the first's rows logged after that step
         _progress_csv(run, 12, [offset + 3.0] * 12, [500] * 12)
-        _progress_csv(run, 0, [offset + 1.0] * 10 + [offset + 2.0] * 2, [100] * 12)
+        _progress_csv(run, 0, [offset + 1.0] * 10 + [offset + 2.0] * 2 + [-1e9] * 3, [100] * 15)
     _fake_run(runs_dir, "bc", 0, [1.0], [1.0], [0.1])
     signal = report.reward_signal(report.load_runs(runs_dir), epochs=10)
     assert set(signal) == {("HalfCheetah-v5", "cmz")}  # BC has no rollouts

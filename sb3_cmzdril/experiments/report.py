@@ -295,13 +295,19 @@ def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> Dict[str
 
 
 def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
-    """The run's SB3 progress CSVs (one per segment) joined and sorted by step; {} without logs."""
+    """The run's SB3 progress CSVs (one per segment, ``progress_<start step>.csv``) joined in step
+    order; a resumed segment replaces the rows its predecessor logged after the checkpoint it
+    resumed from. {} without logs."""
+    segments = []
+    for path in (record.path / "logs").glob("progress_*.csv"):
+        start = path.stem.split("_")[-1]
+        if start.isdigit():
+            segments.append((int(start), path))
     rows: List[Dict[str, str]] = []
-    for path in sorted((record.path / "logs").glob("progress_*.csv")):
+    for start, path in sorted(segments):
+        rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
         with open(path, newline="", encoding="utf-8") as f:
-            rows += list(csv.DictReader(f))
-    rows = [row for row in rows if row.get("time/total_timesteps")]
-    rows.sort(key=lambda row: float(row["time/total_timesteps"]))
+            rows += [row for row in csv.DictReader(f) if row.get("time/total_timesteps")]
     columns: Dict[str, np.ndarray] = {}
     for key, column in SIGNAL_COLUMNS:
         values = [float(row[column]) if row.get(column) else np.nan for row in rows]
@@ -597,7 +603,8 @@ def render_markdown(
     if references:
         parts += ["## Reference numbers", ""]
         parts += [reference_markdown(ref) for ref in references]
-        parts += [f"### Ours beside {references[0].title.split(' (')[0]}", "",
+        name = references[0].title.split(" (")[0]
+        parts += [f"### Ours beside {name[:1].lower() + name[1:]}", "",
                   "Return, mean (std) over trials [trials]; ours on -v5 and WaypointNav-v0, the paper's on its "
                   "own envs, experts and step budgets.", "",
                   side_by_side_markdown(rows, experts or {}, references[0]), ""]
