@@ -28,6 +28,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import re
 import time
 from pathlib import Path
@@ -470,6 +471,19 @@ def _readme_block(path: PathLike) -> Tuple[str, int, int]:
     return text, start + len(README_BEGIN), end
 
 
+def _link(target: Path, start: Path) -> str:
+    """``target`` relative to ``start`` with forward slashes, for a markdown link."""
+    return Path(os.path.relpath(target.resolve(), start.resolve())).as_posix()
+
+
+def _short_command(command: Optional[str]) -> str:
+    """The command with its program's folder dropped (a README should not show this machine's paths)."""
+    if not command:
+        return "sb3-cmzdril report"
+    program, _, rest = command.partition(" ")
+    return f"{Path(program).name} {rest}".strip()
+
+
 def update_readme(path: PathLike, block: str) -> None:
     """Replace the text between :data:`README_BEGIN` and :data:`README_END` in ``path`` (atomically)."""
     text, start, end = _readme_block(path)
@@ -676,7 +690,7 @@ def write_report(
         update_readme(readme, side_by_side_markdown(rows, experts, references[0]) + (
             f"\n\nReturn, mean (std) over trials [trials], from {len(records)} runs"
             + (f" ({unfinished} not finished)" if unfinished else "")
-            + f"; written by `{command or 'sb3-cmzdril report'}`; details in {out.name}/results.md."))
+            + f"; written by `{_short_command(command)}`; details in [results.md]({_link(out / 'results.md', Path(readme).parent)})."))
     return out / "results.md"
 
 
