@@ -624,11 +624,14 @@ def render_markdown(
                   side_by_side_markdown(rows, experts or {}, references[0]), ""]
     if discussion:
         parts += ["## Discussion", "", discussion.strip(), ""]
-    parts += ["## Where each number comes from", ""]
+    parts += ["## Where each number comes from", "",
+              "Each (env, method) cell of Table I averages these runs; beside each run, the epochs it reached "
+              "and its own return over the Table I window.", ""]
     for r in rows:
         parts.append(f"- {r.env} / {METHOD_LABELS[r.method]}: " + ", ".join(
-            f"`{run.relative(runs_dir)}` ({run.status}, epochs {int(run.columns['epoch'][0])}-{int(run.columns['epoch'][-1])})"
-            for run in r.runs))
+            f"`{run.relative(runs_dir)}` ({run.status}, epochs {int(run.columns['epoch'][0])}-{int(run.columns['epoch'][-1])}, "
+            f"return {fmt(value)})"
+            for run, value in zip(r.runs, r.per_run["return"])))
     created, resumed = _commands(records, runs_dir)
     parts += ["", "## Commands", "", "Runs created by:", ""]
     parts += [f"    {c}" for c in created] or ["    (not recorded)"]
