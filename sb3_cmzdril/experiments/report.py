@@ -538,8 +538,10 @@ def render_markdown(
         "# Results",
         "",
         f"Computed by `sb3_cmzdril.experiments.report` from the `eval.csv` files under `{runs_dir}` "
-        f"({len(records)} runs) on {time.strftime('%Y-%m-%d %H:%M %Z')}. Every number below is computed "
-        "from those files; none is typed in.",
+        f"({len(records)} runs), their `logs/progress_*.csv` (the reward-signal table) and the demo pools "
+        f"their `config.json` names (the expert's return) on {time.strftime('%Y-%m-%d %H:%M %Z')}. Every "
+        "number in the tables is computed from those files, none is typed in, except the paper's numbers, "
+        "which are copied from the paper and labelled as such. The Discussion, if any, is written by hand.",
     ]
     if unfinished:
         parts += ["", f"**{len(unfinished)} run(s) are not finished** (their numbers use the epochs they reached): "
@@ -634,10 +636,10 @@ def render_markdown(
             for run, value in zip(r.runs, r.per_run["return"])))
     created, resumed = _commands(records, runs_dir)
     parts += ["", "## Commands", "", "Runs created by:", ""]
-    parts += [f"    {c}" for c in created] or ["    (not recorded)"]
+    parts += [f"    {_short_command(c)}" for c in created] or ["    (not recorded)"]
     if resumed:
-        parts += ["", "Also run (resumes, other invocations):", ""] + [f"    {c}" for c in resumed]
-    parts += ["", "This report:", "", f"    {report_command or 'sb3-cmzdril report ' + str(runs_dir)}", ""]
+        parts += ["", "Also run (resumes, other invocations):", ""] + [f"    {_short_command(c)}" for c in resumed]
+    parts += ["", "This report:", "", f"    {_short_command(report_command or 'sb3-cmzdril report ' + str(runs_dir))}", ""]
     return "\n".join(parts)
 
 
