@@ -61,10 +61,9 @@ class Demonstrations:
         if obs.ndim < 2:
             raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
         if len(act) != len(obs):
-            raise ValueError(
-                f"observations and actions differ in length: {len(obs)} vs {len(act)} steps"
-                + (" (observations include the final observation? drop it)" if len(obs) == len(act) + lengths.size else "")
-            )
+            with_final = len(obs) == len(act) + lengths.size
+            hint = " (observations include the final observation? drop it)" if with_final else ""
+            raise ValueError(f"observations and actions differ in length: {len(obs)} vs {len(act)} steps{hint}")
         if int(lengths.sum()) != len(obs):
             raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
         if obs.dtype.kind not in "fiu" or act.dtype.kind not in "fiu":
@@ -83,7 +82,10 @@ class Demonstrations:
         self.episode_lengths = lengths
         if seeds is None:
             seeds = np.full(lengths.size, UNKNOWN_SEED, dtype=np.int64)
-        self.seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+        try:
+            self.seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+        except OverflowError:
+            raise ValueError(f"seeds must fit in int64 (-1 for unknown); got {list(seeds)}") from None
         if self.seeds.size != lengths.size:
             raise ValueError(f"{self.seeds.size} seeds given for {lengths.size} episodes")
 
@@ -107,13 +109,37 @@ class Demonstrations:
         with_rewards = [ep.get("rewards") is not None for ep in episodes]
         if any(with_rewards) and not all(with_rewards):
             raise ValueError("rewards must be given for every episode or for none")
+        rewards = [np.asarray(ep["rewards"]).reshape(-1) for ep in episodes] if all(with_rewards) else None
         return cls(
             observations=np.concatenate([np.asarray(ep["observations"]) for ep in episodes]),
             actions=np.concatenate([np.asarray(ep["actions"]) for ep in episodes]),
             episode_lengths=[len(ep["actions"]) for ep in episodes],
-            rewards=np.concatenate([np.asarray(ep["rewards"]).reshape(-1) for ep in episodes]) if all(with_rewards) else None,
-            seeds=[int(ep.get("seed", UNKNOWN_SEED)) if ep.get("seed") is not None else UNKNOWN_SEED for ep in episodes],
+            rewards=None if rewards is None else np.concatenate(rewards),
+            seeds=[UNKNOWN_SEED if ep.get("seed") is None else int(ep["seed"]) for ep in episodes],
         )
+
+    @classmethod
+    def from_trajectories(cls, trajectories: Iterable[Any]) -> "Demonstrations":
+        """Build from imitation-style trajectories (``imitation.data.types.Trajectory`` or dicts).
+
+        Each has ``obs`` (T + 1 observations, the final one is dropped), ``acts`` (T actions) and
+        optionally ``rews``; ``infos`` and ``terminal`` are ignored, seeds are unknown. The
+        ``imitation`` package is not needed. See :func:`sb3_cmzdril.demo_readers.trajectory_episodes`.
+        """
+        from sb3_cmzdril.demo_readers import trajectory_episodes
+
+        return cls.from_episodes(trajectory_episodes(trajectories))
+
+    @classmethod
+    def from_minari(cls, dataset_or_id: Any) -> "Demonstrations":
+        """Build from a ``minari.MinariDataset`` or the id of a locally stored one (never downloads).
+
+        Episodes keep the reset seeds their metadata records. Needs the ``minari`` extra. See
+        :func:`sb3_cmzdril.demo_readers.minari_episodes`.
+        """
+        from sb3_cmzdril.demo_readers import minari_episodes
+
+        return cls.from_episodes(minari_episodes(dataset_or_id))
 
     @classmethod
     def load(cls, path: PathLike) -> "Demonstrations":
@@ -222,16 +248,20 @@ class Demonstrations:
         if isinstance(action_space, spaces.Discrete):
             acts = self.actions.reshape(len(self.actions), -1)
             if acts.shape[1] != 1:
-                raise ValueError(f"Discrete action space needs scalar actions; demos have shape {self.actions.shape[1:]}")
+                raise ValueError(
+                    f"Discrete action space needs scalar actions; demos have shape {self.actions.shape[1:]}"
+                )
             if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
                 raise ValueError("Discrete action space needs integer actions; the demonstrations hold fractions")
             lo, hi = int(action_space.start), int(action_space.start + action_space.n - 1)
             if acts.min() < lo or acts.max() > hi:
                 raise ValueError(
-                    f"demonstration actions span [{acts.min()}, {acts.max()}] but the Discrete space allows [{lo}, {hi}]"
+                    f"demonstration actions span [{acts.min()}, {acts.max()}] "
+                    f"but the Discrete space allows [{lo}, {hi}]"
                 )
             if self.actions.dtype != np.int64 or self.actions.ndim != 1:
-                return Demonstrations(self.observations, acts[:, 0].astype(np.int64), self.episode_lengths, self.rewards, self.seeds)
+                as_int = acts[:, 0].astype(np.int64)
+                return Demonstrations(self.observations, as_int, self.episode_lengths, self.rewards, self.seeds)
             return self
         if not isinstance(action_space, spaces.Box):
             raise ValueError(f"only Box and Discrete action spaces are supported, got {action_space}")
