@@ -66,3 +66,12 @@ def test_unknown_extra_is_a_caller_bug():
     with pytest.raises(ValueError, match="unknown extra 'plots'"):
         require_extra("json", "plots")
     assert "all" in EXTRAS and "test" in EXTRAS
+
+
+def test_zoo_plugin_names_the_zoo_extra(monkeypatch):
+    from sb3_cmzdril import zoo
+
+    monkeypatch.setitem(sys.modules, "rl_zoo3", None)  # as if rl-zoo3 were not installed
+    expected = r"sb3_cmzdril.zoo needs the 'zoo' extra: pip install 'sb3-cmzdril\[zoo\]'"
+    with pytest.raises(MissingExtraError, match=expected):
+        zoo.register()
