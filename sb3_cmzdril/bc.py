@@ -7,7 +7,8 @@ of two different losses.
 """
 from __future__ import annotations
 
-from typing import Callable, List, Optional
+import dataclasses
+from typing import Callable, Dict, Iterable, List, Optional
 
 import numpy as np
 import torch as th
@@ -56,20 +57,26 @@ class BehaviourCloner:
         dtype = th.long if demos.actions.dtype.kind in "iu" else th.float32
         self._actions = th.as_tensor(demos.actions, dtype=dtype, device=self.policy.device)
 
-    def nll(self, obs_transform: Optional[ObsTransform] = None) -> float:
-        """Mean NLL of the expert actions under the current policy (no update)."""
+    def nll(self, obs_transform: Optional[ObsTransform] = None, indices: Optional[np.ndarray] = None) -> float:
+        """Mean NLL of the expert actions (of the steps ``indices``, default all) under the current
+        policy (no update)."""
         obs = self._observations(obs_transform)
+        actions = self._actions
+        if indices is not None:
+            idx = th.as_tensor(np.asarray(indices), device=self.policy.device)
+            obs, actions = obs[idx], actions[idx]
         with th.no_grad():
-            return float(-self.policy.get_distribution(obs).log_prob(self._actions).mean())
+            return float(-self.policy.get_distribution(obs).log_prob(actions).mean())
 
-    def epoch(self, obs_transform: Optional[ObsTransform] = None) -> float:
-        """One pass over the demos in shuffled minibatches; returns the mean NLL over the pass."""
+    def epoch(self, obs_transform: Optional[ObsTransform] = None, indices: Optional[np.ndarray] = None) -> float:
+        """One pass over the demos (or the steps ``indices``) in shuffled minibatches; returns the
+        mean NLL over the pass."""
         obs = self._observations(obs_transform)
+        rows = np.arange(len(obs)) if indices is None else np.asarray(indices)
         self.policy.set_training_mode(True)
-        n = len(obs)
-        order = th.as_tensor(self.rng.permutation(n), device=self.policy.device)
+        order = th.as_tensor(self.rng.permutation(rows), device=self.policy.device)
         total = 0.0
-        for start in range(0, n, self.batch_size):
+        for start in range(0, len(order), self.batch_size):
             idx = order[start : start + self.batch_size]
             loss = -self.policy.get_distribution(obs[idx]).log_prob(self._actions[idx]).mean()
             self.optimizer.zero_grad(set_to_none=True)
@@ -78,16 +85,60 @@ class BehaviourCloner:
             self.optimizer.step()
             total += float(loss.detach()) * len(idx)
         self.policy.set_training_mode(False)
-        return total / n
+        return total / len(order)
 
     def train(self, n_epochs: int, obs_transform: Optional[ObsTransform] = None, progress_bar: bool = False) -> List[float]:
-        """``n_epochs`` epochs; returns the mean NLL of each."""
-        epochs = range(int(n_epochs))
-        if progress_bar:
-            from tqdm.auto import tqdm
+        """``n_epochs`` epochs on all demo steps; returns the mean NLL of each."""
+        return [self.epoch(obs_transform) for _ in _epochs(int(n_epochs), progress_bar, "BC")]
 
-            epochs = tqdm(epochs, desc="BC pretraining", leave=False)
-        return [self.epoch(obs_transform) for _ in epochs]
+    def train_early_stopping(
+        self,
+        max_epochs: int,
+        validation_fraction: float = 0.2,
+        patience: int = 20,
+        obs_transform: Optional[ObsTransform] = None,
+        progress_bar: bool = False,
+        on_epoch: Optional[Callable[[int, float, float], None]] = None,
+    ) -> "EarlyStopping":
+        """Train on a random ``1 - validation_fraction`` of the demo steps until the NLL of the
+        held-out steps has not improved for ``patience`` epochs (or ``max_epochs``), then restore the
+        weights of the best held-out epoch, as DRIL's code does with its train/test split.
+
+        ``validation_fraction=0`` trains ``max_epochs`` on every step (no early stopping).
+        ``on_epoch(epoch, train_nll, validation_nll)`` is called after each epoch (for logging).
+        """
+        if not 0.0 <= validation_fraction < 1.0:
+            raise ValueError(f"validation_fraction must lie in [0, 1), got {validation_fraction}")
+        if int(max_epochs) < 0 or int(patience) < 1:
+            raise ValueError(f"need max_epochs >= 0 and patience >= 1, got {max_epochs} and {patience}")
+        n = len(self._observations(obs_transform))
+        n_val = int(round(validation_fraction * n))
+        result = EarlyStopping()
+        if n_val == 0 or n_val == n:
+            result.train_nll = self.train(max_epochs, obs_transform, progress_bar)
+            result.best_epoch = result.epochs = len(result.train_nll)
+            return result
+        order = self.rng.permutation(n)
+        val_idx, train_idx = order[:n_val], order[n_val:]
+        best = (self.nll(obs_transform, val_idx), _snapshot(self.policy))
+        result.validation_nll.append(best[0])
+        bar = _epochs(int(max_epochs), progress_bar, "BC pretraining")
+        for epoch in bar:
+            result.train_nll.append(self.epoch(obs_transform, train_idx))
+            val = self.nll(obs_transform, val_idx)
+            result.validation_nll.append(val)
+            result.epochs = epoch + 1
+            if on_epoch is not None:
+                on_epoch(epoch + 1, result.train_nll[-1], val)
+            if val < best[0]:
+                best = (val, _snapshot(self.policy))
+                result.best_epoch = epoch + 1
+            elif epoch + 1 - result.best_epoch >= patience:
+                break
+        self.policy.load_state_dict(best[1])
+        # Adam's moments belong to the discarded epochs' trajectory; the later BC epochs start afresh.
+        self.optimizer.state.clear()
+        return result
 
     def _observations(self, obs_transform: Optional[ObsTransform]) -> th.Tensor:
         if self.demos is None:
@@ -95,3 +146,26 @@ class BehaviourCloner:
         # VecNormalize statistics move during training, so demo observations are normalised afresh.
         obs = self._raw_obs if obs_transform is None else obs_transform(self._raw_obs)
         return th.as_tensor(np.asarray(obs, dtype=np.float32), device=self.policy.device)
+
+
+@dataclasses.dataclass
+class EarlyStopping:
+    """What :meth:`BehaviourCloner.train_early_stopping` did: per-epoch NLLs (``validation_nll[0]``
+    is before the first epoch), the epoch whose weights were kept, and the epochs run."""
+
+    train_nll: List[float] = dataclasses.field(default_factory=list)
+    validation_nll: List[float] = dataclasses.field(default_factory=list)
+    best_epoch: int = 0
+    epochs: int = 0
+
+
+def _snapshot(module: th.nn.Module) -> Dict[str, th.Tensor]:
+    return {k: v.detach().clone() for k, v in module.state_dict().items()}
+
+
+def _epochs(n: int, progress_bar: bool, desc: str) -> Iterable[int]:
+    if not progress_bar:
+        return range(n)
+    from tqdm.auto import tqdm
+
+    return tqdm(range(n), desc=desc, leave=False)

@@ -33,10 +33,9 @@ from torch import nn
 
 from sb3_cmzdril._atomic import PathLike, atomic_path
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.policies import observation_statistics
 
 DISAGREEMENT_FORMS = ("std", "quadratic")
-# Demo observation dimensions that never vary would otherwise be divided by ~0 when standardised.
-_MIN_OBS_STD = 1e-2
 # Up to this batch size numpy (no dispatch overhead) is faster; above it torch's batched matmul
 # is (numpy's float32 matmul ran at ~1 GFLOP/s here: 40 ms per layer for 2048 observations,
 # against 2.5 ms for torch.bmm).
@@ -136,16 +135,16 @@ class BCEnsemble(nn.Module):
         demos = demos.check_spaces(self.observation_space, self.action_space)
         if n_epochs < 1 or batch_size < 1 or learning_rate <= 0:
             raise ValueError(f"need n_epochs >= 1, batch_size >= 1, learning_rate > 0; got {n_epochs}, {batch_size}, {learning_rate}")
-        obs = th.as_tensor(demos.observations.reshape(len(demos), -1), dtype=th.float32)
-        mean = obs.mean(0)
-        std = obs.std(0, unbiased=False).clamp_min(_MIN_OBS_STD)
+        device = self.obs_mean.device  # fit where the module lives (SB3's device="auto" may be CUDA)
+        mean, std = observation_statistics(demos.observations)
         with th.no_grad():
-            self.obs_mean.copy_(mean)
-            self.obs_std.copy_(std)
+            self.obs_mean.copy_(th.as_tensor(mean))
+            self.obs_std.copy_(th.as_tensor(std))
+        obs = th.as_tensor(demos.observations.reshape(len(demos), -1), dtype=th.float32, device=device)
         if self.discrete:
-            targets = th.as_tensor(demos.actions, dtype=th.long)
+            targets = th.as_tensor(demos.actions, dtype=th.long, device=device)
         else:
-            targets = th.as_tensor(demos.actions.reshape(len(demos), -1), dtype=th.float32)
+            targets = th.as_tensor(demos.actions.reshape(len(demos), -1), dtype=th.float32, device=device)
             targets = th.max(th.min(targets, self.action_high), self.action_low)
 
         rng = np.random.default_rng(self.seed)
@@ -165,7 +164,7 @@ class BCEnsemble(nn.Module):
             order = boot[members, rng.permuted(np.tile(np.arange(n), (self.n_members, 1)), axis=1)]
             epoch_loss[:] = 0.0
             for start in range(0, n, batch_size):
-                idx = th.as_tensor(order[:, start : start + batch_size])
+                idx = th.as_tensor(order[:, start : start + batch_size], device=device)
                 out = self(obs[idx])
                 if self.discrete:
                     per_member = nn.functional.cross_entropy(
@@ -177,7 +176,7 @@ class BCEnsemble(nn.Module):
                 # Members are independent, so summing their losses trains each on its own loss.
                 per_member.sum().backward()
                 optimizer.step()
-                epoch_loss += per_member.detach().numpy() * idx.shape[1]
+                epoch_loss += per_member.detach().cpu().numpy() * idx.shape[1]
         self.eval()
         self.train_loss_ = epoch_loss / n
         with th.no_grad():
