@@ -1,41 +1,44 @@
 """CMZDRIL: SB3's PPO with CMZ-DRIL's imitation machinery (paper, Algorithm 1).
 
 On the first ``learn()`` (or an explicit :meth:`CMZDRIL.pretrain`) the model checks the demonstrations
-against the env, pretrains the policy by NLL behaviour cloning, fits the bootstrap ensemble, and puts
-the :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper into the training VecEnv (just above the
-base VecEnv, so below VecNormalize: the ensemble sees raw observations and the Monitor below reports
-the true return). Every PPO update is followed by ``bc_epochs_per_update`` NLL epochs on the demos.
+against the env, sets the policy's input standardisation to the demos' statistics, pretrains the
+policy by NLL behaviour cloning until the NLL of held-out demo steps stops improving, and fits the
+bootstrap ensemble. Each rollout is then scored from the rollout buffer (:mod:`sb3_cmzdril.scoring`):
+the env stack keeps the true reward, so every Monitor, VecMonitor and ``evaluate_policy`` reports the
+true return. Every PPO update is followed by ``bc_epochs_per_update`` NLL epochs on the demos.
 
 ``reward`` picks the rule, everything else is shared: ``"cmz"`` (the paper), ``"dril"`` (+1/-1 by the
 q-quantile threshold), ``"zero"`` (PPO + BC epochs only), ``"env"`` (the true reward). Plain BC is
 the pretrained policy (``model.pretrain()`` without ``learn``).
 
-Saving: the zip holds the policy, the ensemble, the BC optimiser, the demonstrations (observations,
-actions, episode lengths, seeds) and the reward rule's per-env state, so ``CMZDRIL.load(path,
-env=env)`` can go on learning without being handed the demos again; ``load(...,
-demonstrations=...)`` replaces them.
+Saving: the zip holds the policy (with its standardisation statistics), the ensemble, the BC
+optimiser, the demonstrations (observations, actions, episode lengths, seeds) and the reward rule's
+per-env state, so ``CMZDRIL.load(path, env=env)`` can go on learning without being handed the demos
+again; ``load(..., demonstrations=...)`` replaces them.
 """
 from __future__ import annotations
 
 import time
 import warnings
-from typing import Any, Dict, Optional, Sequence, Tuple, Type, TypeVar, Union
+from typing import Any, Callable, ClassVar, Dict, List, Optional, Sequence, Tuple, Type, TypeVar, Union
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
-from stable_baselines3.common.utils import obs_as_tensor
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
+from sb3_cmzdril.scoring import RolloutScorer
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
@@ -48,7 +51,8 @@ _SAVED_TENSORS = ("_saved_demo_obs", "_saved_demo_actions", "_saved_demo_lengths
 class CMZDRIL(PPO):
     """PPO trained on CMZ-DRIL's disagreement reward plus NLL behaviour-cloning epochs.
 
-    Takes every argument of :class:`stable_baselines3.PPO`, and:
+    PPO's arguments (``learning_rate`` ... ``device``) mean what they mean for
+    :class:`stable_baselines3.PPO`; the defaults are PPO's. CMZ-DRIL's:
 
     :param demonstrations: a :class:`~sb3_cmzdril.demos.Demonstrations`, a path to a saved one, or a
         list of episode dicts. Required before the first ``learn()``.
@@ -63,17 +67,28 @@ class CMZDRIL(PPO):
     :param ensemble_epochs: epochs of ensemble fitting.
     :param ensemble_batch_size: minibatch size of ensemble fitting.
     :param ensemble_learning_rate: Adam step size of ensemble fitting.
-    :param bc_pretrain_epochs: NLL epochs before RL.
-    :param bc_epochs_per_update: NLL epochs after each PPO update (paper: 1; 0 disables).
+    :param standardize_observations: the policy sees observations standardised with fixed statistics
+        of the demonstrations (the ensemble's; :mod:`sb3_cmzdril.policies`). False gives SB3's raw
+        inputs (the paper-faithful setting). Ignored, with a warning, when a VecNormalize already
+        normalises the observations.
+    :param bc_pretrain_epochs: most NLL epochs before RL.
+    :param bc_validation_fraction: share of the demo steps held out to stop pretraining when their
+        NLL has not improved for ``bc_patience`` epochs (the best epoch's weights are kept); 0
+        trains all ``bc_pretrain_epochs`` on every step.
+    :param bc_patience: epochs without improvement of the held-out NLL before pretraining stops.
+    :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
+        disables).
     :param bc_batch_size: minibatch size of the NLL epochs.
     :param bc_learning_rate: Adam step size of the NLL epochs.
-    :param batch_scoring: score each rollout's steps in one ensemble forward after collecting it
-        (and correct the rollout buffer) instead of one forward per env step: the same rewards at a
-        fraction of the cost. Per-step scoring is used anyway under a reward-normalising
-        VecNormalize, which must see the shaped reward at step time. With batch scoring, step
-        ``infos`` carry ``"env_reward"`` but not ``"disagreement"`` and callbacks see reward 0 during
-        the rollout; the logger gets the rollout's mean u and reward.
+    :param log_std_floor: after pretraining, raise the Gaussian policy's log-std to at least this
+        (None keeps what NLL learned).
+    :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
+        :mod:`sb3_cmzdril.scoring`); False scores every step inside a
+        :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
+        VecNormalize gets anyway. The rewards are the same.
     """
+
+    policy_aliases: ClassVar[Dict[str, Type[BasePolicy]]] = PPO.policy_aliases
 
     def __init__(
         self,
@@ -91,13 +106,39 @@ class CMZDRIL(PPO):
         ensemble_epochs: int = 200,
         ensemble_batch_size: int = 64,
         ensemble_learning_rate: float = 1e-3,
-        bc_pretrain_epochs: int = 100,
+        standardize_observations: bool = True,
+        bc_pretrain_epochs: int = 1000,
+        bc_validation_fraction: float = 0.2,
+        bc_patience: int = 20,
         bc_epochs_per_update: int = 1,
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
+        log_std_floor: Optional[float] = None,
         batch_scoring: bool = True,
+        learning_rate: Union[float, Schedule] = 3e-4,
+        n_steps: int = 2048,
+        batch_size: int = 64,
+        n_epochs: int = 10,
+        gamma: float = 0.99,
+        gae_lambda: float = 0.95,
+        clip_range: Union[float, Schedule] = 0.2,
+        clip_range_vf: Union[None, float, Schedule] = None,
+        normalize_advantage: bool = True,
+        ent_coef: float = 0.0,
+        vf_coef: float = 0.5,
+        max_grad_norm: float = 0.5,
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        rollout_buffer_class: Optional[Type[RolloutBuffer]] = None,
+        rollout_buffer_kwargs: Optional[Dict[str, Any]] = None,
+        target_kl: Optional[float] = None,
+        stats_window_size: int = 100,
+        tensorboard_log: Optional[str] = None,
+        policy_kwargs: Optional[Dict[str, Any]] = None,
+        verbose: int = 0,
+        seed: Optional[int] = None,
+        device: Union[th.device, str] = "auto",
         _init_setup_model: bool = True,
-        **ppo_kwargs: Any,
     ) -> None:
         if reward not in REWARD_MODES:
             raise ValueError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
@@ -108,6 +149,12 @@ class CMZDRIL(PPO):
         for name, value in (("bc_pretrain_epochs", bc_pretrain_epochs), ("bc_epochs_per_update", bc_epochs_per_update)):
             if int(value) < 0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
+        if not 0.0 <= bc_validation_fraction < 1.0:
+            raise ValueError(f"bc_validation_fraction must lie in [0, 1), got {bc_validation_fraction}")
+        if int(bc_patience) < 1:
+            raise ValueError(f"bc_patience must be >= 1, got {bc_patience}")
+        if log_std_floor is not None and not np.isfinite(log_std_floor):
+            raise ValueError(f"log_std_floor must be finite or None, got {log_std_floor}")
         self.demonstrations: Optional[Demonstrations] = None if demonstrations is None else as_demonstrations(demonstrations)
         self.reward = reward
         self.alpha = float(alpha)
@@ -121,23 +168,40 @@ class CMZDRIL(PPO):
         self.ensemble_epochs = int(ensemble_epochs)
         self.ensemble_batch_size = int(ensemble_batch_size)
         self.ensemble_learning_rate = float(ensemble_learning_rate)
+        self.standardize_observations = bool(standardize_observations)
         self.bc_pretrain_epochs = int(bc_pretrain_epochs)
+        self.bc_validation_fraction = float(bc_validation_fraction)
+        self.bc_patience = int(bc_patience)
         self.bc_epochs_per_update = int(bc_epochs_per_update)
         self.bc_batch_size = int(bc_batch_size)
         self.bc_learning_rate = float(bc_learning_rate)
+        self.log_std_floor = None if log_std_floor is None else float(log_std_floor)
         self.batch_scoring = bool(batch_scoring)
         self.pretrain_info: Dict[str, float] = {}
+        self.pretrain_history: Dict[str, List[float]] = {}
+        self.rollout_disagreement: Optional[float] = None
         self._imitation_ready = False
-        super().__init__(policy, env, _init_setup_model=False, **ppo_kwargs)
+        super().__init__(
+            policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs,
+            gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, clip_range_vf=clip_range_vf,
+            normalize_advantage=normalize_advantage, ent_coef=ent_coef, vf_coef=vf_coef, max_grad_norm=max_grad_norm,
+            use_sde=use_sde, sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs, target_kl=target_kl, stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
+            _init_setup_model=False,
+        )
         if _init_setup_model:
             self._setup_model()
 
     # -- model construction and persistence --------------------------------------------------
     def _setup_model(self) -> None:
+        if self.standardize_observations:
+            self._use_demo_standardizer()
         super()._setup_model()
         if not isinstance(self.action_space, (spaces.Box, spaces.Discrete)):
             raise ValueError(f"CMZDRIL supports Box and Discrete action spaces, got {self.action_space}")
-        seed = 0 if self.seed is None else int(self.seed)
+        # seed=None: draw from the global RNG, which SB3's set_random_seed (or the user) controls.
+        seed = int(np.random.randint(0, 2**31 - 1)) if self.seed is None else int(self.seed)
         self.ensemble_hidden = tuple(self.ensemble_hidden)  # a loaded model gets a JSON list back
         self.ensemble = BCEnsemble(
             self.observation_space, self.action_space, self.ensemble_size, self.ensemble_hidden, self.disagreement, seed
@@ -146,6 +210,25 @@ class CMZDRIL(PPO):
         self.reward_rule: Optional[RewardRule] = None
         for name in _SAVED_TENSORS:
             setattr(self, name, th.zeros(0))
+
+    def _use_demo_standardizer(self) -> None:
+        kwargs = dict(self.policy_kwargs or {})
+        current = kwargs.get("features_extractor_class")
+        if current not in (None, DemoStandardizer):
+            raise ValueError(
+                f"standardize_observations=True puts DemoStandardizer in place of the features extractor, but "
+                f"policy_kwargs asks for {getattr(current, '__name__', current)}; pass standardize_observations=False to keep yours"
+            )
+        import inspect
+
+        default = inspect.signature(self.policy_class.__init__).parameters.get("features_extractor_class")
+        if current is None and (default is None or default.default is not FlattenExtractor):
+            raise ValueError(
+                f"standardize_observations=True needs a flat-input policy (MlpPolicy); {self.policy_class.__name__} "
+                "has its own features extractor: pass standardize_observations=False"
+            )
+        kwargs["features_extractor_class"] = DemoStandardizer
+        self.policy_kwargs = kwargs
 
     def _excluded_save_params(self) -> list:
         return super()._excluded_save_params() + ["demonstrations", "reward_rule", "ensemble", "bc"]
@@ -225,9 +308,15 @@ class CMZDRIL(PPO):
             return vec_normalize.normalize_obs
         return None
 
+    def _standardizer(self) -> Optional[DemoStandardizer]:
+        extractors = [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
+        return extractors[0] if extractors else None
+
     def pretrain(self, progress_bar: bool = False) -> Dict[str, float]:
-        """Check the demos, pretrain the policy by NLL and fit the ensemble (once; later calls only
-        re-check the demos). Returns NLL before/after pretraining and timings."""
+        """Check the demos, set the policy's input standardisation, pretrain the policy by NLL
+        (early-stopped on held-out demo steps) and fit the ensemble (once; later calls only re-check
+        the demos). Returns NLLs, epochs, the policy's log-std and timings; the per-epoch curve is
+        in ``pretrain_history``."""
         if self.demonstrations is None:
             raise ValueError(
                 "CMZDRIL needs demonstrations: pass demonstrations=... (a Demonstrations, a path to a "
@@ -238,10 +327,24 @@ class CMZDRIL(PPO):
         if self._imitation_ready:
             return self.pretrain_info
         transform = self._demo_obs_transform()
+        standardizer = self._standardizer()
+        if standardizer is not None:
+            if transform is not None:
+                warnings.warn(
+                    "VecNormalize normalises the observations already: the demo standardisation of the policy "
+                    "is left as the identity (CMZDRIL(standardize_observations=False) silences this)",
+                    UserWarning,
+                )
+            else:
+                standardizer.set_statistics(*observation_statistics(self.demonstrations.observations))
         start = time.perf_counter()
         nll_before = self.bc.nll(transform)
-        self.bc.train(self.bc_pretrain_epochs, transform, progress_bar=progress_bar)
+        stopping = self.bc.train_early_stopping(
+            self.bc_pretrain_epochs, self.bc_validation_fraction, self.bc_patience, transform, progress_bar
+        )
         nll_after = self.bc.nll(transform)
+        log_std_learned = self._log_std_mean()
+        self._apply_log_std_floor()
         bc_seconds = time.perf_counter() - start
         start = time.perf_counter()
         self.ensemble.fit(
@@ -251,24 +354,46 @@ class CMZDRIL(PPO):
             self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
         self.reward_rule = self._make_rule()
         self._imitation_ready = True
+        self.pretrain_history = {"train_nll": stopping.train_nll, "validation_nll": stopping.validation_nll}
         self.pretrain_info = {
             "bc_nll_before": nll_before,
             "bc_nll_after": nll_after,
+            "bc_validation_nll": min(stopping.validation_nll) if stopping.validation_nll else float("nan"),
+            "bc_best_epoch": stopping.best_epoch,
+            "bc_epochs": stopping.epochs,
+            "bc_log_std_learned": log_std_learned,
+            "bc_log_std": self._log_std_mean(),
             "bc_seconds": bc_seconds,
             "ensemble_loss": float(np.mean(self.ensemble.train_loss_)),
             "ensemble_seconds": time.perf_counter() - start,
         }
+        if getattr(self, "_logger", None) is not None:
+            for key, value in self.pretrain_info.items():
+                self.logger.record(f"pretrain/{key}", value)
         if self.verbose >= 1:
             info = self.pretrain_info
             print(
-                f"CMZDRIL pretraining: BC NLL {nll_before:.3f} -> {nll_after:.3f} ({self.bc_pretrain_epochs} epochs, "
-                f"{info['bc_seconds']:.1f}s); ensemble loss {info['ensemble_loss']:.4g} ({info['ensemble_seconds']:.1f}s)"
+                f"CMZDRIL pretraining: BC NLL {nll_before:.3f} -> {nll_after:.3f} (best of {stopping.epochs} epochs: "
+                f"{stopping.best_epoch}, {info['bc_seconds']:.1f}s); ensemble loss {info['ensemble_loss']:.4g} "
+                f"({info['ensemble_seconds']:.1f}s)"
                 + (f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else "")
             )
         return self.pretrain_info
 
+    def _log_std_mean(self) -> float:
+        log_std = getattr(self.policy, "log_std", None)
+        return float(log_std.detach().mean()) if isinstance(log_std, th.Tensor) and not self.use_sde else float("nan")
+
+    def _apply_log_std_floor(self) -> None:
+        log_std = getattr(self.policy, "log_std", None)
+        if self.log_std_floor is None or not isinstance(log_std, th.Tensor) or self.use_sde:
+            return
+        with th.no_grad():
+            log_std.clamp_(min=self.log_std_floor)
+
     def reward_wrapper(self) -> Optional[DisagreementReward]:
-        """The DisagreementReward in the training env, or None before the first learn()."""
+        """The per-step DisagreementReward in the training env, or None (the default scores rollouts
+        from the buffer and leaves the env stack alone)."""
         env = self.env
         while isinstance(env, VecEnvWrapper):
             if isinstance(env, DisagreementReward):
@@ -276,25 +401,27 @@ class CMZDRIL(PPO):
             env = env.venv
         return None
 
+    def _per_step_scoring(self) -> bool:
+        vec_normalize = self.get_vec_normalize_env()
+        return not self.batch_scoring or (vec_normalize is not None and bool(vec_normalize.norm_reward))
+
     def _wrap_training_env(self) -> None:
+        """Per-step scoring only: put the wrapper above every monitor (they report the true return)
+        and right below a VecNormalize (which must see the shaped reward and the wrapper raw obs)."""
         if self.env is None:
             raise ValueError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
         assert self.reward_rule is not None
-        vec_normalize = self.get_vec_normalize_env()
-        batch = self.batch_scoring and not (vec_normalize is not None and vec_normalize.norm_reward)
         wrapper = self.reward_wrapper()
         if wrapper is not None:
-            wrapper.ensemble, wrapper.rule, wrapper.batch = self.ensemble, self.reward_rule, batch
+            wrapper.ensemble, wrapper.rule = self.ensemble, self.reward_rule
             return
-        lowest: Optional[VecEnvWrapper] = None
-        base: VecEnv = self.env
-        while isinstance(base, VecEnvWrapper):
-            lowest, base = base, base.venv
-        wrapper = DisagreementReward(base, self.ensemble, self.reward_rule, batch=batch)
-        if lowest is None:
-            self.env = wrapper
+        if not self._per_step_scoring():
+            return
+        vec_normalize = self.get_vec_normalize_env()
+        if vec_normalize is None:
+            self.env = DisagreementReward(self.env, self.ensemble, self.reward_rule)
         else:
-            lowest.venv = wrapper
+            vec_normalize.venv = DisagreementReward(vec_normalize.venv, self.ensemble, self.reward_rule)
         self._last_obs = None  # the next learn() resets through the wrapper so it sees the first obs
 
     # -- training ---------------------------------------------------------------------------------
@@ -318,32 +445,13 @@ class CMZDRIL(PPO):
             progress_bar=progress_bar,
         )
 
-    def collect_rollouts(
-        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
-    ) -> bool:
-        keep_going = super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
-        wrapper = self.reward_wrapper()
-        if wrapper is not None and wrapper.batch:
-            if keep_going:
-                self._apply_batch_rewards(wrapper, rollout_buffer)
-            else:
-                wrapper.discard_pending()  # aborted by a callback: the buffer will not be trained on
-        if wrapper is not None:
-            for key, value in wrapper.pop_stats().items():
-                self.logger.record(f"rollout/{key}", value)
-            state = wrapper.rule.get_state()
-            if state.size:
-                self.logger.record("rollout/ubar_mean", float(state.mean()))
-        return keep_going
-
-    def _apply_batch_rewards(self, wrapper: DisagreementReward, rollout_buffer: RolloutBuffer) -> None:
-        _, shaped = wrapper.score_pending()
-        # The buffer holds reward 0 per step plus SB3's bootstrap gamma*V(s_T) at time-limit
-        # truncations; adding the shaped rewards keeps that bootstrap.
-        rollout_buffer.rewards += shaped
-        with th.no_grad():
-            last_values = self.policy.predict_values(obs_as_tensor(self._last_obs, self.device))
-        rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=self._last_episode_starts)
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
+        user = super()._init_callback(callback, progress_bar)
+        scorer = RolloutScorer(rescore=not self._per_step_scoring())
+        combined = CallbackList([scorer, user])
+        combined.init_callback(self)
+        return combined
 
     def train(self) -> None:
         super().train()

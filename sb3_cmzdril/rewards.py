@@ -16,7 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional, Protocol, Tuple
+from typing import Any, Dict, List, Optional, Protocol
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -173,14 +173,12 @@ class DisagreementReward(VecEnvWrapper):
         :class:`~sb3_cmzdril.ensemble.BCEnsemble`. ``needs_actions`` on it (default True) says
         whether to pass the actions.
     :param rule: the reward rule, e.g. ``CMZReward()``.
-    :param batch: score later, in one batch. Each step then returns reward 0 and records the
-        observation acted on (and the action); :meth:`score_pending` later returns the shaped
-        rewards of all recorded steps at once (one ensemble forward instead of one per step, and
-        the rule over the whole sequence). For an algorithm that can correct its buffer after the
-        rollout (``CMZDRIL`` does); ``infos`` then carry ``"env_reward"`` but not ``"disagreement"``.
+
+    Put it above any Monitor/VecMonitor so they record the true return (``CMZDRIL`` does; by default
+    it does not use this wrapper at all but scores whole rollouts, see :mod:`sb3_cmzdril.scoring`).
     """
 
-    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule, batch: bool = False) -> None:
+    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule) -> None:
         super().__init__(venv)
         if not hasattr(ensemble, "disagreement"):
             raise TypeError(f"ensemble must have a disagreement(obs, actions) method; got {type(ensemble).__name__}")
@@ -189,8 +187,6 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
-        self.batch = bool(batch)
-        self._pending: List[tuple] = []  # batch mode: (acted-on obs, actions, env rewards) per step
         self._last_obs: Optional[np.ndarray] = None
         self._actions: Optional[np.ndarray] = None
         self._sum_u = self._sum_reward = 0.0
@@ -209,12 +205,6 @@ class DisagreementReward(VecEnvWrapper):
         if self._last_obs is None:
             raise RuntimeError("DisagreementReward.step_wait() before reset(): the acted-on observation is unknown")
         obs, env_rewards, dones, infos = self.venv.step_wait()
-        if self.batch:
-            for info, r_env in zip(infos, env_rewards.tolist()):
-                info["env_reward"] = r_env
-            self._pending.append((self._last_obs, self._actions, env_rewards))
-            self._last_obs = obs
-            return obs, np.zeros(len(env_rewards), np.float32), dones, infos
         u = self.ensemble.disagreement(self._last_obs, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist()):
@@ -226,28 +216,6 @@ class DisagreementReward(VecEnvWrapper):
         self._sum_reward += float(np.add.reduce(rewards))
         self._count += u.size
         return obs, rewards, dones, infos
-
-    def score_pending(self) -> Tuple[np.ndarray, np.ndarray]:
-        """Batch mode: ``(u, rewards)`` of every step recorded since the last call, each
-        (T, n_envs), in step order; the rule's state advances over them as if stepped one by one."""
-        pending, self._pending = self._pending, []
-        n_envs = self.num_envs
-        if not pending:
-            return np.zeros((0, n_envs)), np.zeros((0, n_envs), np.float32)
-        obs = np.stack([p[0] for p in pending])
-        flat_obs = obs.reshape((-1,) + obs.shape[2:])
-        actions = np.stack([np.asarray(p[1]) for p in pending]) if self._pass_actions else None
-        flat_actions = None if actions is None else actions.reshape((len(flat_obs),) + actions.shape[2:])
-        u = self.ensemble.disagreement(flat_obs, flat_actions).reshape(len(pending), n_envs)
-        rewards = self.rule.sequence(u, np.stack([p[2] for p in pending]))
-        self._sum_u += float(u.sum())
-        self._sum_reward += float(rewards.sum())
-        self._count += u.size
-        return u, rewards
-
-    def discard_pending(self) -> None:
-        """Batch mode: forget recorded steps that will not be scored (an aborted rollout)."""
-        self._pending = []
 
     def pop_stats(self) -> Dict[str, float]:
         """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""

@@ -26,7 +26,8 @@ def test_every_reward_mode_learns_and_logs(reward, pendulum_demos, tmp_path):
         rows = list(csv.DictReader(f))
     assert {"rollout/disagreement_mean", "rollout/shaped_reward_mean", "train/bc_nll"} <= set(rows[0])
     assert any(r["train/bc_nll"] for r in rows)
-    rule = model.reward_wrapper().rule
+    rule = model.reward_rule
+    assert model.reward_wrapper() is None  # rollouts are scored from the buffer; the env stack is untouched
     assert {"cmz": CMZReward, "dril": DRILReward}.get(reward, type(rule)) is type(rule)
     if reward == "dril":
         assert model.dril_threshold is not None and model.dril_threshold > 0
@@ -92,7 +93,7 @@ def test_save_load_identity_and_continued_learning(pendulum_demos, tmp_path):
     assert bc_state and all(v["step"] > 0 for v in bc_state.values())  # BC optimiser moments restored
     loaded.learn(128, reset_num_timesteps=False)
     assert loaded.num_timesteps == 256 + 128
-    assert loaded.reward_wrapper().rule is loaded.reward_rule
+    assert loaded.reward_rule.get_state().shape == (2,)
     # no env: still predicts
     assert CMZDRIL.load(tmp_path / "agent.zip").predict(obs[:1], deterministic=True)[0].shape == (1, 1)
 
@@ -109,15 +110,32 @@ def test_load_with_other_demonstrations_and_other_n_envs(pendulum_demos, tmp_pat
     loaded.learn(192, reset_num_timesteps=False)
 
 
-def test_vecnormalize_sits_above_the_reward_wrapper(pendulum_demos):
-    venv = VecNormalize(DummyVecEnv([lambda: Monitor(gym.make("Pendulum-v1"))]), norm_reward=False)
-    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
-    model.learn(128)
-    assert isinstance(model.env, VecNormalize) and isinstance(model.env.venv, DisagreementReward)
-    wrapper = model.reward_wrapper()
-    raw = wrapper._last_obs
+def _rollout_of(env_fn, pendulum_demos, **kwargs) -> CMZDRIL:
+    model = CMZDRIL("MlpPolicy", env_fn(), demonstrations=pendulum_demos, **{**TINY, "n_steps": 160, "batch_size": 80, **kwargs})
+    model.learn(2 * 160 * model.n_envs)
+    return model
+
+
+def _assert_same_rollouts(a: CMZDRIL, b: CMZDRIL) -> None:
+    for name in ("rewards", "returns", "advantages", "values"):
+        np.testing.assert_allclose(getattr(a.rollout_buffer, name), getattr(b.rollout_buffer, name), rtol=1e-5, atol=1e-5, err_msg=name)
+    # u differs in the last float32 bits between the batched (torch) and per-step (numpy) forward
+    np.testing.assert_allclose(a.reward_rule.get_state(), b.reward_rule.get_state(), rtol=1e-6)
+
+
+def test_vecnormalize_the_ensemble_scores_raw_observations(pendulum_demos):
+    # Per-step scoring puts the wrapper below VecNormalize, where it sees raw observations; the
+    # buffer path must score the same raw observations although the buffer holds normalised ones.
+    def env():
+        return VecNormalize(DummyVecEnv([lambda: Monitor(gym.make("Pendulum-v1"))] * 2), norm_reward=False)
+
+    batch, step = _rollout_of(env, pendulum_demos), _rollout_of(env, pendulum_demos, batch_scoring=False)
+    assert batch.reward_wrapper() is None
+    assert isinstance(step.env, VecNormalize) and isinstance(step.env.venv, DisagreementReward)
+    raw = step.reward_wrapper()._last_obs
     assert np.allclose(np.linalg.norm(raw[:, :2], axis=1), 1.0, atol=1e-5)  # cos/sin: raw, not normalised
-    assert model._demo_obs_transform() == venv.normalize_obs
+    _assert_same_rollouts(batch, step)
+    assert batch._demo_obs_transform() == batch.env.normalize_obs
 
 
 def test_discrete_cartpole_end_to_end(cartpole_demos, tmp_path):
@@ -179,20 +197,14 @@ def test_tensorboard_logging(pendulum_demos, tmp_path):
 @pytest.mark.parametrize("reward", ["cmz", "dril", "env"])
 def test_batch_scoring_gives_the_same_rollout_as_per_step_scoring(reward, pendulum_demos):
     # Pendulum truncates at 200 steps: the rollout includes SB3's time-limit bootstrap, which the
-    # batch correction must keep. Two envs, 3 rollouts of 160 steps each.
-    def run(batch: bool) -> CMZDRIL:
-        env = DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 2)
-        model = CMZDRIL("MlpPolicy", env, demonstrations=pendulum_demos, reward=reward, batch_scoring=batch,
-                        **{**TINY, "n_steps": 160, "batch_size": 80})
-        model.learn(3 * 320)
-        return model
+    # batch correction must keep. Two envs, rollouts of 160 steps.
+    def env():
+        return DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 2)
 
-    batch, step = run(True), run(False)
-    assert batch.reward_wrapper().batch and not step.reward_wrapper().batch
-    for name in ("rewards", "returns", "advantages", "values"):
-        np.testing.assert_allclose(getattr(batch.rollout_buffer, name), getattr(step.rollout_buffer, name), rtol=1e-5, atol=1e-5, err_msg=name)
-    # u differs in the last float32 bits between the batched (torch) and per-step (numpy) forward
-    np.testing.assert_allclose(batch.reward_rule.get_state(), step.reward_rule.get_state(), rtol=1e-6)
+    batch = _rollout_of(env, pendulum_demos, reward=reward)
+    step = _rollout_of(env, pendulum_demos, reward=reward, batch_scoring=False)
+    assert batch.reward_wrapper() is None and step.reward_wrapper() is not None
+    _assert_same_rollouts(batch, step)
     obs = pendulum_demos.observations[:20]
     np.testing.assert_allclose(batch.predict(obs, deterministic=True)[0], step.predict(obs, deterministic=True)[0], rtol=1e-5, atol=1e-6)
 
@@ -201,4 +213,4 @@ def test_reward_normalising_vecnormalize_scores_per_step(pendulum_demos):
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=True)
     model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
     model.learn(64)
-    assert not model.reward_wrapper().batch
+    assert model.env is venv and isinstance(venv.venv, DisagreementReward)
