@@ -171,6 +171,33 @@ def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
     assert done["num_timesteps"] == 256 and done["segments"] == 2
 
 
+def test_final_evaluation_on_every_held_out_episode_and_lowest_u_choice(grid_runs):
+    for spec in grid_runs["specs"]:
+        out = Path(spec.output_dir)
+        config, done = _config(out), json.loads((out / "done.json").read_text())
+        held_out = [i for i in range(POOL_EPISODES) if i not in config["train_episodes"]]
+        policies = ["final"] if spec.method == "bc" else ["final", "lowest_u"]
+        rows = _rows(out / "final_eval.csv")
+        assert [(r["policy"], int(r["episode"])) for r in rows] == [(p, i) for p in policies for i in held_out]
+        final = done["final_evaluation"]
+        assert final["episodes"] == held_out
+        for policy in policies:
+            returns = [float(r["return"]) for r in rows if r["policy"] == policy]
+            assert final[policy]["return_mean"] == pytest.approx(np.mean(returns), rel=1e-5)
+            assert final[policy]["n_episodes"] == len(held_out)
+        if spec.method == "bc":
+            assert not (out / "model_lowest_u.zip").exists()
+            assert len(_rows(out / "pretrain.csv")) == done["pretrain"]["bc_epochs"] + 1
+            continue
+        assert (out / "model_lowest_u.zip").is_file() and (out / "lowest_u.pt").is_file()
+        if spec.seed == 0:  # one segment: the choice is the argmin of the logged rollout disagreement
+            log = _rows(out / "logs" / "progress_0.csv")
+            u = {int(r["time/total_timesteps"]) // 64 - 1: float(r["rollout/disagreement_mean"]) for r in log
+                 if r.get("rollout/disagreement_mean")}
+            assert final["lowest_u"]["epoch"] == min(u, key=u.get)
+            assert final["lowest_u"]["rollout_u"] == pytest.approx(min(u.values()), rel=1e-5)
+
+
 def test_finished_runs_are_skipped(grid_runs):
     done = {s.output_dir: (Path(s.output_dir) / "done.json").stat().st_mtime_ns for s in grid_runs["specs"]}
     csvs = {s.output_dir: (Path(s.output_dir) / "eval.csv").read_bytes() for s in grid_runs["specs"]}

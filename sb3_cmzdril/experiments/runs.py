@@ -13,6 +13,12 @@ A run is described by a :class:`RunSpec` (built and validated by :func:`plan_run
     DIR/vecnormalize.pkl   VecNormalize statistics beside model.zip, when the hyperparameters
                            ask for ``normalize``
     DIR/state.json         step count, wall time and the segments (start, resumes) of the run
+    DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
+    DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
+                           (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint
+    DIR/final_eval.csv     the final evaluation: every pool episode not used for training, replayed by
+                           the final policy ("final") and by the lowest-u one ("lowest_u"), one row
+                           per (policy, episode)
     DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
     DIR/done.json          written last: the final summary; its presence means "finished"
 
@@ -33,7 +39,6 @@ import csv
 import dataclasses
 import functools
 import hashlib
-import importlib
 import os
 import shlex
 import time
@@ -51,7 +56,10 @@ from sb3_cmzdril.experts import (
     _remove_stale_temporaries,
     _versions,
     _write_json,
+    check_env_id,
+    check_seed,
     env_name,
+    load_demonstrations,
 )
 
 #: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL.
@@ -73,6 +81,11 @@ STATE_FILE = "state.json"
 MODEL_FILE = "model.zip"
 VECNORMALIZE_FILE = "vecnormalize.pkl"
 EVAL_CSV = "eval.csv"
+FINAL_EVAL_CSV = "final_eval.csv"
+FINAL_EVAL_COLUMNS = ("policy", "episode", "seed", "return", "length", "frechet", "action_mse", "expert_return")
+PRETRAIN_CSV = "pretrain.csv"
+LOWEST_U_FILE = "lowest_u.pt"
+LOWEST_U_MODEL = "model_lowest_u.zip"
 DISCARDED_CSV = "eval.discarded.csv"
 ERROR_FILE = "error.txt"
 LOG_FILE = "log.txt"
@@ -136,25 +149,6 @@ def check_method(method: str) -> str:
     return method
 
 
-def check_env_id(env_id: str) -> str:
-    """The env id if gymnasium knows it (importing a ``module:`` prefix first), else a ValueError."""
-    import gymnasium as gym
-
-    import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0, which a bare id may name)
-
-    module, sep, name = env_id.rpartition(":")
-    if sep:
-        try:
-            importlib.import_module(module)
-        except ImportError as e:
-            raise ValueError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
-    try:
-        gym.spec(name if sep else env_id)
-    except gym.error.Error as e:
-        raise ValueError(f"unknown environment {env_id!r}: {e}") from None
-    return env_id
-
-
 def default_demos_path(env_id: str, demos_dir: PathLike = "experts") -> Path:
     """``<demos_dir>/<EnvName>/demos.npz``: where collect-demos puts an env's demo pool."""
     return Path(demos_dir) / env_name(env_id) / "demos.npz"
@@ -195,11 +189,27 @@ def _constructor_kwargs() -> frozenset:
     return frozenset(names - {"self", "policy", "env", "_init_setup_model", "ppo_kwargs"})
 
 
-@functools.lru_cache(maxsize=32)
-def _pool_size(path: str, mtime_ns: int) -> int:
-    from sb3_cmzdril.demos import Demonstrations
+@functools.lru_cache(maxsize=4)
+def _load_pool(path: str, mtime_ns: int):
+    """A demo pool, read once per version of the file: a grid plans and checks many runs on one pool."""
+    return load_demonstrations(path)
 
-    return Demonstrations.load(path).n_episodes
+
+def _pool_size(path: str, mtime_ns: int) -> int:
+    return _load_pool(path, mtime_ns).n_episodes
+
+
+def _mtime_ns(path: PathLike) -> int:
+    return Path(path).stat().st_mtime_ns
+
+
+def missing_pool_error(env_id: str, path: PathLike, alternative: str) -> FileNotFoundError:
+    """The error for a demo pool that is not there: how to record one, or ``alternative`` (the option
+    of the calling command that names an existing one)."""
+    return FileNotFoundError(
+        f"demo pool not found: {path} (record one with `sb3-cmzdril collect-demos --env {env_id} --expert ... "
+        f"--episodes N -o {path}`, or {alternative})"
+    )
 
 
 def _positive(name: str, value: int) -> int:
@@ -233,15 +243,17 @@ def plan_run(
     :raises ValueError: unknown method or env, bad counts, a pool too small for the split.
     :raises FileNotFoundError: no demo pool or hyperparameter file.
     """
-    from sb3_cmzdril.hyperparams import default_hyperparams_path
+    from stable_baselines3 import PPO
+
+    from sb3_cmzdril.algorithm import CMZDRIL
+    from sb3_cmzdril.hyperparams import check_constructor_kwargs, default_hyperparams_path
 
     check_method(method)
     check_env_id(env_id)
-    seed = int(seed)
-    if seed < 0:
-        raise ValueError(f"seed must be >= 0, got {seed}")
+    seed = check_seed(seed)
     hp_path = Path(hyperparams) if hyperparams is not None else default_hyperparams_path(HYPERPARAMS_NAME)
     hp, settings = load_run_hyperparams(hp_path, env_id)
+    check_constructor_kwargs(hp, [CMZDRIL, PPO])
     n_demos = _positive("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
     n_eval_episodes = _positive("n_eval_episodes", n_eval_episodes)
     if method == "bc":
@@ -253,17 +265,14 @@ def plan_run(
         timesteps = _positive("timesteps", timesteps)
     demos_path = Path(demos) if demos is not None else default_demos_path(env_id)
     if not demos_path.is_file():
-        raise FileNotFoundError(
-            f"demo pool not found: {demos_path} (record one with `sb3-cmzdril collect-demos --env {env_id} "
-            f"--expert ... --episodes N -o {demos_path}`, or pass --demos / --demos-dir)"
-        )
-    n_pool = _pool_size(str(demos_path.resolve()), demos_path.stat().st_mtime_ns)
+        raise missing_pool_error(env_id, demos_path, "pass the path of an existing pool with --demos")
+    n_pool = _pool_size(str(demos_path.resolve()), _mtime_ns(demos_path))
     try:
         split_episodes(n_pool, n_demos, n_eval_episodes, seed)
     except ValueError as e:
         raise ValueError(f"{demos_path}: {e}") from None
     out = Path(output_dir) if output_dir is not None else default_output_dir(env_id, method, seed)
-    return RunSpec(
+    spec = RunSpec(
         env_id=env_id,
         method=method,
         demos=str(demos_path.resolve()),
@@ -277,6 +286,46 @@ def plan_run(
         checkpoint_every=_positive("checkpoint_every", checkpoint_every),
         command=command,
     )
+    _preflight(spec, hp)
+    return spec
+
+
+#: Keys of the preflight checks passed in this process (a grid plans many runs that share one).
+_PREFLIGHT_PASSED: set = set()
+
+
+def _preflight(spec: RunSpec, hp) -> None:
+    """Build the run's env and model, without training, and fit the demo pool to their spaces.
+
+    What fails here would otherwise fail in the run after config.json is written: SB3's own checks
+    (``n_steps * n_envs > 1``), env_kwargs the env does not take, a pool recorded on another env.
+    """
+    from sb3_cmzdril.algorithm import CMZDRIL
+
+    key = (spec.env_id, spec.method, spec.hyperparams, _mtime_ns(spec.hyperparams), spec.demos, _mtime_ns(spec.demos))
+    if key in _PREFLIGHT_PASSED:
+        return
+    where = f"hyperparameters {hp.key!r} in {spec.hyperparams}"
+    try:
+        venv = _make_training_env(spec, hp, spec.seed, None)
+    except Exception as e:  # whatever the env's constructor or VecNormalize raises for bad kwargs
+        raise ValueError(f"cannot make {spec.env_id} with the env_kwargs/normalize of {where}: {type(e).__name__}: {e}") from e
+    try:
+        pool = _load_pool(spec.demos, key[-1])
+        try:
+            pool.check_spaces(venv.observation_space, venv.action_space)
+        except ValueError as e:
+            raise ValueError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
+        kwargs = hp.model_kwargs()
+        kwargs.setdefault("device", "cpu")
+        try:
+            CMZDRIL(hp.policy or "MlpPolicy", venv, demonstrations=pool, reward="zero" if spec.method == "bc" else spec.method,
+                    seed=spec.seed, **kwargs)
+        except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
+            raise ValueError(f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}") from e
+    finally:
+        venv.close()
+    _PREFLIGHT_PASSED.add(key)
 
 
 def train_command(spec: RunSpec) -> str:
@@ -515,22 +564,37 @@ def _config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], pool) 
     }
 
 
-def _check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
-    """Write config.json for a new run; for an existing one, refuse to mix two different runs."""
+def _as_stored(config: Mapping[str, Any]) -> Dict[str, Any]:
+    """``config`` as config.json stores it, to compare like with like."""
     import json
 
+    return json.loads(json.dumps(_jsonable(dict(config))))
+
+
+def _check_same_run(out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run") -> None:
+    """ValueError naming each identity entry in which the folder's run and the asked one differ."""
+    differing = [k for k in _IDENTITY_KEYS if k in saved and saved.get(k) != fresh.get(k)]
+    if differing:
+        raise ValueError(
+            f"{out} holds {what} ({', '.join(f'{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now' for k in differing)}); "
+            "use another output folder or delete that one"
+        )
+
+
+def _check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
+    """Write config.json for a new run; for an existing one, refuse to mix two different runs.
+
+    A config.json with nothing trained beside it (an attempt that failed or was stopped before its
+    first checkpoint) is replaced: it must not block the corrected command.
+    """
     path = out / CONFIG_FILE
-    if not path.is_file():
+    fresh = _as_stored(config)
+    trained = (out / MODEL_FILE).is_file() or (out / DONE_FILE).is_file()
+    if not path.is_file() or not trained:
         _write_json(path, config)
         return config
     saved = _read_json(path)
-    fresh = json.loads(json.dumps(_jsonable(config)))  # compare like with like: as config.json stores it
-    differing = [k for k in _IDENTITY_KEYS if saved.get(k) != fresh.get(k)]
-    if differing:
-        raise ValueError(
-            f"{out} holds a different run ({', '.join(f'{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now' for k in differing)}); "
-            "use another output folder or delete that one"
-        )
+    _check_same_run(out, saved, fresh)
     # A resume may ask for more steps or another cadence: config.json follows, so that its
     # train_command reproduces what the run became (state.json keeps each segment's command).
     changed = {k: fresh[k] for k in _SETTING_KEYS if saved.get(k) != fresh.get(k)}
@@ -573,19 +637,48 @@ def run_experiment(
     :param callbacks: extra SB3 callbacks for the PPO training (not used by ``bc``).
     """
     out = Path(spec.output_dir)
-    done_path = out / DONE_FILE
-    if done_path.is_file():
-        return {**_read_json(done_path), "status": "skipped"}
+    done = check_finished(spec)
+    if done is not None:
+        return {**done, "status": "skipped"}
     out.mkdir(parents=True, exist_ok=True)
     with _locked(out):
         _remove_stale_temporaries(out)
         return _run_locked(spec, out, progress_bar, list(callbacks), verbose)
 
 
+def check_finished(spec: RunSpec) -> Optional[Dict[str, Any]]:
+    """done.json's summary when ``spec.output_dir`` holds this run finished, None when it is not finished.
+
+    :raises ValueError: the folder holds a finished run of something else (another method, seed,
+        split, demo pool or hyperparameters), whose numbers must not pass for this run's; or this
+        run, finished with fewer steps than ``spec.timesteps`` asks for.
+    """
+    out = Path(spec.output_dir)
+    done_path = out / DONE_FILE
+    if not done_path.is_file():
+        return None
+    done = _read_json(done_path)
+    # done.json repeats the first identity entries, for a folder whose config.json went missing.
+    saved = _read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
+    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
+    pool = _load_pool(spec.demos, _mtime_ns(spec.demos))
+    train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
+    _check_same_run(out, saved, _as_stored(_config(spec, hp, train_idx, eval_idx, pool)), "a different, finished run")
+    steps = int(done.get("num_timesteps", 0))
+    if spec.timesteps > steps:
+        raise ValueError(
+            f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to train it "
+            f"further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), or use "
+            "another output folder"
+        )
+    return done
+
+
 def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[Any], verbose: int) -> Dict[str, Any]:
     from sb3_cmzdril.algorithm import CMZDRIL
     from sb3_cmzdril.demos import Demonstrations
     from sb3_cmzdril.metrics import ExpertEvalCallback
+    from sb3_cmzdril.selection import LowestDisagreementPolicy
 
     pool = Demonstrations.load(spec.demos)
     train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
@@ -630,6 +723,9 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
         spec.env_id, pool.select(eval_idx), eval_every=spec.eval_every, csv_path=csv_path, env_kwargs=hp.env_kwargs,
         verbose=verbose,
     )
+    selector = LowestDisagreementPolicy()
+    if resume:
+        selector.load(out / LOWEST_U_FILE)
 
     def save(m) -> None:
         vec_normalize = m.get_vec_normalize_env()
@@ -638,6 +734,7 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
                 vec_normalize.save(str(tmp))
         with atomic_path(model_path, suffix=".zip") as tmp:
             m.save(tmp)
+        selector.save(out / LOWEST_U_FILE)  # with the checkpoint, so a resume continues the same search
         state.write(m.num_timesteps)
 
     try:
@@ -645,15 +742,20 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
             # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
             model.learn(0, callback=[eval_cb])
             save(model)  # the BC policy itself, for `sb3-cmzdril evaluate` and later inspection
+            _write_pretrain_csv(out / PRETRAIN_CSV, model.pretrain_history)
         else:
             ProgressCallback, _, _ = _callbacks()
             checkpoint_cb = _checkpoint_callback_class()(save, spec.checkpoint_every)
             progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
             model.learn(
                 max(spec.timesteps - start, 0),
-                callback=[eval_cb, checkpoint_cb, progress_cb, *callbacks],
+                callback=[eval_cb, selector, checkpoint_cb, progress_cb, *callbacks],
                 reset_num_timesteps=not resume,
             )
+            if not resume:
+                _write_pretrain_csv(out / PRETRAIN_CSV, model.pretrain_history)
+        if model.num_timesteps >= spec.timesteps:
+            final = _final_evaluation(spec, model, pool, train_idx, hp, selector, out)
     finally:
         eval_cb.close()
         venv.close()
@@ -662,10 +764,66 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
         return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(out)}
     state.write(model.num_timesteps)
     summary = _summary(spec, model, config, state, csv_path)
+    summary["final_evaluation"] = final
     _write_json(out / DONE_FILE, summary)
     with contextlib.suppress(FileNotFoundError):
         (out / ERROR_FILE).unlink()  # an earlier attempt's failure is history once the run is done
     return summary
+
+
+def _write_pretrain_csv(path: Path, history: Mapping[str, Sequence[float]]) -> None:
+    """pretrain.csv: epoch, training NLL, held-out NLL (epoch 0: before training, held-out only)."""
+    train, validation = list(history.get("train_nll", [])), list(history.get("validation_nll", []))
+    n = max(len(train) + (1 if validation else 0), len(validation))
+    lines = ["epoch,train_nll,validation_nll"]
+    offset = 1 if validation else 0  # validation_nll[0] is measured before the first epoch
+    for epoch in range(n):
+        t = train[epoch - offset] if 0 <= epoch - offset < len(train) else float("nan")
+        v = validation[epoch] if epoch < len(validation) else float("nan")
+        lines.append(f"{epoch + 1 - offset},{t:.6g},{v:.6g}")
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+def _final_evaluation(spec: RunSpec, model, pool, train_idx: List[int], hp, selector, out: Path) -> Dict[str, Any]:
+    """Replay every pool episode not used for training with the final policy and, for the RL
+    methods, the lowest-u one; write final_eval.csv (one row per policy and episode) and
+    model_lowest_u.zip; return the summaries for done.json.
+
+    Five episodes per evaluation cannot tell methods apart on HalfCheetah (one BC policy scored 188
+    on one machine and 242 on another); the whole rest of the pool can.
+    """
+    from sb3_cmzdril.metrics import evaluate_against_expert
+
+    episodes = [i for i in range(pool.n_episodes) if i not in set(train_idx)]
+    held_out = pool.select(episodes)
+    policies = {"final": None}
+    if spec.method != "bc" and selector.best_state is not None:
+        policies["lowest_u"] = selector
+    results: Dict[str, Any] = {"episodes": episodes}
+    rows = [",".join(FINAL_EVAL_COLUMNS)]
+    final_state = {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
+    try:
+        for name, source in policies.items():
+            if source is not None:
+                source.apply(model)
+                with atomic_path(out / LOWEST_U_MODEL, suffix=".zip") as tmp:
+                    model.save(tmp)
+            ev = evaluate_against_expert(model, spec.env_id, held_out, env_kwargs=hp.env_kwargs, start_mismatch="ignore")
+            summary = ev.summary()
+            if source is not None:
+                summary.update(epoch=int(source.best_epoch), rollout_u=float(source.best_u))
+            results[name] = summary
+            for j, episode in enumerate(episodes):
+                rows.append(",".join(str(v) for v in (
+                    name, episode, int(ev.seeds[j]), f"{ev.returns[j]:.6g}", int(ev.lengths[j]), f"{ev.frechet[j]:.6g}",
+                    f"{ev.episode_action_mse[j]:.6g}", f"{ev.expert_returns[j]:.6g}",
+                )))
+    finally:
+        model.policy.load_state_dict(final_state)
+    with atomic_path(out / FINAL_EVAL_CSV) as tmp:
+        tmp.write_text("\n".join(rows) + "\n")
+    return results
 
 
 def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: _RunState, csv_path: Path) -> Dict[str, Any]:
@@ -764,6 +922,7 @@ __all__ = [
     "default_output_dir",
     "check_env_id",
     "check_method",
+    "check_finished",
     "run_status",
     "latest_epoch",
 ]
