@@ -4,15 +4,17 @@
 
 Both run in this one process, interleaved (PPO, CMZ-DRIL, PPO, ...), each for the same number of
 steps with PPO's default settings and one env; the median of the repeats is reported. CMZ-DRIL uses
-its default batch scoring (one ensemble forward per rollout), or with ``--per-step-scoring`` one
-forward per env step inside the reward wrapper. It uses
+its defaults (policy inputs standardised with the demo's statistics, BC pretraining early-stopped on
+held-out demo steps, each rollout scored from the rollout buffer in one ensemble forward), or with
+``--per-step-scoring`` one forward per env step inside the reward wrapper. It uses
 reward "cmz", one 1,000-step demonstration (the shipped expert's first episode when
 experts/HalfCheetah-v5/demos.npz exists, else 1,000 steps of a fixed linear feedback policy: the
 speed does not depend on the demo's quality) and one BC epoch after every PPO update.
 
 "steps/s" is measured from the start to the end of the training loop (SB3's on_training_start ->
 on_training_end), i.e. rollouts + PPO updates (+ BC epochs); CMZ-DRIL's one-time pretraining (BC
-pretraining and ensemble fitting, before the loop) is printed separately. The last line is the ratio
+pretraining to convergence and ensemble fitting, before the loop) is printed separately, with the
+epochs the early stopping ran. The last line is the ratio
 CMZ-DRIL / PPO of the medians.
 """
 from __future__ import annotations
@@ -78,7 +80,11 @@ def run(kind: str, steps: int, demos: Demonstrations, seed: int, batch_scoring: 
         )
     model.learn(steps, callback=timer)
     total = time.perf_counter() - start
-    return {"loop_sps": timer.steps / timer.seconds, "total_sps": timer.steps / total, "setup_s": total - timer.seconds}
+    result = {"loop_sps": timer.steps / timer.seconds, "total_sps": timer.steps / total, "setup_s": total - timer.seconds}
+    if kind != "ppo":
+        info = model.pretrain_info
+        result.update(bc_s=info["bc_seconds"], bc_epochs=info["bc_epochs"], ensemble_s=info["ensemble_seconds"])
+    return result
 
 
 def main() -> None:
@@ -103,6 +109,12 @@ def main() -> None:
     med_total = {k: statistics.median(r["total_sps"] for r in v) for k, v in results.items()}
     print(f"PPO      median training-loop throughput: {med['ppo']:.0f} steps/s (end to end {med_total['ppo']:.0f})")
     print(f"CMZ-DRIL median training-loop throughput: {med['cmzdril']:.0f} steps/s (end to end {med_total['cmzdril']:.0f}, incl. pretraining)")
+    pre = results["cmzdril"]
+    print(
+        f"CMZ-DRIL pretraining (median): BC {statistics.median(r['bc_s'] for r in pre):.1f}s "
+        f"({statistics.median(r['bc_epochs'] for r in pre):.0f} epochs to the early stop), "
+        f"ensemble {statistics.median(r['ensemble_s'] for r in pre):.1f}s"
+    )
     print(f"end-to-end ratio CMZ-DRIL/PPO: {med_total['cmzdril'] / med_total['ppo']:.3f}")
     print(f"ratio CMZ-DRIL/PPO: {med['cmzdril'] / med['ppo']:.3f}")
 
