@@ -1,0 +1,226 @@
+"""Evaluation against held-out expert episodes: replay each one's start with the agent in control."""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sb3_cmzdril.demos import UNKNOWN_SEED, Demonstrations, as_demonstrations
+from sb3_cmzdril.metrics.action_mse import (
+    ObsTransform,
+    _model_action_space,
+    _observation_transform,
+    _predict,
+    _step_errors,
+)
+from sb3_cmzdril.metrics.frechet import frechet_distance
+from sb3_cmzdril.metrics.trajectories import TrajectoryFn, trajectory_features
+
+
+@dataclass(frozen=True)
+class ExpertEvaluation:
+    """Result of :func:`evaluate_against_expert`; arrays have one entry per evaluated episode."""
+
+    seeds: np.ndarray  #: reset seed of each episode (the expert's)
+    returns: np.ndarray  #: the agent's true (undiscounted) return
+    lengths: np.ndarray  #: the agent's episode length
+    frechet: np.ndarray  #: Fréchet distance between the agent's and the expert's paths
+    episode_action_mse: np.ndarray  #: action MSE on that episode's expert observations
+    expert_returns: np.ndarray  #: the expert's recorded return (NaN when the demos carry no rewards)
+    expert_lengths: np.ndarray  #: the expert's episode length
+    start_matches: np.ndarray  #: whether the reset observation equalled the expert's first one
+    agent_observations: List[np.ndarray] = field(repr=False, default_factory=list)  #: (T_i, *obs_shape) each
+
+    @property
+    def n_episodes(self) -> int:
+        return int(len(self.returns))
+
+    @property
+    def mean_return(self) -> float:
+        return float(np.mean(self.returns))
+
+    @property
+    def std_return(self) -> float:
+        return float(np.std(self.returns))
+
+    @property
+    def mean_frechet(self) -> float:
+        return float(np.mean(self.frechet))
+
+    @property
+    def std_frechet(self) -> float:
+        return float(np.std(self.frechet))
+
+    @property
+    def mean_length(self) -> float:
+        return float(np.mean(self.lengths))
+
+    @property
+    def action_mse(self) -> float:
+        """Over all expert steps (episodes weighted by length): equals ``action_mse(model, demos)``."""
+        return float(np.sum(self.episode_action_mse * self.expert_lengths) / np.sum(self.expert_lengths))
+
+    def summary(self) -> Dict[str, float]:
+        """Scalars for logging and tables."""
+        return {
+            "return_mean": self.mean_return,
+            "return_std": self.std_return,
+            "frechet_mean": self.mean_frechet,
+            "frechet_std": self.std_frechet,
+            "action_mse": self.action_mse,
+            "length_mean": self.mean_length,
+            "n_episodes": self.n_episodes,
+        }
+
+
+def _require_seeds(demos: Demonstrations) -> None:
+    unknown = np.flatnonzero(demos.seeds == UNKNOWN_SEED)
+    if unknown.size:
+        raise ValueError(
+            f"episodes {unknown.tolist()} of the demonstrations have no recorded reset seed (-1): they cannot "
+            "be replayed from the expert's start; record demos with seeds or choose other episodes"
+        )
+
+
+def _make_env(env: Union[str, gym.Env], env_kwargs: Optional[Mapping[str, Any]]) -> Tuple[gym.Env, bool, Optional[str]]:
+    """(env, whether we own it and must close it, its id for the trajectory-feature lookup)."""
+    if isinstance(env, str):
+        return gym.make(env, **dict(env_kwargs or {})), True, env
+    if not isinstance(env, gym.Env):
+        raise TypeError(
+            f"env must be a gymnasium Env or an env id, got {type(env).__name__} "
+            "(VecEnvs are not accepted: each episode is reset with its own seed)"
+        )
+    if env_kwargs:
+        raise ValueError("env_kwargs only apply when env is an env id")
+    spec = getattr(env, "spec", None)
+    return env, False, getattr(spec, "id", None)
+
+
+def _checked(demos: Demonstrations, env: gym.Env) -> Demonstrations:
+    """Demos validated against the env's spaces (ValueError naming a mismatch)."""
+    with warnings.catch_warnings():
+        # The metrics clip expert actions to the bounds by definition: check_spaces' warning about
+        # out-of-bounds expert actions would only be noise, repeated at every evaluation.
+        warnings.filterwarnings("ignore", message=".*outside the action bounds", category=UserWarning)
+        return demos.check_spaces(env.observation_space, env.action_space)
+
+
+def _rollout(
+    model: Any,
+    env: gym.Env,
+    seed: int,
+    transform: Optional[ObsTransform],
+    max_steps: Optional[int],
+) -> Tuple[np.ndarray, float]:
+    """One deterministic episode: (observations acted on, (T, *obs_shape)), true return)."""
+    space = env.action_space
+    obs, _ = env.reset(seed=int(seed))
+    observations: List[np.ndarray] = []
+    total = 0.0
+    while True:
+        observations.append(np.asarray(obs))
+        action = _predict(model, np.asarray(obs)[None], transform)[0]
+        if isinstance(space, spaces.Box):
+            # What SB3's collect_rollouts/predict would execute; keeps scripted experts in bounds too.
+            action = np.clip(np.asarray(action, dtype=space.dtype).reshape(space.shape), space.low, space.high)
+        elif isinstance(space, spaces.Discrete):
+            action = int(np.asarray(action).reshape(-1)[0])
+        obs, reward, terminated, truncated, _ = env.step(action)
+        total += float(reward)
+        if terminated or truncated or (max_steps is not None and len(observations) >= max_steps):
+            break
+    return np.stack(observations), total
+
+
+def evaluate_against_expert(
+    model: Any,
+    env: Union[str, gym.Env],
+    demos: Union[Demonstrations, str, Path],
+    trajectory_fn: Optional[TrajectoryFn] = None,
+    obs_transform: Optional[ObsTransform] = None,
+    *,
+    env_kwargs: Optional[Mapping[str, Any]] = None,
+    max_steps: Optional[int] = None,
+    start_mismatch: str = "warn",
+) -> ExpertEvaluation:
+    """Replay each held-out expert episode's start with the agent in control and compare.
+
+    For each episode of ``demos``: reset ``env`` with the episode's recorded seed, roll ``model`` out
+    deterministically until terminated or truncated, and record the true return and the observations
+    the agent acted on (reset observation first, one per action: the demos' convention). Then the
+    Fréchet distance between ``trajectory_fn(agent observations)`` and ``trajectory_fn(expert
+    observations)``, and the action MSE of the model on that episode's expert observations.
+
+    :param model: anything with SB3's ``predict(obs, deterministic=True)`` accepting a batch.
+    :param env: a gymnasium Env (not wrapped in a reward wrapper: returns must be true returns), or
+        an env id for ``gym.make`` (made with ``env_kwargs`` and closed afterwards).
+    :param demos: held-out expert episodes with known reset seeds.
+    :param trajectory_fn: observations (T, d) -> path points (T, k). Default: by env id from
+        :data:`TRAJECTORY_FEATURES`, else the full observation.
+    :param obs_transform: as in :func:`action_mse` (default: the model's VecNormalize, if any).
+    :param max_steps: cut an episode after this many steps (for envs without a time limit).
+    :param start_mismatch: what to do when the reset observation differs from the expert's first
+        observation (the seed does not reproduce the expert's start): ``"warn"``, ``"raise"`` or ``"ignore"``.
+    :raises ValueError: an episode's seed is unknown (-1), or the demos do not fit the env's spaces.
+    """
+    if start_mismatch not in ("warn", "raise", "ignore"):
+        raise ValueError(f"start_mismatch must be 'warn', 'raise' or 'ignore', got {start_mismatch!r}")
+    if max_steps is not None and max_steps < 1:
+        raise ValueError(f"max_steps must be positive, got {max_steps}")
+    demos = as_demonstrations(demos)
+    _require_seeds(demos)
+    env_obj, owned, env_id = _make_env(env, env_kwargs)
+    try:
+        demos = _checked(demos, env_obj)
+        features = trajectory_fn if trajectory_fn is not None else trajectory_features(env_id)
+        transform = _observation_transform(model, obs_transform)
+        space = _model_action_space(model)
+        if space is None:  # a scripted expert without spaces: the env's
+            space = env_obj.action_space
+        step_errors = _step_errors(model, demos, space, transform)
+        starts = demos.episode_starts
+        episode_mse = np.add.reduceat(step_errors, starts) / demos.episode_lengths
+
+        returns, lengths, frechet, matches, trajectories = [], [], [], [], []
+        for i in range(demos.n_episodes):
+            expert = demos.episode(i)
+            agent_obs, total = _rollout(model, env_obj, expert["seed"], transform, max_steps)
+            match = bool(
+                np.allclose(agent_obs[0].astype(np.float32), expert["observations"][0], rtol=1e-5, atol=1e-6)
+            )
+            if not match and start_mismatch != "ignore":
+                message = (
+                    f"episode {i}: the reset observation for seed {expert['seed']} differs from the expert's "
+                    "first observation; the seed does not reproduce the expert's start (different env, "
+                    "env version or env_kwargs?), so the Fréchet distance compares different starts"
+                )
+                if start_mismatch == "raise":
+                    raise ValueError(message)
+                warnings.warn(message, UserWarning, stacklevel=2)
+            returns.append(total)
+            lengths.append(len(agent_obs))
+            frechet.append(frechet_distance(features(agent_obs), features(expert["observations"])))
+            matches.append(match)
+            trajectories.append(agent_obs)
+    finally:
+        if owned:
+            env_obj.close()
+
+    expert_returns = demos.episode_returns
+    return ExpertEvaluation(
+        seeds=demos.seeds.copy(),
+        returns=np.asarray(returns, dtype=np.float64),
+        lengths=np.asarray(lengths, dtype=np.int64),
+        frechet=np.asarray(frechet, dtype=np.float64),
+        episode_action_mse=episode_mse,
+        expert_returns=expert_returns if expert_returns is not None else np.full(demos.n_episodes, np.nan),
+        expert_lengths=demos.episode_lengths.copy(),
+        start_matches=np.asarray(matches, dtype=bool),
+        agent_observations=trajectories,
+    )
