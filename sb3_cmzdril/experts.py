@@ -27,7 +27,7 @@ import sys
 import time
 import zipfile
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Type, Union
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
 import gymnasium as gym
 import numpy as np
@@ -50,6 +50,56 @@ def register_scripted_expert(name: str, factory: ScriptedExpertFactory) -> None:
 def env_name(env_id: str) -> str:
     """``module:EnvId-v0`` -> ``EnvId-v0`` (used for default folder names)."""
     return env_id.rsplit(":", 1)[-1]
+
+
+def check_env_id(env_id: str) -> str:
+    """The env id if gymnasium knows it (importing a ``module:`` prefix first), else a ValueError.
+
+    Commands call it before they create any folder, so a typo leaves nothing behind.
+    """
+    import importlib
+
+    import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0, which a bare id may name)
+
+    module, sep, name = env_id.rpartition(":")
+    if sep:
+        try:
+            importlib.import_module(module)
+        except ImportError as e:
+            raise ValueError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
+    try:
+        gym.spec(name if sep else env_id)
+    except gym.error.Error as e:
+        raise ValueError(f"unknown environment {env_id!r}: {e}") from None
+    return env_id
+
+
+def check_seed(seed: int) -> int:
+    """A reset/network seed: numpy and gymnasium accept integers in [0, 2**32)."""
+    if isinstance(seed, bool) or int(seed) != seed or not 0 <= int(seed) < 2**32:
+        raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
+    return int(seed)
+
+
+def check_threads(n_threads: Optional[int]) -> Optional[int]:
+    """``torch.set_num_threads`` value: None (torch's default) or >= 1 (0 would make torch raise)."""
+    if n_threads is not None and (isinstance(n_threads, bool) or int(n_threads) < 1):
+        raise ValueError(f"threads must be >= 1, got {n_threads!r}")
+    return n_threads
+
+
+def load_demonstrations(path: PathLike) -> Demonstrations:
+    """:meth:`Demonstrations.load` with every kind of damaged file turned into a ValueError.
+
+    A compressed npz whose deflate stream is damaged (rather than its CRC) fails inside zlib with
+    ``zlib.error``, which names neither the file nor the problem.
+    """
+    import zlib
+
+    try:
+        return Demonstrations.load(path)
+    except zlib.error as e:
+        raise ValueError(f"demo file {path} is corrupt: {e}") from e
 
 
 def algorithm_classes() -> Dict[str, type]:
@@ -115,6 +165,15 @@ def _read_json(path: Path) -> Dict[str, Any]:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as e:
         raise ValueError(f"{path} is unreadable or corrupt: {e}") from e
+
+
+def _read_json_or_empty(path: Path) -> Dict[str, Any]:
+    """A JSON object file, or {} when it is missing, unreadable or not an object."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
 def _make_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: Optional[dict]):
@@ -339,6 +398,7 @@ def train_expert(
     n_threads: Optional[int] = 1,
     command: Optional[str] = None,
     verbose: int = 0,
+    force: bool = False,
     _callback: Any = None,
 ) -> Path:
     """Train an SB3 expert with zoo hyperparameters; resumable; returns the path of ``model.zip``.
@@ -354,42 +414,110 @@ def train_expert(
         reported in metadata.json.
     :param n_threads: ``torch.set_num_threads`` (None leaves torch's default).
     :param command: the command line to record in metadata.json (the CLI passes ``sys.argv``).
+    :param force: train in ``output_dir`` even though it holds an expert that resuming would not
+        continue (a model.zip or metadata.json without checkpoints: replaced), or a finished
+        expert with fewer than ``timesteps`` steps (continued from its checkpoint).
+    :raises FileExistsError: without ``force``, in those two cases.
     """
     import torch
 
-    from sb3_cmzdril.hyperparams import default_hyperparams_path, load_hyperparams
+    from sb3_cmzdril.hyperparams import check_constructor_kwargs, default_hyperparams_path, load_hyperparams
 
     t_start = time.time()
-    if n_threads is not None:
-        torch.set_num_threads(int(n_threads))
+    check_threads(n_threads)
     algo = algo.lower()
     algo_cls = _algo_class(algo)
     hp_path = Path(hyperparams_path) if hyperparams_path is not None else default_hyperparams_path(algo)
+    # Everything that can be checked is checked before the output folder exists.
+    check_env_id(env_id)
+    seed = check_seed(seed)
     hp = load_hyperparams(hp_path, env_id)
     hp.check_supported(what="train-expert")
+    check_constructor_kwargs(hp, [algo_cls])
     total = int(timesteps if timesteps is not None else (hp.n_timesteps or 0))
     if total <= 0:
         raise ValueError(f"no number of timesteps: pass timesteps= / --timesteps or set n_timesteps in {hp_path}")
     if final_eval_episodes < 1 or n_eval_episodes < 1:
         raise ValueError("n_eval_episodes and final_eval_episodes must be >= 1")
+    if eval_freq < 0 or checkpoint_freq < 0:
+        raise ValueError(f"eval_freq and checkpoint_freq must be >= 0, got {eval_freq} and {checkpoint_freq}")
     out = Path(output_dir) if output_dir is not None else Path("experts") / env_name(env_id)
-    out.mkdir(parents=True, exist_ok=True)
-    ckpt_dir = out / "checkpoints"
-    ckpt_dir.mkdir(exist_ok=True)
     model_path = out / "model.zip"
+    finished_steps = _check_expert_folder(out, env_id, algo, total, force)
+    if finished_steps is not None:
+        print(f"{out} holds a finished {algo} expert on {env_id} ({finished_steps} >= {total} steps, metadata.json); "
+              "nothing to do", flush=True)
+        return model_path
+    if n_threads is not None:
+        torch.set_num_threads(int(n_threads))
+    ckpt_dir = out / "checkpoints"
+    created = [d for d in (*reversed(out.parents), out, ckpt_dir) if not d.exists()]
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
     lock = _lock_output(ckpt_dir)
     try:
         return _train_expert_locked(
             env_id, algo, algo_cls, hp, hp_path, total, seed, out, ckpt_dir, model_path, eval_freq, n_eval_episodes,
             checkpoint_freq, progress_bar, final_eval_episodes, command, verbose, _callback, t_start,
         )
+    except BaseException:
+        # A first attempt that failed before writing anything leaves no empty folders behind.
+        if lock is not None:
+            _unlock(ckpt_dir, lock)
+            lock = None
+        for folder in reversed(created):
+            try:
+                folder.rmdir()
+            except OSError:  # not empty: it holds a checkpoint or a model worth keeping
+                break
+        raise
     finally:
         if lock is not None:
-            try:
-                (ckpt_dir / LOCK_FILE).unlink()
-            except OSError:
-                pass
-            lock.close()
+            _unlock(ckpt_dir, lock)
+
+
+def _unlock(ckpt_dir: Path, lock) -> None:
+    try:
+        (ckpt_dir / LOCK_FILE).unlink()
+    except OSError:
+        pass
+    lock.close()
+
+
+def _check_expert_folder(out: Path, env_id: str, algo: str, total: int, force: bool) -> Optional[int]:
+    """Refuse to train over an expert that resuming would not continue; returns its step count
+    when it is a finished expert of this env and algorithm with at least ``total`` steps.
+
+    A folder is resumed only from its checkpoints (``checkpoints/state.json``). A model.zip or
+    metadata.json without them (a shipped expert, another tool's model) would be silently replaced by
+    the first evaluation of a fresh training, so that needs ``force``, as does training a finished
+    expert further.
+    """
+    model_path, meta_path = out / "model.zip", out / "metadata.json"
+    resumable = (out / "checkpoints" / STATE_FILE).is_file()
+    meta = _read_json(meta_path) if meta_path.is_file() else {}
+    steps = meta.get("total_timesteps")
+    if model_path.is_file() and steps is not None:
+        if (meta.get("env_id"), meta.get("algo")) != (env_id, algo) and not force:
+            raise FileExistsError(
+                f"{out} holds a {meta.get('algo')} expert on {meta.get('env_id')}, not {algo} on {env_id}; "
+                "use another --output folder (or --force to train over it)"
+            )
+        if (meta.get("env_id"), meta.get("algo")) == (env_id, algo) and int(steps) >= total:
+            return int(steps)
+        if not force:
+            how = ("continue it from its checkpoint" if resumable else "train a new expert over it (it has no checkpoint)")
+            raise FileExistsError(
+                f"{out} holds a finished expert trained for {steps} steps, fewer than the {total} asked; pass --force "
+                f"to {how}, or use another --output folder"
+            )
+        return None
+    if not resumable and not force and (model_path.is_file() or meta_path.is_file()):
+        found = " and ".join(p.name for p in (model_path, meta_path) if p.is_file())
+        raise FileExistsError(
+            f"{out} already holds {found} but no checkpoint to resume from; pass --force to train a new expert "
+            "there (replacing them), or use another --output folder"
+        )
+    return None
 
 
 def _train_expert_locked(env_id, algo, algo_cls, hp, hp_path, total, seed, out, ckpt_dir, model_path, eval_freq,
@@ -506,6 +634,11 @@ def _train_expert_locked(env_id, algo, algo_cls, hp, hp_path, total, seed, out, 
             "resumes": int(state.get("resumes", 0)),
             "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        previous = _read_json_or_empty(out / "metadata.json")
+        if isinstance(previous.get("demos"), dict):
+            # The demo pool beside the expert keeps its provenance; it names the expert's step count
+            # when it was recorded, which a continued (--force) training has since moved past.
+            metadata["demos"] = {"expert_total_timesteps": previous.get("total_timesteps"), **previous["demos"]}
         _write_json(out / "metadata.json", metadata)
         print(
             f"done: {model_path} (from step {metadata['model_timesteps']}), final eval over {final_eval_episodes} "
@@ -655,15 +788,23 @@ def collect_demos(
     output: Optional[PathLike] = None,
     env_kwargs: Optional[Dict[str, Any]] = None,
     verbose: bool = True,
+    force: bool = False,
 ) -> Demonstrations:
     """Record ``n_episodes`` deterministic expert episodes; episode ``i`` is reset with ``seed + i``.
 
     :param expert: a path to an SB3 zip (any algorithm), a folder holding ``model.zip``, a
         registered scripted-expert name, or an object with ``predict``.
     :param output: where to save the demonstrations (npz, written atomically), or None.
+    :param force: replace an existing ``output`` and the demos record of a ``metadata.json`` beside
+        it that is not the expert's own; without it both raise FileExistsError before any episode runs.
     """
-    if int(n_episodes) < 1:
+    check_env_id(env_id)
+    seed = check_seed(seed)
+    if isinstance(n_episodes, bool) or int(n_episodes) < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    check_seed(seed + int(n_episodes) - 1)
+    if output is not None and not force:
+        _check_demos_output(Path(output), env_id, expert)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         policy, description = resolve_expert(expert, env)
@@ -679,6 +820,46 @@ def collect_demos(
         if verbose:
             print(f"saved {output} (provenance in {Path(output).parent / 'metadata.json'})")
     return demos
+
+
+def _check_demos_output(output: Path, env_id: str, expert: Any) -> None:
+    """FileExistsError when saving to ``output`` would replace a demo pool or another pool's record.
+
+    metadata.json beside the pool gets a ``demos`` section. That is only safe to add where the file
+    has none and belongs to this very expert (train-expert's record in the expert's own folder).
+    """
+    if output.exists():
+        raise FileExistsError(
+            f"{output} already exists ({_describe_pool(output)}); pass --force to replace it, or choose another -o"
+        )
+    meta_path = output.parent / "metadata.json"
+    if not meta_path.is_file():
+        return
+    meta = _read_json_or_empty(meta_path)
+    recorded = meta.get("demos")
+    if isinstance(recorded, dict):
+        raise FileExistsError(
+            f"{meta_path} already records the demo pool {recorded.get('file')!r} of {recorded.get('expert')}; "
+            f"saving {output.name} there would replace that record: pass --force, or choose another folder"
+        )
+    expert_folder = None
+    if isinstance(expert, (str, Path)) and Path(expert).exists():
+        expert_folder = Path(expert) if Path(expert).is_dir() else Path(expert).parent
+    own = expert_folder is not None and expert_folder.resolve() == output.parent.resolve() and meta.get("env_id") == env_id
+    if not own:
+        raise FileExistsError(
+            f"{meta_path} describes {meta.get('expert') or meta.get('algo') or 'something else'} on {meta.get('env_id')}, "
+            f"not this expert; pass --force to add this pool's record to it, or choose another folder"
+        )
+
+
+def _describe_pool(path: Path) -> str:
+    """``"a demo pool of N episodes"`` when the file reads as one, else ``"not a readable demo pool"``."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return f"a demo pool of {len(data['episode_lengths'])} episodes"
+    except Exception:  # any damage: the file is still there and still not ours to replace
+        return "not a readable demo pool"
 
 
 def _record_demos_provenance(
@@ -702,6 +883,8 @@ def _record_demos_provenance(
         "mean_length": float(np.mean(demos.episode_lengths)),
         "command": command_line(),
     }
+    if meta.get("total_timesteps") is not None:
+        meta["demos"]["expert_total_timesteps"] = meta["total_timesteps"]
     _write_json(meta_path, meta)
 
 

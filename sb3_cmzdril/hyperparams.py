@@ -24,7 +24,7 @@ import ast
 import copy
 import dataclasses
 from pathlib import Path
-from typing import Any, Dict, Iterable, Optional, Union
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Union
 
 import yaml
 
@@ -219,6 +219,98 @@ class Hyperparams:
                 f"hyperparameters {self.key!r} in {self.path} set {used}, which {what} does not support; "
                 "remove them or use rl-zoo3 for this environment"
             )
+
+
+# -- constructor arguments ---------------------------------------------------------------------------
+#: Checks for the plain types that constructor annotations name; an annotation naming anything else
+#: (``torch.device``, ``ActionNoise``, a class) is not checked here but by the constructor itself.
+_TYPE_CHECKS: Dict[str, Callable[[Any], bool]] = {
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    "bool": lambda v: isinstance(v, bool),
+    "str": lambda v: isinstance(v, str),
+    "None": lambda v: v is None,
+    "NoneType": lambda v: v is None,
+    "Callable": callable,
+    "Schedule": callable,
+    "tuple": lambda v: isinstance(v, (tuple, list)),
+    "Tuple": lambda v: isinstance(v, (tuple, list)),
+    "Sequence": lambda v: isinstance(v, (tuple, list)),
+    "list": lambda v: isinstance(v, (tuple, list)),
+    "List": lambda v: isinstance(v, (tuple, list)),
+    "dict": lambda v: isinstance(v, dict),
+    "Dict": lambda v: isinstance(v, dict),
+}
+_TYPE_NAMES = {"Callable": "a schedule", "Schedule": "a schedule", "NoneType": "None", "Tuple": "tuple", "Sequence": "list",
+               "List": "list", "Dict": "dict"}
+
+
+def _split_top_level(text: str, sep: str) -> List[str]:
+    """``text`` split at ``sep`` outside brackets: ``"a[b, c], d"`` -> ``["a[b, c]", "d"]``."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += {"[": 1, "]": -1}.get(ch, 0)
+        if ch == sep and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    parts.append(text[start:])
+    return [part.strip() for part in parts if part.strip()]
+
+
+def annotation_alternatives(annotation: Any) -> List[str]:
+    """The type names an annotation allows at its top level, for real and string annotations alike.
+
+    ``int`` -> ``["int"]``; ``"Optional[Dict[str, Any]]"`` -> ``["Dict", "None"]``;
+    ``float | Callable[[float], float]`` -> ``["float", "Callable"]``.
+    """
+    if isinstance(annotation, type):
+        return [annotation.__name__]
+    names: List[str] = []
+    for part in _split_top_level(annotation if isinstance(annotation, str) else str(annotation), "|"):
+        head, _, inner = part.partition("[")
+        head = head.strip().rsplit(".", 1)[-1]
+        inner = inner[:-1] if inner.endswith("]") else inner
+        if head == "Optional":
+            names += annotation_alternatives(inner) + ["None"]
+        elif head == "Union":
+            for alternative in _split_top_level(inner, ","):
+                names += annotation_alternatives(alternative)
+        else:
+            names.append(head)
+    return names
+
+
+def check_constructor_kwargs(hp: "Hyperparams", classes: Sequence[type]) -> None:
+    """ValueError, naming the file and the key, for an ``algo_kwargs`` entry that no class in
+    ``classes`` accepts or whose value has a type its annotation rules out.
+
+    The zoo passes these straight to the constructor, where ``n_steps: "lots"`` fails deep inside
+    SB3 with an unrelated message (or only once training has started); checked here, the mistake is
+    reported before any file is written. The first class naming a parameter decides its type.
+    """
+    import inspect
+
+    parameters: Dict[str, inspect.Parameter] = {}
+    for cls in classes:
+        for name, parameter in inspect.signature(cls.__init__).parameters.items():
+            if parameter.kind not in (parameter.VAR_KEYWORD, parameter.VAR_POSITIONAL):
+                parameters.setdefault(name, parameter)
+    for name in ("self", "policy", "env", "_init_setup_model"):
+        parameters.pop(name, None)
+    where = f"hyperparameters {hp.key!r}" + (f" in {hp.path}" if hp.path else "")
+    unknown = sorted(set(hp.algo_kwargs) - set(parameters))
+    if unknown:
+        raise ValueError(f"{where}: {unknown} are not {'/'.join(c.__name__ for c in classes)} arguments")
+    for name, value in hp.algo_kwargs.items():
+        annotation = parameters[name].annotation
+        if annotation is inspect.Parameter.empty:
+            continue
+        allowed = annotation_alternatives(annotation)
+        if not all(a in _TYPE_CHECKS for a in allowed):
+            continue
+        if not any(_TYPE_CHECKS[a](value) for a in allowed):
+            expected = " or ".join(dict.fromkeys(_TYPE_NAMES.get(a, a) for a in allowed))
+            raise ValueError(f"{where}: {name} must be {expected}, got {hp.raw.get(name, value)!r} ({type(value).__name__})")
 
 
 def _entry_key(available: Iterable[str], env_id: str) -> Optional[str]:

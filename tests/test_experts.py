@@ -93,7 +93,12 @@ def test_resume_continues_to_total(tiny_yaml, tmp_path):
     assert first.num_timesteps == 200 and first.replay_buffer.size() == 200
     obs_first = first.replay_buffer.observations[:200].copy()
 
-    train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    # A finished expert is trained further only when asked to (--force): it may replace model.zip.
+    before = {p.name: p.stat().st_mtime_ns for p in out.rglob("*")}
+    with pytest.raises(FileExistsError, match="finished expert trained for 200 steps, fewer than the 300 asked; pass --force"):
+        train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+    assert {p.name: p.stat().st_mtime_ns for p in out.rglob("*")} == before
+    train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
     state = _state(out)
     assert state["num_timesteps"] == 300 and state["resumes"] == 1
     second = _buffer(out)
@@ -107,9 +112,11 @@ def test_resume_continues_to_total(tiny_yaml, tmp_path):
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
         "best.json", "model_300_steps.zip", "replay_buffer_300_steps.pkl", "state.json"]
 
-    # asking for fewer steps than done trains nothing more
+    # asking for fewer steps than done trains nothing more and rewrites nothing
+    before = {p.name: p.stat().st_mtime_ns for p in out.rglob("*")}
     train_expert(ENV, timesteps=250, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
     assert _state(out)["num_timesteps"] == 300
+    assert {p.name: p.stat().st_mtime_ns for p in out.rglob("*")} == before
 
 
 class _Crash(BaseCallback):
@@ -205,6 +212,19 @@ def test_collect_demos_zip_without_metadata(trained, tmp_path):
     assert demos.n_episodes == 1 and list(demos.seeds) == [0]
 
 
+def test_demos_beside_the_expert_keep_their_record_when_it_trains_further(trained, tmp_path, tiny_yaml):
+    out = tmp_path / "expert"
+    shutil.copytree(trained, out)
+    # The expert's own folder: its metadata.json (written by train-expert) takes the demos record.
+    collect_demos(out, ENV, n_episodes=1, output=out / "demos.npz", verbose=False)
+    assert json.loads((out / "metadata.json").read_text())["demos"]["expert_total_timesteps"] == 200
+    train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["total_timesteps"] == 300
+    # still there, and still saying the pool came from the 200-step expert
+    assert meta["demos"]["file"] == "demos.npz" and meta["demos"]["expert_total_timesteps"] == 200
+
+
 class _PendulumPD:
     """Swing-free PD controller around the upright position (a scripted expert for the tests)."""
 
@@ -257,7 +277,7 @@ def test_corrupt_checkpoint_is_reported(trained, tmp_path, tiny_yaml):
     ckpt = out / "checkpoints" / _state(out)["model_file"]
     ckpt.write_bytes(b"garbage")
     with pytest.raises(ValueError, match=str(ckpt)):
-        train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
+        train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
 
 
 def test_collect_demos_records_provenance_beside_the_file(tmp_path):

@@ -188,3 +188,60 @@ def test_repo_sac_yml_has_zoo_values():
 def test_missing_default_file_is_explained():
     with pytest.raises(FileNotFoundError, match="--hyperparams"):
         default_hyperparams_path("no-such-algo")
+
+
+# -- constructor arguments: names and types checked before anything is built ----------------------------
+@pytest.mark.parametrize(
+    "annotation, expected",
+    [
+        (int, ["int"]),
+        ("Optional[Dict[str, Any]]", ["Dict", "None"]),
+        ("Union[None, float, Schedule]", ["None", "float", "Schedule"]),
+        ("int | tuple[int, str]", ["int", "tuple"]),
+        ("torch.device | str", ["device", "str"]),
+    ],
+)
+def test_annotation_alternatives(annotation, expected):
+    from sb3_cmzdril.hyperparams import annotation_alternatives
+
+    assert annotation_alternatives(annotation) == expected
+
+
+def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
+    from stable_baselines3 import PPO, SAC
+
+    from sb3_cmzdril.algorithm import CMZDRIL
+    from sb3_cmzdril.experiments.runs import load_run_hyperparams
+    from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
+
+    sac = default_hyperparams_path("sac")
+    for key in read_hyperparams_file(sac):
+        check_constructor_kwargs(load_hyperparams(sac, key), [SAC])
+    cmzdril = default_hyperparams_path("cmzdril")
+    for key in read_hyperparams_file(cmzdril):
+        check_constructor_kwargs(load_run_hyperparams(cmzdril, key)[0], [CMZDRIL, PPO])
+    # schedules, [n, "episode"] train_freq, ent_coef as a number or "auto", an int where a float is due
+    zoo = {"learning_rate": "lin_7.3e-4", "train_freq": [1, "episode"], "ent_coef": 0.1, "target_entropy": "auto", "tau": 1}
+    check_constructor_kwargs(split_hyperparams(zoo, "Pendulum-v1", "Pendulum-v1"), [SAC])
+
+
+@pytest.mark.parametrize(
+    "entry, message",
+    [
+        ({"n_steps": "lots"}, "hyperparameters 'k' in f.yml: n_steps must be int, got 'lots' \\(str\\)"),
+        ({"n_steps": 2.5}, "n_steps must be int, got 2.5 \\(float\\)"),
+        ({"gamma": True}, "gamma must be float, got True \\(bool\\)"),
+        ({"clip_range": "x"}, "invalid schedule for clip_range"),
+        ({"target_kl": "0.01"}, "target_kl must be float or None, got '0.01' \\(str\\)"),
+        ({"ensemble_hidden": 64}, "ensemble_hidden must be list, got 64 \\(int\\)"),
+        ({"n_step": 3}, "\\['n_step'\\] are not CMZDRIL/PPO arguments"),
+    ],
+)
+def test_check_constructor_kwargs_names_the_key(entry, message):
+    from stable_baselines3 import PPO
+
+    from sb3_cmzdril.algorithm import CMZDRIL
+    from sb3_cmzdril.hyperparams import check_constructor_kwargs
+
+    with pytest.raises(ValueError, match=message):
+        check_constructor_kwargs(split_hyperparams(entry, "Pendulum-v1", "k", path="f.yml"), [CMZDRIL, PPO])
