@@ -31,19 +31,21 @@ from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
 from sb3_cmzdril._atomic import PathLike, atomic_write_text
+from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.experiments.runs import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
-    DONE_FILE,
     ERROR_FILE,
     LOG_FILE,
     METHODS,
     RunSpec,
     check_env_id,
+    check_finished,
     check_method,
     default_demos_path,
     default_output_dir,
     latest_epoch,
+    missing_pool_error,
     plan_run,
     run_experiment,
 )
@@ -93,6 +95,9 @@ def plan_grid(
         check_method(method)
     for env_id in envs:
         check_env_id(env_id)
+        pool = default_demos_path(env_id, demos_dir)
+        if not pool.is_file():
+            raise missing_pool_error(env_id, pool, f"pass --demos-dir DIR, a folder holding {env_name(env_id)}/demos.npz")
     indices = list(range(int(trials))) if isinstance(trials, int) else [int(t) for t in trials]
     if not indices:
         raise ValueError(f"need at least one trial, got {trials!r}")
@@ -111,10 +116,17 @@ def plan_grid(
 
 # -- the worker side -------------------------------------------------------------------------------
 def _init_worker() -> None:
-    """One torch thread per run: two single-threaded runs beat one two-threaded run (DESIGN.md)."""
+    """One torch thread per run: two single-threaded runs beat one two-threaded run (DESIGN.md).
+
+    MuJoCo's warnings go to the run's log.txt, minus known noise, instead of MUJOCO_LOG.TXT in the
+    working directory (see :mod:`sb3_cmzdril._mujoco_log`).
+    """
     import torch
 
+    from sb3_cmzdril._mujoco_log import route_mujoco_warnings
+
     torch.set_num_threads(1)
+    route_mujoco_warnings()
 
 
 def _write_error(spec: RunSpec, text: str) -> None:
@@ -336,16 +348,18 @@ def run_grid(
     labels = [s.output_dir for s in specs]
     if len(set(labels)) != len(labels):
         raise ValueError("two runs of the grid share an output folder")
-    display = GridProgress(len(specs), enabled=progress)
     outcomes: Dict[str, Dict[str, Any]] = {}
     todo: collections.deque = collections.deque()
     skipped = []
     for spec in specs:
-        if (Path(spec.output_dir) / DONE_FILE).is_file():
+        # Raises for a finished folder of another run, or one finished short of the steps asked:
+        # before anything starts, rather than counting foreign numbers as this grid's.
+        if check_finished(spec) is not None:
             outcomes[spec.output_dir] = _outcome(spec, "skipped", 0.0)
             skipped.append(spec)
         else:
             todo.append(spec)
+    display = GridProgress(len(specs), enabled=progress)
     display.skipped(skipped)
     runner = _backend(backend, workers, ray_address) if todo else None
     interrupted = True
