@@ -31,7 +31,7 @@ def _add_train_expert(sub) -> None:
             "unless --hyperparams is given). The best model by periodic deterministic evaluation is "
             "OUTPUT/model.zip; OUTPUT/metadata.json records how it was made. Checkpoints go to "
             "OUTPUT/checkpoints/; running the same command again resumes from the last one and trains "
-            "until --timesteps in total."
+            "until --timesteps in total. An existing expert is never replaced without --force."
         ),
     )
     p.add_argument("--env", required=True, help="environment id (anything gym.make accepts)")
@@ -47,6 +47,9 @@ def _add_train_expert(sub) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar / progress lines")
     p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
+    p.add_argument("--force", action="store_true",
+                   help="train even where OUTPUT holds an expert without checkpoints (replacing it), or a finished "
+                        "one with fewer steps than --timesteps (continuing it)")
     p.set_defaults(func=_run_train_expert)
 
 
@@ -68,6 +71,7 @@ def _run_train_expert(args) -> int:
         n_threads=args.threads,
         command=command_line(),
         verbose=args.verbose,
+        force=args.force,
     )
     print(path)
     return 0
@@ -88,13 +92,15 @@ def _add_collect_demos(sub) -> None:
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (default 0)")
     p.add_argument("-o", "--output", required=True, help="output .npz file")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing OUTPUT, and the demos record of a metadata.json beside it that is not the expert's own")
     p.set_defaults(func=_run_collect_demos)
 
 
 def _run_collect_demos(args) -> int:
     from sb3_cmzdril.experts import collect_demos
 
-    collect_demos(args.expert, args.env, n_episodes=args.episodes, seed=args.seed, output=args.output)
+    collect_demos(args.expert, args.env, n_episodes=args.episodes, seed=args.seed, output=args.output, force=args.force)
     return 0
 
 
@@ -150,9 +156,9 @@ def _run_train(args) -> int:
     import torch
 
     from sb3_cmzdril.experiments.runs import plan_run, run_experiment
-    from sb3_cmzdril.experts import command_line
+    from sb3_cmzdril.experts import check_threads, command_line
 
-    torch.set_num_threads(max(1, args.threads))
+    torch.set_num_threads(check_threads(args.threads))
     spec = plan_run(
         args.env, args.reward, args.seed, demos=args.demos, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
         timesteps=args.timesteps, output_dir=args.output, hyperparams=args.hyperparams, eval_every=args.eval_every,
@@ -160,7 +166,7 @@ def _run_train(args) -> int:
     )
     result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
-        print(f"{spec.output_dir} is already finished (done.json); nothing to do")
+        print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
     window = result.get("final_window")
     if window:
         print(
@@ -189,26 +195,31 @@ def _add_evaluate(sub) -> None:
     p.add_argument("--demos", default=None,
                    help="demonstrations npz (default: the demo pool in config.json beside the model, else experts/<EnvName>/demos.npz)")
     p.add_argument("--episodes", default=None,
-                   help="comma-separated episode indices of the demos file (default: all; a run's held-out ones are eval_episodes in its config.json)")
+                   help="comma-separated episode indices of the demos file (default: for a run's model, the run's "
+                        "held-out eval_episodes of its config.json; otherwise all)")
     p.add_argument("--env-kwargs", default=None,
                    help='e.g. "dict(max_steps=200)" (default: env_kwargs of config.json beside the model, if any)')
-    p.add_argument("--vecnormalize", default=None, help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any)")
+    p.add_argument("--vecnormalize", default=None,
+                   help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any; required for a run "
+                        "that normalised)")
     p.set_defaults(func=_run_evaluate)
 
 
 def _run_evaluate(args) -> int:
-    import json
     from pathlib import Path
 
-    from sb3_cmzdril.demos import Demonstrations
-    from sb3_cmzdril.experiments.runs import CONFIG_FILE, VECNORMALIZE_FILE, default_demos_path, load_evaluation_model
+    from sb3_cmzdril.experiments.runs import CONFIG_FILE, default_demos_path, load_evaluation_model
+    from sb3_cmzdril.experts import _read_json, check_env_id, load_demonstrations
     from sb3_cmzdril.hyperparams import safe_eval
     from sb3_cmzdril.metrics import evaluate_against_expert
 
+    check_env_id(args.env)
     model_path = Path(args.model)
-    folder = model_path.parent
+    if not model_path.is_file():
+        raise FileNotFoundError(f"model file not found: {model_path}")
     # A run folder's config.json knows how the model was trained and evaluated.
-    run_config = json.loads((folder / CONFIG_FILE).read_text()) if (folder / CONFIG_FILE).is_file() else {}
+    config_path = model_path.parent / CONFIG_FILE
+    run_config = _read_json(config_path) if config_path.is_file() else {}
     if args.env_kwargs is not None:
         env_kwargs = safe_eval(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
@@ -216,16 +227,14 @@ def _run_evaluate(args) -> int:
     else:
         env_kwargs = run_config.get("env_kwargs") or {}
     demos_path = Path(args.demos or run_config.get("demos") or default_demos_path(args.env))
-    demos = Demonstrations.load(demos_path)
-    indices = list(range(demos.n_episodes))
-    if args.episodes:
-        try:
-            indices = [int(i) for i in args.episodes.split(",") if i.strip()]
-        except ValueError:
-            raise ValueError(f"--episodes must be comma-separated integers, got {args.episodes!r}") from None
+    demos = load_demonstrations(demos_path)
+    indices, which = _evaluation_episodes(args.episodes, demos.n_episodes, demos_path, run_config)
+    vecnormalize, vecnormalize_note = _evaluation_statistics(args.vecnormalize, model_path, run_config)
     selected = demos.select(indices)
-    vecnormalize = Path(args.vecnormalize) if args.vecnormalize else folder / VECNORMALIZE_FILE
-    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize if vecnormalize.is_file() else None)
+    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize)
+    print(f"episodes {','.join(map(str, indices))} of {demos_path}: {which}")
+    if vecnormalize_note:
+        print(vecnormalize_note)
     result = evaluate_against_expert(model, args.env, selected, obs_transform=transform, env_kwargs=env_kwargs or None)
 
     from rich.console import Console
@@ -246,6 +255,75 @@ def _run_evaluate(args) -> int:
     )
     Console().print(table)
     return 0
+
+
+def _evaluation_episodes(text: Optional[str], n_pool: int, demos_path, run_config: dict):
+    """``(episode indices, how they were chosen)`` for ``evaluate``.
+
+    Without ``--episodes``, a run's model is evaluated on the run's held-out episodes only: its
+    training episodes would flatter it. They are indices into the run's pool, so they are used only
+    on that very file (same path and sha256).
+    """
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.runs import _sha256
+
+    if text:
+        try:
+            indices = [int(i) for i in text.split(",") if i.strip()]
+        except ValueError:
+            raise ValueError(f"--episodes must be comma-separated integers, got {text!r}") from None
+        bad = [i for i in indices if not 0 <= i < n_pool]
+        if bad or not indices:
+            raise ValueError(f"--episodes {text}: {demos_path} has {n_pool} episodes, numbered 0 to {n_pool - 1}")
+        return indices, "as asked (--episodes)"
+    held_out = run_config.get("eval_episodes")
+    if held_out and run_config.get("demos") and Path(run_config["demos"]).resolve() == Path(demos_path).resolve():
+        if run_config.get("demos_sha256") not in (None, _sha256(demos_path)):
+            raise ValueError(
+                f"{demos_path} changed since the run was trained (sha256 differs from its config.json): its held-out "
+                "episodes cannot be told apart; pass --episodes"
+            )
+        return [int(i) for i in held_out], "the run's held-out episodes (eval_episodes of its config.json)"
+    note = " (not the run's demo pool: no held-out split applies)" if held_out else ""
+    return list(range(n_pool)), f"all {n_pool} episodes{note}"
+
+
+def _evaluation_statistics(path: Optional[str], model_path, run_config: dict):
+    """``(VecNormalize statistics file or None, a line saying which)`` for ``evaluate``.
+
+    A policy trained on normalised observations and fed raw ones acts nonsensically, and its
+    numbers would still print: a missing --vecnormalize file is an error, statistics beside the
+    model are used (and said so), and a run whose config.json says it normalised needs them.
+    """
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.runs import VECNORMALIZE_FILE
+
+    if path is not None:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"VecNormalize statistics not found: {path}")
+        return Path(path), f"observations normalised with {path} (--vecnormalize)"
+    beside = Path(model_path).parent / VECNORMALIZE_FILE
+    if beside.is_file():
+        return beside, f"observations normalised with {beside}, found beside the model"
+    if _normalises_observations((run_config.get("hyperparams_values") or {}).get("normalize")):
+        raise FileNotFoundError(
+            f"{model_path} was trained on VecNormalize'd observations (normalize in its config.json) but {beside} "
+            "is missing; pass the statistics with --vecnormalize"
+        )
+    return None, None
+
+
+def _normalises_observations(normalize) -> bool:
+    """Whether a zoo ``normalize`` entry (True, a dict, or its string form) normalises observations."""
+    from sb3_cmzdril.hyperparams import safe_eval
+
+    if isinstance(normalize, str):
+        normalize = safe_eval(normalize)
+    if isinstance(normalize, dict):
+        return bool(normalize.get("norm_obs", True))
+    return bool(normalize)
 
 
 def _add_benchmark(sub) -> None:
@@ -279,17 +357,13 @@ def _run_benchmark(args) -> int:
     from sb3_cmzdril.experiments.grid import benchmark, summarize_outcomes
     from sb3_cmzdril.experts import command_line
 
-    try:
-        outcomes = benchmark(
-            args.env, args.methods, args.trials, args.output, workers=args.workers, backend=args.backend,
-            ray_address=args.ray_address, progress=not args.no_progress, command=command_line(),
-            timesteps=args.timesteps, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
-            eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, demos_dir=args.demos_dir,
-            hyperparams=args.hyperparams,
-        )
-    except ImportError as e:  # the optional Ray backend without ray installed
-        print(f"sb3-cmzdril benchmark: error: {e}", file=sys.stderr)
-        return 2
+    outcomes = benchmark(
+        args.env, args.methods, args.trials, args.output, workers=args.workers, backend=args.backend,
+        ray_address=args.ray_address, progress=not args.no_progress, command=command_line(),
+        timesteps=args.timesteps, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
+        eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, demos_dir=args.demos_dir,
+        hyperparams=args.hyperparams,
+    )
     print(summarize_outcomes(outcomes))
     return 1 if any(o["status"] == "failed" for o in outcomes) else 0
 
@@ -306,7 +380,7 @@ def _add_report(sub) -> None:
         ),
     )
     p.add_argument("runs_dir", metavar="RUNS_DIR", help="the benchmark's output folder")
-    p.add_argument("-o", "--output", default="docs", help="output folder (default: docs)")
+    p.add_argument("-o", "--output", default="docs", help="output folder (default: docs; its files are replaced only with --force)")
     from sb3_cmzdril.experiments.runs import TABLE_WINDOW
 
     p.add_argument("--window", type=int, default=TABLE_WINDOW,
@@ -316,13 +390,23 @@ def _add_report(sub) -> None:
                    help="a hand-written markdown file (what the numbers mean), included as the Discussion section")
     p.add_argument("--readme", metavar="README",
                    help="also replace the results block of this README with the table of ours beside the paper's")
+    p.add_argument("--force", action="store_true", help="replace the results.md, table1.csv and figures already in OUTPUT")
     p.set_defaults(func=_run_report)
 
 
 def _run_report(args) -> int:
-    from sb3_cmzdril.experiments.report import PAPER_TABLE_I, write_report
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.report import FIGURES, PAPER_TABLE_I, write_report
     from sb3_cmzdril.experts import command_line
 
+    # Inputs first: write_report would find a missing discussion only after writing the table and figures.
+    if args.discussion is not None and not Path(args.discussion).is_file():
+        raise FileNotFoundError(f"discussion file not found: {args.discussion}")
+    out = Path(args.output)
+    existing = [name for name in ("results.md", "table1.csv", *(f[0] for f in FIGURES)) if (out / name).exists()]
+    if existing and not args.force:
+        raise FileExistsError(f"{out} already holds {', '.join(existing)}; pass --force to replace them, or choose another -o")
     path = write_report(
         args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
         command=command_line(), discussion=args.discussion, readme=args.readme,
@@ -334,13 +418,35 @@ def _run_report(args) -> int:
 _COMMANDS += [_add_train, _add_evaluate, _add_benchmark, _add_report]
 
 
+#: Exceptions that mean "the input is wrong" (a bad value, a missing or existing file, an optional
+#: package not installed): one line and exit code 2. Anything else is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, OSError, KeyError, ImportError)
+#: Commands that continue from their checkpoints when run again.
+RESUMABLE = ("train-expert", "train", "benchmark")
+
+
+def _one_line(error: BaseException) -> str:
+    # str(KeyError("x")) is "'x'", quoted; its argument is the message.
+    text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+    return "; ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
+
+
 def main(argv: Optional[List[str]] = None) -> int:
+    """Run one command; every user error ends here as one line on stderr and exit code 2, an
+    interruption (Ctrl-C) as one line and exit code 130."""
+    from sb3_cmzdril._mujoco_log import route_mujoco_warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    route_mujoco_warnings()
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, KeyError) as e:
-        print(f"sb3-cmzdril {args.command}: error: {e}", file=sys.stderr)
+    except KeyboardInterrupt:
+        again = "resume" if args.command in RESUMABLE else "start again"
+        print(f"sb3-cmzdril {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)
+        return 130
+    except USER_ERRORS as e:
+        print(f"sb3-cmzdril {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
 
 
