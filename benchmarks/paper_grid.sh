@@ -9,15 +9,19 @@
 #   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=docs/runs_paper_faithful bash benchmarks/paper_grid.sh
 #                                                # the paper-faithful setting (raw inputs, 100 BC epochs)
 #
-# The MuJoCo envs evaluate every 5 PPO updates (a 5 x 1000-step evaluation costs more than a training
-# epoch there), WaypointNav-v0 after every update; each run ends with a final evaluation of every pool
-# episode it did not train on.
+# BC, CMZ-DRIL and no reward (the comparisons the claims rest on) run first on every env and trial,
+# then DRIL and the env-reward bound. The MuJoCo envs evaluate every 5 PPO updates (a 5 x 1000-step
+# evaluation costs more than a training epoch there), WaypointNav-v0 after every update; each run ends
+# with a final evaluation of every pool episode it did not train on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 workers=${WORKERS:-2}
 hyperparams=${HYPERPARAMS:-hyperparams/cmzdril.yml}
 runs=${RUNS:-docs/runs}
-${SB3_CMZDRIL:-sb3-cmzdril} benchmark --env HalfCheetah-v5,Hopper-v5 --methods bc,zero,env,dril,cmz --trials 5 \
-    --timesteps 300000 --workers "$workers" --eval-every 5 --hyperparams "$hyperparams" -o "$runs"
-${SB3_CMZDRIL:-sb3-cmzdril} benchmark --env sb3_cmzdril:WaypointNav-v0 --methods bc,zero,env,dril,cmz --trials 5 \
-    --timesteps 300000 --workers "$workers" --eval-every 1 --hyperparams "$hyperparams" -o "$runs"
+cli=${SB3_CMZDRIL:-sb3-cmzdril}
+for methods in bc,cmz,zero dril,env; do
+    $cli benchmark --env HalfCheetah-v5,Hopper-v5 --methods "$methods" --trials 5 \
+        --timesteps 300000 --workers "$workers" --eval-every 5 --hyperparams "$hyperparams" -o "$runs"
+    $cli benchmark --env sb3_cmzdril:WaypointNav-v0 --methods "$methods" --trials 5 \
+        --timesteps 300000 --workers "$workers" --eval-every 1 --hyperparams "$hyperparams" -o "$runs"
+done
