@@ -371,16 +371,25 @@ def _run_benchmark(args) -> int:
 def _add_report(sub) -> None:
     p = sub.add_parser(
         "report",
-        help="Table I (markdown + CSV) and the paper's Fig. 1/2 (PNG) from a runs folder",
+        help="results.md (final evaluation, Table I), its CSVs and figures from a runs folder, optionally beside another",
         description=(
-            "Read RUNS_DIR/<EnvName>/<method>/trial<t>/eval.csv and write OUTPUT/results.md (Table I: mean "
-            "(std) over trials of each run's metrics averaged over its last --window epochs; the gap closed "
-            "by CMZ-DRIL between no reward and env reward; the runs behind each number; the commands), "
-            "OUTPUT/table1.csv and the figures fig1_bc_dril_cmz.png and fig2_cmz_env_zero.png."
+            "Read RUNS_DIR/<EnvName>/<method>/trial<t>/ (eval.csv, final_eval.csv, done.json, logs) and write "
+            "OUTPUT/results.md: a headline (the final evaluation on every held-out pool episode, mean over trials "
+            "with a 95% bootstrap CI, and Table I: mean (std) over trials of each run's metrics averaged over its "
+            "last --window epochs, beside the paper's Table I), then per grid the final-evaluation tables (paired "
+            "by trial against BC and no reward), Table I, the gap closed by CMZ-DRIL, the reward signal, the runs "
+            "behind each number and the commands; OUTPUT/table1.csv, final_table.csv and the figures "
+            "fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png and fig3_final_eval.png. With --reference-runs a second "
+            "grid (e.g. the paper-faithful one) is reported beside the first (its files end in _reference)."
         ),
     )
     p.add_argument("runs_dir", metavar="RUNS_DIR", help="the benchmark's output folder")
     p.add_argument("-o", "--output", default="docs", help="output folder (default: docs; its files are replaced only with --force)")
+    p.add_argument("--reference-runs", metavar="DIR",
+                   help="a second runs folder (e.g. docs/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
+                        "(and final evaluation, where its runs have one) in the headline and its own sections")
+    p.add_argument("--label", help="how the report names RUNS_DIR's grid (default: the path as given)")
+    p.add_argument("--reference-label", help="how the report names the --reference-runs grid (default: its path)")
     from sb3_cmzdril.experiments.runs import TABLE_WINDOW
 
     p.add_argument("--window", type=int, default=TABLE_WINDOW,
@@ -389,27 +398,27 @@ def _add_report(sub) -> None:
     p.add_argument("--discussion", metavar="MARKDOWN",
                    help="a hand-written markdown file (what the numbers mean), included as the Discussion section")
     p.add_argument("--readme", metavar="README",
-                   help="also replace the results block of this README with the table of ours beside the paper's")
-    p.add_argument("--force", action="store_true", help="replace the results.md, table1.csv and figures already in OUTPUT")
+                   help="also replace the results block of this README with the headline table")
+    p.add_argument("--no-figures", action="store_true", help="write the tables only (each figure takes a second or two)")
+    p.add_argument("--force", action="store_true", help="replace the report files already in OUTPUT")
     p.set_defaults(func=_run_report)
 
 
 def _run_report(args) -> int:
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.report import FIGURES, PAPER_TABLE_I, write_report
+    from sb3_cmzdril.experiments.report import PAPER_TABLE_I, report_outputs, write_report
     from sb3_cmzdril.experts import command_line
 
-    # Inputs first: write_report would find a missing discussion only after writing the table and figures.
-    if args.discussion is not None and not Path(args.discussion).is_file():
-        raise FileNotFoundError(f"discussion file not found: {args.discussion}")
     out = Path(args.output)
-    existing = [name for name in ("results.md", "table1.csv", *(f[0] for f in FIGURES)) if (out / name).exists()]
+    existing = [name for name in report_outputs() if (out / name).exists()]
     if existing and not args.force:
         raise FileExistsError(f"{out} already holds {', '.join(existing)}; pass --force to replace them, or choose another -o")
     path = write_report(
         args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
         command=command_line(), discussion=args.discussion, readme=args.readme,
+        reference_runs=args.reference_runs, label=args.label, reference_label=args.reference_label,
+        figures=not args.no_figures,
     )
     print(path)
     return 0

@@ -1,0 +1,240 @@
+"""The final-evaluation table: every run's policy replayed on all its held-out pool episodes.
+
+Five evaluation episodes per epoch cannot tell methods apart on HalfCheetah (one BC policy scored 188
+on one machine and 242 on another), so each run ends with an evaluation on every pool episode not
+used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.runs`). Here:
+
+* :func:`final_table` — per env, method and policy ("final", or "lowest_u": the policy whose own
+  training rollout had the lowest ensemble disagreement), the mean over trials of each run's mean
+  over its held-out episodes, with a bootstrap confidence interval over trials (:func:`mean_ci`).
+* :func:`paired` — a method against a baseline trial by trial (same seed, so the same demo split and
+  the same held-out episodes): in how many trials it is higher, and the mean difference with its CI.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from sb3_cmzdril.experiments.formatting import fmt_ci, md_table
+from sb3_cmzdril.experiments.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
+
+#: Final-evaluation metrics: (final_eval.csv column, table header).
+FINAL_METRICS: Tuple[Tuple[str, str], ...] = (
+    ("return", "Return"),
+    ("frechet", "Fréchet distance"),
+    ("action_mse", "Action MSE"),
+)
+CONFIDENCE = 0.95
+#: The bootstrap's seed: the same runs give the same intervals on every report.
+BOOTSTRAP_SEED = 0
+BOOTSTRAP_RESAMPLES = 9999
+#: Percentile rather than BCa: BCa's acceleration estimate is unstable with 5 values and undefined
+#: when they are all equal (scipy returns nan); the percentile interval is neither.
+BOOTSTRAP_METHOD = "percentile"
+#: Fewer trials than this: the mean and no interval (2 values give a bootstrap of 3 distinct means).
+MIN_TRIALS_FOR_CI = 3
+
+
+def mean_ci(values: Sequence[float]) -> Tuple[float, float, float]:
+    """(mean, low, high): the mean of ``values`` and its :data:`CONFIDENCE` bootstrap interval
+    (``scipy.stats.bootstrap``, :data:`BOOTSTRAP_METHOD`, seeded with :data:`BOOTSTRAP_SEED`);
+    low and high are nan with fewer than :data:`MIN_TRIALS_FOR_CI` values or a non-finite one."""
+    array = np.asarray(values, dtype=np.float64)
+    mean = float(np.mean(array)) if array.size else math.nan
+    if array.size < MIN_TRIALS_FOR_CI or not np.isfinite(array).all():
+        return mean, math.nan, math.nan
+    from scipy.stats import bootstrap
+
+    result = bootstrap((array,), np.mean, confidence_level=CONFIDENCE, n_resamples=BOOTSTRAP_RESAMPLES,
+                       method=BOOTSTRAP_METHOD, random_state=BOOTSTRAP_SEED)
+    return mean, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+@dataclasses.dataclass
+class FinalRow:
+    """One (env, method, policy) of the final-evaluation table."""
+
+    env: str
+    method: str
+    policy: str  #: "final" or "lowest_u"
+    runs: List[RunRecord]  #: the runs whose final_eval.csv has this policy
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.runs)
+
+    @property
+    def label(self) -> str:
+        return label(self.method, self.policy)
+
+    def per_run(self, column: str) -> List[float]:
+        """Each run's mean of ``column`` over its held-out episodes, in run order."""
+        return [float(np.mean(r.final[self.policy][column])) for r in self.runs]
+
+    def per_trial(self, column: str = "return") -> Dict[int, float]:
+        return dict(zip([r.trial for r in self.runs], self.per_run(column), strict=True))
+
+    def episodes(self) -> List[int]:
+        """Each run's number of held-out episodes."""
+        return [int(r.final[self.policy]["episode"].size) for r in self.runs]
+
+    def stat(self, column: str = "return") -> Tuple[float, float, float]:
+        """(mean over trials, CI low, CI high) of :meth:`per_run`."""
+        return mean_ci(self.per_run(column))
+
+    def selected_epochs(self) -> List[Optional[int]]:
+        """The epoch of each run's lowest-u policy (done.json), None where it is not recorded."""
+        chosen = [r.summary.get("final_evaluation", {}).get(self.policy, {}).get("epoch") for r in self.runs]
+        return [None if e is None else int(e) for e in chosen]
+
+
+def final_table(records: Sequence[RunRecord]) -> List[FinalRow]:
+    """The rows, env by env: every method's final policy, then the lowest-u policies."""
+    groups = group(r for r in records if r.final)
+    rows = []
+    for env in sorted({env for env, _ in groups}, key=env_key):
+        for policy in POLICIES:
+            for method in METHOD_ORDER:
+                runs = [r for r in groups.get((env, method), []) if policy in r.final]
+                if runs:
+                    rows.append(FinalRow(env, method, policy, runs))
+    return rows
+
+
+def find(rows: Sequence[FinalRow], env: str, method: str, policy: str = "final") -> Optional[FinalRow]:
+    return next((r for r in rows if (r.env, r.method, r.policy) == (env, method, policy)), None)
+
+
+@dataclasses.dataclass
+class Paired:
+    """``row`` against ``baseline`` on the trials both have: return differences, row minus baseline."""
+
+    trials: List[int]
+    diffs: List[float]
+
+    @property
+    def wins(self) -> int:
+        return int(sum(d > 0 for d in self.diffs))
+
+    def wins_text(self) -> str:
+        return f"{self.wins} of {len(self.trials)}" if self.trials else "n/a"
+
+
+def paired(row: FinalRow, baseline: Optional[FinalRow]) -> Optional[Paired]:
+    """None without a baseline; else the differences of mean return on the trials both ran."""
+    if baseline is None:
+        return None
+    mine, theirs = row.per_trial(), baseline.per_trial()
+    trials = sorted(set(mine) & set(theirs))
+    return Paired(trials, [mine[t] - theirs[t] for t in trials])
+
+
+def baselines(rows: Sequence[FinalRow], row: FinalRow) -> Tuple[Optional[FinalRow], Optional[FinalRow]]:
+    """(BC, no reward) to compare ``row`` with: BC's policy for every RL row; no reward (the same
+    policy choice, so the selection is compared like with like) for CMZ-DRIL only."""
+    bc = find(rows, row.env, "bc") if row.method != "bc" else None
+    zero = find(rows, row.env, "zero", row.policy) if row.method == "cmz" else None
+    return bc, zero
+
+
+def _diff_cell(p: Optional[Paired]) -> Tuple[str, str]:
+    if p is None:
+        return "—", "—"
+    return p.wins_text(), fmt_ci(*mean_ci(p.diffs))
+
+
+def final_markdown(rows: Sequence[FinalRow]) -> str:
+    """The table: mean [CI] over trials of each run's mean over its held-out episodes."""
+    body = []
+    for r in rows:
+        counts = sorted(set(r.episodes()))
+        body.append([r.env, r.label, str(r.n_trials), " or ".join(map(str, counts)),
+                     *(fmt_ci(*r.stat(c)) for c, _ in FINAL_METRICS), fmt_ci(*r.stat("expert_return"))])
+    return md_table(["Env", "Method", "Trials", "Episodes per trial", *(h for _, h in FINAL_METRICS),
+                     "Expert return (same episodes)"], body)
+
+
+def paired_markdown(rows: Sequence[FinalRow]) -> str:
+    """Each RL row against BC and (CMZ-DRIL) against no reward, trial by trial."""
+    body = []
+    for r in rows:
+        if r.method == "bc":
+            continue
+        bc, zero = baselines(rows, r)
+        epochs = ", ".join("?" if e is None else str(e) for e in r.selected_epochs()) if r.policy != "final" else "—"
+        body.append([r.env, r.label, *_diff_cell(paired(r, bc)), *_diff_cell(paired(r, zero)), epochs])
+    return md_table(["Env", "Method", "Above BC (trials)", "Return − BC, mean [CI]", "Above no reward (trials)",
+                     "Return − no reward, mean [CI]", "Selected epoch per trial"], body)
+
+
+def final_csv(rows: Sequence[FinalRow], runs_dir: Path) -> str:
+    """The table as CSV, full precision, with each run's own mean return and its folder."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    columns = [c for c, _ in FINAL_METRICS] + ["expert_return"]
+    header = ["env", "method", "policy", "n_trials", "episodes_per_run"]
+    for c in columns:
+        header += [f"{c}_mean", f"{c}_ci_low", f"{c}_ci_high"]
+    writer.writerow(header + ["return_per_run", "run_dirs"])
+    for r in rows:
+        values: List[Any] = [r.env, r.method, r.policy, r.n_trials, ";".join(map(str, r.episodes()))]
+        for c in columns:
+            values += [repr(v) for v in r.stat(c)]
+        writer.writerow(values + [";".join(map(repr, r.per_run("return"))),
+                                  ";".join(run.relative(runs_dir) for run in r.runs)])
+    return out.getvalue()
+
+
+def method_text(confidence: float = CONFIDENCE) -> str:
+    """How the table's numbers are made, in words (for the report)."""
+    return (
+        f"Each run's policy replays every pool episode not used for training (the expert's start state; "
+        f"final_eval.csv, one row per episode); a run's number is its mean over those episodes; the cell is "
+        f"the mean over trials [{100 * confidence:g}% bootstrap confidence interval over trials: "
+        f"scipy.stats.bootstrap, {BOOTSTRAP_METHOD}, {BOOTSTRAP_RESAMPLES} resamples, seed {BOOTSTRAP_SEED}; "
+        f"n/a with fewer than {MIN_TRIALS_FOR_CI} trials]. \"(lowest u)\" is the policy whose own training "
+        "rollout had the lowest ensemble disagreement: chosen without the env reward."
+    )
+
+
+def trials_text(rows: Sequence[FinalRow]) -> str:
+    """e.g. "5" or "2-5": the trials per cell, for a heading."""
+    counts = sorted({r.n_trials for r in rows})
+    return str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+
+
+def expert_by_env(rows: Sequence[FinalRow]) -> Dict[str, Tuple[float, float, float, int]]:
+    """env -> (mean, CI low, CI high, trials) of each trial's mean expert return on its held-out
+    episodes (final_eval.csv's expert_return; the same for every method of a trial: same split)."""
+    per_env: Dict[str, Dict[int, float]] = {}
+    for r in rows:
+        if r.policy == "final":
+            per_env.setdefault(r.env, {}).update(r.per_trial("expert_return"))
+    return {env: (*mean_ci(list(v.values())), len(v)) for env, v in per_env.items()}
+
+
+def fmt_cell(row: Optional[FinalRow]) -> str:
+    """``mean [low, high], n=trials`` for a side-by-side table; ``—`` without the row."""
+    return "—" if row is None else f"{fmt_ci(*row.stat())}, n={row.n_trials}"
+
+
+__all__ = [
+    "FinalRow",
+    "Paired",
+    "mean_ci",
+    "final_table",
+    "paired",
+    "baselines",
+    "find",
+    "final_markdown",
+    "paired_markdown",
+    "final_csv",
+    "fmt_cell",
+    "expert_by_env",
+]

@@ -1,0 +1,225 @@
+"""What the report reads from a runs folder: each run's records, named and ordered for tables.
+
+A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.experiments.runs`).
+:func:`load_runs` reads, per run: eval.csv (the per-epoch evaluation), final_eval.csv when the run has
+one (the final evaluation on every held-out pool episode; grids made before it existed have none),
+config.json and done.json. :class:`Grid` is one runs folder with its label, so that a report can set
+two grids side by side; :func:`setting_differences` says, from the runs' config.json, how two grids'
+settings differ.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import re
+from pathlib import Path
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from sb3_cmzdril._atomic import PathLike
+from sb3_cmzdril.experiments.runs import (
+    CONFIG_FILE,
+    DONE_FILE,
+    EVAL_CSV,
+    FINAL_EVAL_COLUMNS,
+    FINAL_EVAL_CSV,
+    METHODS,
+    read_eval_csv,
+    run_status,
+)
+
+#: How methods are named in tables and legends (the paper's names).
+METHOD_LABELS: Dict[str, str] = {
+    "bc": "BC",
+    "dril": "DRIL",
+    "cmz": "CMZ-DRIL",
+    "zero": "No reward",
+    "env": "Env. reward",
+}
+#: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods.
+METHOD_ORDER: Tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env")
+#: Column order of envs: the paper's (PyUXV, Half Cheetah, Hopper); others follow alphabetically.
+ENV_ORDER: Tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
+#: The policies of a final evaluation: the one at the end of training, and the one whose own training
+#: rollout had the lowest ensemble disagreement (reward-free selection; RL methods only).
+POLICIES: Tuple[str, ...] = ("final", "lowest_u")
+#: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
+FINAL_VALUES: Tuple[str, ...] = ("return", "frechet", "action_mse", "expert_return")
+
+
+@dataclasses.dataclass
+class RunRecord:
+    """One run's evaluation history and where it came from."""
+
+    env: str  #: env name without module prefix
+    method: str
+    trial: int
+    path: Path  #: the run folder
+    columns: Dict[str, np.ndarray]  #: eval.csv as columns, sorted by epoch
+    status: str  #: done / partial / failed / new (see runs.run_status)
+    config: Dict[str, Any]
+    #: final_eval.csv: policy -> column -> one value per held-out episode ({} without the file)
+    final: Dict[str, Dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
+    summary: Dict[str, Any] = dataclasses.field(default_factory=dict)  #: done.json ({} if unfinished)
+
+    def relative(self, root: Path) -> str:
+        return relative(self.path, root)
+
+
+def label(method: str, policy: str = "final") -> str:
+    """``CMZ-DRIL`` for the final policy, ``CMZ-DRIL (lowest u)`` for the lowest-disagreement one."""
+    return METHOD_LABELS[method] + ("" if policy == "final" else " (lowest u)")
+
+
+def relative(path: Path, root: Path) -> str:
+    """``path`` relative to ``root`` where it lies below it, else as it is."""
+    try:
+        return str(path.relative_to(root))
+    except ValueError:
+        return str(path)
+
+
+_TRIAL = re.compile(r"^trial(\d+)$")
+
+
+def read_json_or_empty(path: Path) -> Dict[str, Any]:
+    """A JSON file's object, or {} when it is missing or cut short (a run still writing)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def read_final_eval(path: PathLike) -> Dict[str, Dict[str, np.ndarray]]:
+    """final_eval.csv as ``policy -> column -> values`` (episode order kept); {} when there is none.
+
+    The file is written atomically at the end of a run, so a malformed one is an error, not a run in
+    progress: ValueError naming the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+        rows = list(reader)
+    result: Dict[str, Dict[str, np.ndarray]] = {}
+    try:
+        for policy in dict.fromkeys(row["policy"] for row in rows):
+            mine = [row for row in rows if row["policy"] == policy]
+            columns = {c: np.array([float(row[c]) for row in mine]) for c in FINAL_VALUES}
+            columns["episode"] = np.array([int(row["episode"]) for row in mine])
+            result[policy] = columns
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: unreadable row ({e})") from None
+    return result
+
+
+def load_runs(runs_dir: PathLike) -> List[RunRecord]:
+    """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial."""
+    root = Path(runs_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"runs folder not found: {root}")
+    records = []
+    for csv_path in sorted(root.rglob(EVAL_CSV)):
+        folder = csv_path.parent
+        config = read_json_or_empty(folder / CONFIG_FILE)
+        match = _TRIAL.match(folder.name)
+        env = config.get("env_name") or folder.parent.parent.name
+        method = config.get("method") or folder.parent.name
+        trial = config.get("seed", int(match.group(1)) if match else None)
+        if method not in METHODS or trial is None:
+            continue  # not a run of the grid's layout
+        columns = read_eval_csv(csv_path)
+        if columns["epoch"].size == 0:
+            continue
+        records.append(RunRecord(env, method, int(trial), folder, columns, run_status(folder), config,
+                                 read_final_eval(folder / FINAL_EVAL_CSV), read_json_or_empty(folder / DONE_FILE)))
+    return sorted(records, key=lambda r: (env_key(r.env), METHOD_ORDER.index(r.method), r.trial))
+
+
+def env_key(env: str) -> Tuple[int, str]:
+    """Sort key: the paper's envs in its order, then the others alphabetically."""
+    return (ENV_ORDER.index(env), env) if env in ENV_ORDER else (len(ENV_ORDER), env)
+
+
+def group(records: Iterable[RunRecord]) -> Dict[Tuple[str, str], List[RunRecord]]:
+    """(env, method) -> its runs, in the order given."""
+    groups: Dict[Tuple[str, str], List[RunRecord]] = {}
+    for r in records:
+        groups.setdefault((r.env, r.method), []).append(r)
+    return groups
+
+
+@dataclasses.dataclass
+class Grid:
+    """One runs folder, as a report shows it."""
+
+    label: str  #: how tables and headings name it
+    root: Path
+    records: List[RunRecord]
+
+    @property
+    def has_final(self) -> bool:
+        return any(r.final for r in self.records)
+
+
+def load_grid(runs_dir: PathLike, label: Optional[str] = None) -> Grid:
+    """The runs of ``runs_dir`` (ValueError when it has none), labelled by ``label`` or its path."""
+    root = Path(runs_dir)
+    records = load_runs(root)
+    if not records:
+        raise ValueError(f"no runs with evaluations under {root} (expected <EnvName>/<method>/trial<t>/{EVAL_CSV})")
+    return Grid(label or str(runs_dir), root, records)
+
+
+#: Top-level config.json settings compared by :func:`setting_differences` (beside hyperparams_values).
+COMPARED_SETTINGS: Tuple[str, ...] = ("timesteps", "n_demos", "n_eval_episodes", "eval_every")
+NOT_SET = "not set"
+
+
+def _settings(records: Sequence[RunRecord], env: str) -> Dict[str, set]:
+    """key -> the set of values (as JSON text) the env's runs recorded; NOT_SET where a run lacks it."""
+    configs = [r.config for r in records if r.env == env and r.config]
+    merged = [{**{k: c[k] for k in COMPARED_SETTINGS if k in c}, **c.get("hyperparams_values", {})} for c in configs]
+    keys = dict.fromkeys(k for m in merged for k in m)
+    return {k: {json.dumps(m[k], sort_keys=True) if k in m else NOT_SET for m in merged} for k in keys}
+
+
+def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> Dict[str, List[Tuple[str, str, str]]]:
+    """env -> [(setting, a's value(s), b's value(s))] for the settings whose values differ between the
+    two grids' runs of that env (config.json: :data:`COMPARED_SETTINGS` and hyperparams_values).
+    Only envs both grids ran are compared."""
+    result: Dict[str, List[Tuple[str, str, str]]] = {}
+    envs_b = {r.env for r in b}
+    for env in sorted({r.env for r in a} & envs_b, key=env_key):
+        sa, sb = _settings(a, env), _settings(b, env)
+        diffs = []
+        for key in dict.fromkeys([*sa, *sb]):
+            va, vb = sa.get(key, {NOT_SET}), sb.get(key, {NOT_SET})
+            if va != vb:
+                diffs.append((key, " or ".join(sorted(va)), " or ".join(sorted(vb))))
+        if diffs:
+            result[env] = diffs
+    return result
+
+
+__all__ = [
+    "METHOD_LABELS",
+    "METHOD_ORDER",
+    "ENV_ORDER",
+    "POLICIES",
+    "RunRecord",
+    "Grid",
+    "label",
+    "load_runs",
+    "load_grid",
+    "read_final_eval",
+    "setting_differences",
+    "env_key",
+    "group",
+]

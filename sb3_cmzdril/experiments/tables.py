@@ -1,0 +1,197 @@
+"""Table I and what sits beside it, computed from a grid's per-epoch records.
+
+* :func:`table_one` — per env and method: mean (std over trials) of each run's evaluation return,
+  Fréchet distance and action MSE averaged over its last 100 epochs (all of them if fewer; BC has
+  one evaluation, at epoch 0). The std is the population std (numpy's ddof=0) over trials.
+* :func:`gap_closed` — (cmz - zero) / (env - zero) per env and metric: how much of the gap between
+  "no reward" and the true env reward CMZ-DRIL closes (the paper: about 50% for the reward).
+* :func:`expert_returns` — per env, the true return of the expert's held-out episodes that each
+  trial was evaluated against (from the demo pool named in the run's config.json): the scale.
+* :func:`reward_signal` — per env and method, what the runs' SB3 progress logs say about the shaped
+  reward: mean disagreement u over the first and last epochs, shaped reward and EMA, episode length.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import io
+import math
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from sb3_cmzdril._atomic import PathLike
+from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.experiments.records import RunRecord, group
+from sb3_cmzdril.experiments.runs import TABLE_WINDOW, window_means
+
+#: Table metrics: (key in window_means, column header, eval.csv column).
+METRICS: Tuple[Tuple[str, str, str], ...] = (
+    ("return", "Return", "return_mean"),
+    ("frechet", "Fréchet distance", "frechet_mean"),
+    ("action_mse", "Action MSE", "action_mse"),
+)
+
+
+@dataclasses.dataclass
+class TableRow:
+    """One (env, method) cell group of Table I."""
+
+    env: str
+    method: str
+    runs: List[RunRecord]
+    per_run: Dict[str, List[float]]  #: metric -> each run's window mean, in run order
+    window: int
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.runs)
+
+    def mean(self, metric: str) -> float:
+        return float(np.mean(self.per_run[metric]))
+
+    def std(self, metric: str) -> float:
+        return float(np.std(self.per_run[metric]))  # population std over trials (ddof=0)
+
+
+def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> List[TableRow]:
+    """Table I rows, one per (env, method) present, in the report's order."""
+    rows = []
+    for (env, method), runs in group(records).items():
+        means = [window_means(r.columns, window) for r in runs]
+        per_run = {key: [m[key] for m in means] for key, _, _ in METRICS}
+        rows.append(TableRow(env, method, runs, per_run, window))
+    return rows
+
+
+def gap_closed(rows: Sequence[TableRow]) -> Dict[str, Dict[str, Optional[float]]]:
+    """env -> metric -> (cmz - zero) / (env - zero), None where a method is missing or env == zero."""
+    by = {(r.env, r.method): r for r in rows}
+    result: Dict[str, Dict[str, Optional[float]]] = {}
+    for env in dict.fromkeys(r.env for r in rows):
+        cmz, zero, true = by.get((env, "cmz")), by.get((env, "zero")), by.get((env, "env"))
+        result[env] = {}
+        for key, _, _ in METRICS:
+            if cmz is None or zero is None or true is None or true.mean(key) == zero.mean(key):
+                result[env][key] = None
+            else:
+                result[env][key] = (cmz.mean(key) - zero.mean(key)) / (true.mean(key) - zero.mean(key))
+    return result
+
+
+def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
+    """Table I as CSV, full precision, with each number's run folders (relative to ``runs_dir``)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header = ["env", "method", "n_trials", "window_epochs"]
+    for key, _, _ in METRICS:
+        header += [f"{key}_mean", f"{key}_std"]
+    writer.writerow(header + ["run_dirs"])
+    for r in rows:
+        values: List[Any] = [r.env, r.method, r.n_trials, r.window]
+        for key, _, _ in METRICS:
+            values += [repr(r.mean(key)), repr(r.std(key))]
+        writer.writerow(values + [";".join(run.relative(runs_dir) for run in r.runs)])
+    return out.getvalue()
+
+
+# -- the expert's scale -----------------------------------------------------------------------------------
+def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> List[Path]:
+    """Where a run's demo pool may be: the path it recorded, else experts/<EnvName>/demos.npz beside
+    the working directory or the repository holding ``runs_dir`` (a fresh clone moves the path)."""
+    tail = Path("experts") / record.env / "demos.npz"
+    found = [Path(record.config["demos"])] if record.config.get("demos") else []
+    return found + [Path.cwd() / tail] + [parent / tail for parent in runs_dir.resolve().parents]
+
+
+def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> Dict[str, Tuple[float, float, int]]:
+    """env -> (mean, std over trials, trials) of the mean true return of each trial's held-out expert
+    episodes: the episodes its evaluations replay. Trials whose pool cannot be found, whose pool's
+    sha256 differs from the one recorded, or whose pool has no rewards are left out."""
+    root = Path(runs_dir)
+    per_env: Dict[str, Dict[int, float]] = {}
+    pools: Dict[Path, Tuple[str, Any]] = {}
+    for r in records:
+        episodes = r.config.get("eval_episodes")
+        if not episodes or r.trial in per_env.get(r.env, {}):
+            continue
+        for candidate in _demo_pool_candidates(r, root):
+            if not candidate.is_file():
+                continue
+            if candidate not in pools:
+                digest = hashlib.sha256(candidate.read_bytes()).hexdigest()
+                pools[candidate] = (digest, Demonstrations.load(candidate))
+            digest, pool = pools[candidate]
+            if r.config.get("demos_sha256") not in (None, digest) or pool.episode_returns is None:
+                continue
+            per_env.setdefault(r.env, {})[r.trial] = float(np.mean(pool.episode_returns[list(episodes)]))
+            break
+    return {env: (float(np.mean(list(v.values()))), float(np.std(list(v.values()))), len(v))
+            for env, v in per_env.items()}
+
+
+# -- the reward signal ------------------------------------------------------------------------------------
+#: Columns of SB3's progress CSV that :func:`reward_signal` summarises.
+SIGNAL_COLUMNS: Tuple[Tuple[str, str], ...] = (
+    ("u", "rollout/disagreement_mean"),
+    ("shaped", "rollout/shaped_reward_mean"),
+    ("ubar", "rollout/ubar_mean"),
+    ("ep_len", "rollout/ep_len_mean"),
+)
+#: Epochs averaged at the start and at the end of a run in :func:`reward_signal`.
+SIGNAL_EPOCHS = 10
+
+
+def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
+    """The run's SB3 progress CSVs (one per segment, ``progress_<start step>.csv``) joined in step
+    order; a resumed segment replaces the rows its predecessor logged after the checkpoint it
+    resumed from. {} without logs."""
+    segments = []
+    for path in (record.path / "logs").glob("progress_*.csv"):
+        start = path.stem.split("_")[-1]
+        if start.isdigit():
+            segments.append((int(start), path))
+    rows: List[Dict[str, str]] = []
+    for start, path in sorted(segments):
+        rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
+        with open(path, newline="", encoding="utf-8") as f:
+            rows += [row for row in csv.DictReader(f) if row.get("time/total_timesteps")]
+    columns: Dict[str, np.ndarray] = {}
+    for key, column in SIGNAL_COLUMNS:
+        values = [float(row[column]) if row.get(column) else np.nan for row in rows]
+        columns[key] = np.asarray(values, dtype=np.float64)
+    return columns
+
+
+def reward_signal(records: Sequence[RunRecord],
+                  epochs: int = SIGNAL_EPOCHS) -> Dict[Tuple[str, str], Dict[str, Tuple[float, float]]]:
+    """(env, method) -> {"u": (first, last), "shaped": (first, last), "ubar": ..., "ep_len": ...}: the
+    mean over trials of each run's rollout statistics averaged over its first and last ``epochs``
+    PPO updates. Runs without progress logs are left out; so is BC (it has no rollouts)."""
+    result: Dict[Tuple[str, str], Dict[str, Tuple[float, float]]] = {}
+    for (env, method), runs in group(r for r in records if r.method != "bc").items():
+        logs = [log for log in map(_progress_log, runs) if log and log["u"].size]
+        if not logs:
+            continue
+        cell: Dict[str, Tuple[float, float]] = {}
+        for key, _ in SIGNAL_COLUMNS:
+            first = [np.nanmean(log[key][:epochs]) for log in logs if np.isfinite(log[key][:epochs]).any()]
+            last = [np.nanmean(log[key][-epochs:]) for log in logs if np.isfinite(log[key][-epochs:]).any()]
+            cell[key] = (float(np.mean(first)) if first else math.nan, float(np.mean(last)) if last else math.nan)
+        cell["trials"] = (float(len(logs)), float(len(logs)))
+        result[(env, method)] = cell
+    return result
+
+
+__all__ = [
+    "METRICS",
+    "TableRow",
+    "table_one",
+    "gap_closed",
+    "table_csv",
+    "expert_returns",
+    "reward_signal",
+    "SIGNAL_EPOCHS",
+]

@@ -1,0 +1,305 @@
+"""The report on hand-written run folders: Table I, the final evaluation with its bootstrap CIs, two
+grids side by side, partial grids, the README block and the figures.
+
+Every run folder here is written by the test (eval.csv, final_eval.csv, config.json, done.json), so
+each number the report prints can be computed by hand; the grid that writes real runs is tested in
+test_experiments.py.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+import pytest
+from scipy.stats import bootstrap
+
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.experiments import report
+from sb3_cmzdril.experiments.final_eval import final_table, mean_ci
+from sb3_cmzdril.experiments.records import NOT_SET, load_runs, read_final_eval, setting_differences
+
+ENV = "HalfCheetah-v5"
+EVAL_HEADER = "epoch,timesteps,return_mean,return_std,frechet_mean,frechet_std,action_mse,length_mean,n_episodes"
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def write_run(root: Path, method: str, trial: int, returns: Sequence[float], frechet: Optional[Sequence[float]] = None,
+              mse: Optional[Sequence[float]] = None, *, env: str = ENV, final: Optional[Dict[str, List[float]]] = None,
+              done: bool = True, lowest_epoch: Optional[int] = None, hyperparams: Optional[dict] = None) -> Path:
+    """A run folder with hand-written records (the report must not care who wrote them).
+
+    ``returns`` etc. are eval.csv's per-epoch values; ``final`` maps a policy to the returns of its
+    held-out episodes (Fréchet 10 + trial + episode, action MSE 0.01 (1 + trial), expert return
+    1000 + 10 trial + episode); ``done=False`` leaves the run unfinished (a checkpoint, no done.json).
+    """
+    out = root / env / method / f"trial{trial}"
+    out.mkdir(parents=True)
+    frechet = frechet or [1.0] * len(returns)
+    mse = mse or [0.1] * len(returns)
+    lines = [EVAL_HEADER] + [f"{e},{e * 2048},{r},0,{f},0,{m},1000,5"
+                             for e, (r, f, m) in enumerate(zip(returns, frechet, mse, strict=True))]
+    (out / "eval.csv").write_text("\n".join(lines) + "\n")
+    config = {"env_name": env, "method": method, "seed": trial, "command": f"pytest {root.name}",
+              "hyperparams_values": hyperparams or {"bc_pretrain_epochs": 1000}}
+    (out / "config.json").write_text(json.dumps(config))
+    if final:
+        rows = ["policy,episode,seed,return,length,frechet,action_mse,expert_return"]
+        for policy, values in final.items():
+            rows += [f"{policy},{i},{i},{v!r},1000,{10 + trial + i},{0.01 * (1 + trial)!r},{1000 + 10 * trial + i}"
+                     for i, v in enumerate(values)]
+        (out / "final_eval.csv").write_text("\n".join(rows) + "\n")
+    if done:
+        summary = {"status": "done", "final_evaluation": {"lowest_u": {"epoch": lowest_epoch}} if lowest_epoch else {}}
+        (out / "done.json").write_text(json.dumps(summary))
+    else:
+        (out / "model.zip").write_bytes(b"checkpoint")
+    return out
+
+
+def by_hand_ci(values: Sequence[float]):
+    """The interval the report must print, computed here with scipy directly (same settings)."""
+    result = bootstrap((np.asarray(values, dtype=float),), np.mean, confidence_level=0.95, n_resamples=9999,
+                       method="percentile", random_state=0)
+    return result.confidence_interval.low, result.confidence_interval.high
+
+
+def _rows(path: Path) -> list:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# Four trials; each final policy's held-out returns. CMZ-DRIL beats BC in trials 0, 2, 3 (3 of 4)
+# and no reward in trials 0, 2, 3 (3 of 4).
+FINAL = {
+    "bc": [[100, 200, 300], [150, 150, 150], [400, 0, 200], [50, 70, 90]],  # means 200, 150, 200, 70
+    "cmz": [[300, 300, 300], [100, 120, 110], [500, 600, 700], [90, 80, 100]],  # 300, 110, 600, 90
+    "zero": [[250, 250, 250], [130, 130, 130], [500, 500, 500], [60, 60, 60]],
+}
+LOWEST = {"cmz": [[210, 220, 230], [160, 160, 160], [300, 300, 300], [100, 100, 100]],  # 220, 160, 300, 100
+          "zero": [[200, 200, 200], [100, 100, 100], [250, 250, 250], [80, 80, 80]]}
+
+
+@pytest.fixture
+def main_grid(tmp_path) -> Path:
+    """The new-defaults grid: bc, cmz, zero x 4 trials with final evaluations (lowest u for cmz, zero)."""
+    root = tmp_path / "runs"
+    for method, finals in FINAL.items():
+        for trial, values in enumerate(finals):
+            final = {"final": values, **({"lowest_u": LOWEST[method][trial]} if method in LOWEST else {})}
+            returns = [float(np.mean(values))] if method == "bc" else [0.0, 100.0 + trial, 200.0 + trial]
+            write_run(root, method, trial, returns, final=final, lowest_epoch=None if method == "bc" else 10 + trial)
+    return root
+
+
+def test_final_table_means_and_cis_equal_hand_computed(main_grid, tmp_path):
+    path = report.write_report(main_grid, tmp_path / "docs", references=())
+    text = path.read_text()
+    table = {(r["method"], r["policy"]): r for r in _rows(tmp_path / "docs" / "final_table.csv")}
+    assert set(table) == {("bc", "final"), ("cmz", "final"), ("zero", "final"),
+                          ("cmz", "lowest_u"), ("zero", "lowest_u")}
+    for (method, policy), episodes in [*(((m, "final"), v) for m, v in FINAL.items()),
+                                       *(((m, "lowest_u"), v) for m, v in LOWEST.items())]:
+        per_trial = [sum(e) / len(e) for e in episodes]
+        mean = sum(per_trial) / len(per_trial)
+        low, high = by_hand_ci(per_trial)
+        row = table[(method, policy)]
+        assert (row["n_trials"], row["episodes_per_run"]) == ("4", "3;3;3;3")
+        assert [float(v) for v in row["return_per_run"].split(";")] == pytest.approx(per_trial, rel=1e-12)
+        assert float(row["return_mean"]) == pytest.approx(mean, rel=1e-12)
+        assert (float(row["return_ci_low"]), float(row["return_ci_high"])) == (pytest.approx(low), pytest.approx(high))
+        assert low < mean < high
+        # Fréchet: 10 + trial + episode, so each trial's mean is 11 + trial; action MSE 0.01 (1 + trial)
+        assert float(row["frechet_mean"]) == pytest.approx(np.mean([11 + t for t in range(4)]))
+        assert float(row["action_mse_mean"]) == pytest.approx(np.mean([0.01 * (1 + t) for t in range(4)]))
+        name = report.METHOD_LABELS[method] + (" (lowest u)" if policy == "lowest_u" else "")
+        assert f"| {ENV} | {name} | 4 | 3 | {report.fmt_ci(mean, low, high)} |" in text
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 3 of 4 | " + report.fmt_ci(*mean_ci([100, -40, 400, 20])) in text
+    assert "| 3 of 4 | " + report.fmt_ci(*mean_ci([50, -20, 100, 30])) + " | — |" in text  # CMZ-DRIL vs no reward
+    assert "| HalfCheetah-v5 | CMZ-DRIL (lowest u) | 4 of 4 |" in text  # 220, 160, 300, 100 vs 200, 150, 200, 70
+    assert "| 10, 11, 12, 13 |" in text  # the epochs each lowest-u choice came from
+    assert (tmp_path / "docs" / "fig3_final_eval.png").read_bytes()[:8] == PNG
+    assert "](fig3_final_eval.png)" in text
+
+
+def test_mean_ci_needs_three_finite_values():
+    assert mean_ci([1.0, 3.0])[0] == 2.0 and all(math.isnan(v) for v in mean_ci([1.0, 3.0])[1:])
+    assert all(math.isnan(v) for v in mean_ci([1.0, 2.0, float("nan")])[1:])
+    assert mean_ci([2.0, 2.0, 2.0]) == (2.0, 2.0, 2.0)  # percentile interval of equal values: no width
+    assert mean_ci([1.0, 5.0, 9.0])[1:] == pytest.approx(by_hand_ci([1.0, 5.0, 9.0]))
+
+
+def test_partial_grid_reports_trials_per_cell(tmp_path):
+    root = tmp_path / "runs"
+    write_run(root, "bc", 0, [50.0], final={"final": [40.0, 60.0]})
+    write_run(root, "bc", 1, [70.0], final={"final": [80.0, 100.0]})
+    write_run(root, "cmz", 0, [10.0, 20.0], final={"final": [30.0, 50.0], "lowest_u": [45.0, 55.0]}, lowest_epoch=3)
+    write_run(root, "cmz", 1, [10.0, 30.0], done=False)  # still training: Table I only
+    text = report.write_report(root, tmp_path / "docs", references=(), figures=False).read_text()
+    assert "| HalfCheetah-v5 | BC | 2 | 2 | 70.0 [n/a] |" in text  # (50 + 90) / 2, no CI from 2 trials
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 1 | 2 | 40.0 [n/a] |" in text
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 0 of 1 | -10.0 [n/a] |" in text  # 40 - 50 on trial 0
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 17.5 (2.50) |" in text  # Table I: (15 + 20) / 2
+    assert "1 run(s) are not finished" in text and "`HalfCheetah-v5/cmz/trial1` (partial)" in text
+    assert "Final evaluation (trials per cell: 1-2)" in text
+    assert "![" not in text and not list((tmp_path / "docs").glob("*.png"))  # figures=False: tables only
+
+
+def test_grid_without_final_evaluation(tmp_path):
+    root = tmp_path / "runs"
+    for trial in (0, 1):
+        write_run(root, "bc", trial, [50.0 + trial])
+        write_run(root, "cmz", trial, [100.0, 200.0 + trial])
+    out = tmp_path / "docs"
+    out.mkdir()
+    (out / "fig3_final_eval.png").write_bytes(b"from an earlier report")
+    text = report.write_report(root, out, references=()).read_text()
+    assert "None: no run of this grid has a final_eval.csv" in text
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 150 (0.25), n=2 |" in text  # headline, Table I only: 150 and 150.5
+    assert not (out / "final_table.csv").exists()
+    assert not (out / "fig3_final_eval.png").exists()  # a stale figure would contradict the report
+
+
+def test_read_final_eval_names_a_malformed_file(tmp_path):
+    (tmp_path / "final_eval.csv").write_text("policy,episode,return\nfinal,0,1.0\n")
+    with pytest.raises(ValueError, match="final_eval.csv: missing column"):
+        read_final_eval(tmp_path / "final_eval.csv")
+    assert read_final_eval(tmp_path / "nothing.csv") == {}
+
+
+def _reference_grid(root: Path) -> Path:
+    """The paper-faithful grid: other settings, no final_eval.csv, bc with 1 trial, cmz with 2."""
+    old = {"bc_pretrain_epochs": 100}
+    write_run(root, "bc", 0, [30.0], hyperparams=old)
+    write_run(root, "cmz", 0, [0.0, 40.0], hyperparams=old)
+    write_run(root, "cmz", 1, [0.0, 60.0], hyperparams=old)
+    return root
+
+
+def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
+    ref = _reference_grid(tmp_path / "paper_faithful")
+    out = tmp_path / "docs"
+    assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(out),
+                 "--label", "new", "--reference-label", "old"]) == 0
+    text = (out / "results.md").read_text()
+    header = ("| Env | Method | new: final evaluation, mean [95% CI] | new: Table I, mean (std) "
+              "| old: Table I, mean (std) | The paper's Table I, mean (std) |")
+    assert header in text
+    row = next(line for line in text.splitlines() if line.startswith(f"| {ENV} | CMZ-DRIL |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == f"{report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4"  # final evaluation
+    window = [(0.0 + 100 + t + 200 + t) / 3 for t in range(4)]  # Table I: 3 epochs, all in the window
+    assert cells[3] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
+    assert cells[4:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
+    bc = report.fmt_ci(*mean_ci([200, 150, 200, 70]))
+    assert f"| {ENV} | BC | {bc}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
+    assert f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*mean_ci([220, 160, 300, 100]))}, n=4 | — | — | — |" in text
+    assert "old: no final evaluation (its runs have no final_eval.csv)" in text
+    assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in text
+    assert "## new" in text and "## old" in text and f"`{ref}`" in text
+    assert {p.name for p in out.iterdir()} == {"results.md", "table1.csv", "table1_reference.csv", "final_table.csv",
+                                              "fig1_bc_dril_cmz.png", "fig2_cmz_env_zero.png", "fig3_final_eval.png"}
+    assert _rows(out / "table1_reference.csv")[1]["run_dirs"] == f"{ENV}/cmz/trial0;{ENV}/cmz/trial1"
+    # Existing report files are kept unless --force; two grids need two names.
+    assert main(["report", str(main_grid), "-o", str(out)]) == 2
+    assert "final_table.csv" in capsys.readouterr().err
+    assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(tmp_path / "x"),
+                 "--label", "same", "--reference-label", "same"]) == 2
+    assert "both grids are labelled 'same'" in capsys.readouterr().err
+
+
+def test_setting_differences_name_missing_settings(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    write_run(a, "bc", 0, [1.0], hyperparams={"standardize_observations": True, "n_steps": 2048})
+    write_run(b, "bc", 0, [1.0], hyperparams={"n_steps": 2048})
+    write_run(b, "bc", 0, [1.0], env="Hopper-v5", hyperparams={"n_steps": 1})  # only in b: not compared
+    assert setting_differences(load_runs(a), load_runs(b)) == {ENV: [("standardize_observations", "true", NOT_SET)]}
+
+
+def test_readme_block_shows_the_headline(main_grid, tmp_path, capsys):
+    ref = _reference_grid(tmp_path / "paper_faithful")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# X\n\n{report.README_BEGIN}\nold table\n{report.README_END}\n\nafter\n")
+    assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(tmp_path / "docs"),
+                 "--label", "new", "--reference-label", "old", "--readme", str(readme), "--no-figures"]) == 0
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("# X\n\n") and text.endswith(f"{report.README_END}\n\nafter\n")
+    block = text[text.index(report.README_BEGIN):text.index(report.README_END)]
+    assert f"| {ENV} | CMZ-DRIL | {report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4 |" in block
+    assert "| 25.0 (5.00), n=2 | 1690 (360) |" in block
+    expert = report.fmt_ci(*mean_ci([1001 + 10 * t for t in range(4)]))  # 1000 + 10 trial + mean of episodes 0-2
+    assert f"| {ENV} | Expert (held-out demos) | {expert}, n=4 |" in block
+    assert f"From 12 runs in `{main_grid}` and 3 runs in `{ref}`" in block
+    assert "details in [results.md](docs/results.md)" in block
+    readme.write_text("no block here\n")
+    assert main(["report", str(main_grid), "-o", str(tmp_path / "again"), "--readme", str(readme)]) == 2
+    assert "has no results block" in capsys.readouterr().err
+    assert not (tmp_path / "again" / "results.md").exists()
+
+
+def test_final_table_orders_final_then_lowest_u(main_grid):
+    rows = final_table(load_runs(main_grid))
+    assert [(r.method, r.policy) for r in rows] == [("bc", "final"), ("cmz", "final"), ("zero", "final"),
+                                                    ("cmz", "lowest_u"), ("zero", "lowest_u")]
+
+
+# -- Table I, gap closed, reward signal, discussion (moved from test_experiments.py) -------------------
+def test_report_gap_closed_and_window_on_synthetic_runs(tmp_path):
+    runs_dir = tmp_path / "runs"
+    n = 150  # more than the 100-epoch window: the first 50 epochs must not count
+    for trial, shift in ((0, 0.0), (1, 20.0)):
+        write_run(runs_dir, "zero", trial, [-1e6] * 50 + [100 + shift] * 100, [5.0] * n, [0.5] * n)
+        write_run(runs_dir, "env", trial, [-1e6] * 50 + [300 + shift] * 100, [1.0] * n, [0.3] * n)
+        write_run(runs_dir, "cmz", trial, [-1e6] * 50 + [200 + shift] * 100, [4.0] * n, [0.4] * n)
+        write_run(runs_dir, "bc", trial, [50 + shift], [6.0], [0.6])
+    path = report.write_report(runs_dir, tmp_path / "docs", references=(), figures=False)
+    text = path.read_text()
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 210 (10.0) | 4.00 (0) | 0.4 (0) |" in text
+    assert "| HalfCheetah-v5 | BC | 2 | 60.0 (10.0) | 6.00 (0) | 0.6 (0) |" in text
+    assert "| HalfCheetah-v5 | 50% | 25% | 50% |" in text  # (210-110)/(310-110), (4-5)/(1-5), (0.4-0.5)/(0.3-0.5)
+    assert "paper's Table I" not in text
+    gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))
+    assert gaps["HalfCheetah-v5"]["return"] == pytest.approx(0.5)
+
+
+def _progress_csv(run_dir: Path, start: int, u, ep_len) -> None:
+    logs = run_dir / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    lines = ["time/total_timesteps,rollout/disagreement_mean,rollout/shaped_reward_mean,rollout/ep_len_mean"]
+    lines += [f"{(start + i + 1) * 64},{v},0.0,{n}" for i, (v, n) in enumerate(zip(u, ep_len, strict=True))]
+    (logs / f"progress_{start * 64}.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_report_reward_signal_joins_segments_and_averages_trials(tmp_path):
+    runs_dir = tmp_path / "runs"
+    for trial, offset in ((0, 0.0), (1, 1.0)):
+        run = write_run(runs_dir, "cmz", trial, [1.0] * 3)
+        # two segments (a resumed run), written out of order: the report orders them by start step,
+        # and the second (from step 12 * 64) replaces the first's rows logged after that step
+        _progress_csv(run, 12, [offset + 3.0] * 12, [500] * 12)
+        _progress_csv(run, 0, [offset + 1.0] * 10 + [offset + 2.0] * 2 + [-1e9] * 3, [100] * 15)
+    write_run(runs_dir, "bc", 0, [1.0])
+    signal = report.reward_signal(report.load_runs(runs_dir), epochs=10)
+    assert set(signal) == {("HalfCheetah-v5", "cmz")}  # BC has no rollouts
+    cell = signal[("HalfCheetah-v5", "cmz")]
+    assert cell["u"] == (pytest.approx(1.5), pytest.approx(3.5))  # mean over trials of 1+o and 3+o
+    assert cell["ep_len"] == (pytest.approx(100.0), pytest.approx(500.0))
+    assert np.isnan(cell["ubar"][0]) and cell["trials"][0] == 2
+    text = report.write_report(runs_dir, tmp_path / "docs", references=(), figures=False).read_text()
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 1.50 → 3.50 | 0 → 0 | n/a → n/a | 100 → 500 |" in text
+
+
+def test_report_includes_the_discussion_and_refuses_a_missing_one(tmp_path, capsys):
+    runs_dir = tmp_path / "runs"
+    write_run(runs_dir, "bc", 0, [1.0])
+    notes = tmp_path / "notes.md"
+    notes.write_text("Ours agree with the paper on Hopper.\n")
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "docs"), "--discussion", str(notes),
+                 "--no-figures"]) == 0
+    assert "## Discussion\n\nOurs agree with the paper on Hopper.\n" in (tmp_path / "docs" / "results.md").read_text()
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "x"), "--discussion", str(tmp_path / "nope.md")]) == 2
+    assert "discussion file not found" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # refused before writing anything
