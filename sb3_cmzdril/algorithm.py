@@ -180,6 +180,9 @@ class CMZDRIL(PPO):
         self.pretrain_info: Dict[str, float] = {}
         self.pretrain_history: Dict[str, List[float]] = {}
         self.rollout_disagreement: Optional[float] = None
+        #: whether the policy was trained on VecNormalize'd observations (saved with the model, so that
+        #: an evaluation without the statistics can be refused instead of silently wrong)
+        self.vecnormalize_obs = False
         self._imitation_ready = False
         super().__init__(
             policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs,
@@ -436,6 +439,8 @@ class CMZDRIL(PPO):
     ) -> SelfCMZDRIL:
         self.pretrain(progress_bar=progress_bar)
         self._wrap_training_env()
+        vec_normalize = self.get_vec_normalize_env()
+        self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
         return super().learn(
             total_timesteps=total_timesteps,
             callback=callback,

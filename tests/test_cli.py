@@ -221,7 +221,7 @@ def test_evaluate_episode_out_of_range(normalized_run, capsys):
     assert f"has {POOL_EPISODES} episodes, numbered 0 to {POOL_EPISODES - 1}" in error_line(capsys, "evaluate")
 
 
-def test_evaluate_refuses_to_run_without_the_statistics(normalized_run, tmp_path, capsys):
+def test_evaluate_refuses_to_run_without_the_statistics(normalized_run, setup, tmp_path, capsys):
     assert main(["evaluate", "--model", str(normalized_run / "model.zip"), "--env", ENV,
                  "--vecnormalize", str(tmp_path / "typo.pkl")]) == 2
     assert f"VecNormalize statistics not found: {tmp_path / 'typo.pkl'}" in error_line(capsys, "evaluate")
@@ -234,6 +234,15 @@ def test_evaluate_refuses_to_run_without_the_statistics(normalized_run, tmp_path
     assert "trained on VecNormalize'd observations" in error_line(capsys, "evaluate")
     assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV,
                  "--vecnormalize", str(normalized_run / "vecnormalize.pkl")]) == 0
+    # The model alone, without its config.json: the zip itself says it needs the statistics.
+    (copy / "config.json").unlink()
+    assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV, "--demos", str(setup["pool"])]) == 2
+    assert "was trained on VecNormalize'd observations" in error_line(capsys, "evaluate")
+    damaged = tmp_path / "damaged.pkl"
+    damaged.write_bytes(b"not a pickle")
+    assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV, "--demos", str(setup["pool"]),
+                 "--vecnormalize", str(damaged)]) == 2
+    assert "are damaged or not VecNormalize's" in error_line(capsys, "evaluate")
 
 
 def test_evaluate_refuses_held_out_indices_of_a_changed_pool(normalized_run, setup, tmp_path, capsys):

@@ -738,6 +738,8 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
         state.write(m.num_timesteps)
 
     try:
+        # Pretraining (BC to convergence, the ensemble fit) takes seconds to minutes: show it.
+        model.pretrain(progress_bar=progress_bar)
         if spec.method == "bc":
             # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
             model.learn(0, callback=[eval_cb])
@@ -875,11 +877,21 @@ def load_evaluation_model(
     except Exception:  # not a CMZDRIL zip: some other SB3 algorithm's, which load_expert_model identifies
         model = load_expert_model(path)
     if vecnormalize is None:
+        if getattr(model, "vecnormalize_obs", False):
+            raise ValueError(
+                f"{path} was trained on VecNormalize'd observations: pass its statistics (the vecnormalize.pkl "
+                "saved beside it) with --vecnormalize; without them its actions would be silently wrong"
+            )
         return model, None
     import gymnasium as gym
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    stats = VecNormalize.load(str(vecnormalize), DummyVecEnv([lambda: gym.make(env_id, **dict(env_kwargs or {}))]))
+    venv = DummyVecEnv([lambda: gym.make(env_id, **dict(env_kwargs or {}))])
+    try:
+        stats = VecNormalize.load(str(vecnormalize), venv)
+    except Exception as e:  # pickle raises many types for a damaged or foreign file
+        venv.close()
+        raise ValueError(f"VecNormalize statistics {vecnormalize} are damaged or not VecNormalize's: {type(e).__name__}: {e}") from None
     stats.training = False
     return model, stats.normalize_obs
 
