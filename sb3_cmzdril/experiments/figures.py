@@ -157,7 +157,7 @@ def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
     ax.axhline(expert_by_env(rows)[env][0], color="black", linestyle=":", linewidth=1.2)
     ax.set_xticks(range(len(methods)), [_tick_label(rows, env, m) for m in methods], fontsize=8)
     ax.set_xlim(-0.6, len(methods) - 0.4)
-    ax.set_title(f"{env} ({trials_text([r for r in rows if r.env == env])} trials per method)", fontsize=10)
+    ax.set_title(f"{env} (trials per method: {trials_text([r for r in rows if r.env == env])})", fontsize=10)
     ax.set_ylabel("return (mean over held-out episodes)")
     ax.grid(axis="y", alpha=0.3)
 
@@ -169,7 +169,7 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Opt
     from matplotlib.lines import Line2D
 
     envs = sorted({r.env for r in rows}, key=env_key)
-    fig = _figure(max(10.0, 4.8 * len(envs) + 0.6), 5.4)  # room for the legend with a single env
+    fig = _figure(max(10.0, 4.8 * len(envs) + 0.6), 5.8)  # room for the legend with a single env
     axes = fig.subplots(1, len(envs), squeeze=False)[0]
     for ax, env in zip(axes, envs, strict=True):
         _plot_env(ax, rows, env)
@@ -184,7 +184,8 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Opt
     ]
     fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize=8)
     fig.suptitle((title + "\n" if title else "") + "each trial's return averaged over its held-out pool episodes "
-                 "(final_eval.csv); under each method: trials above BC, final | lowest-u policy", fontsize=11)
+                 "(final_eval.csv)\nunder each method: in how many trials its final | lowest-u policy is above BC",
+                 fontsize=11)
     return _save(fig, path)
 
 

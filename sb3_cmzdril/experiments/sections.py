@@ -13,6 +13,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from sb3_cmzdril.experiments.final_eval import (
     CONFIDENCE,
+    MIN_TRIALS_FOR_CI,
     FinalRow,
     expert_by_env,
     final_markdown,
@@ -121,13 +122,13 @@ def headline_markdown(reports: Sequence[GridReport], reference: Optional[Referen
 
 def headline_text(reports: Sequence[GridReport], reference: Optional[ReferenceTable], window: int) -> str:
     """What the headline's columns are, in words."""
-    parts = [f"Return. Table I: each run's per-epoch evaluation (eval.csv) averaged over its last {window} epochs, "
-             "mean (population std) over trials, n = trials."]
+    parts = [f"The env's true return. Table I: each run's per-epoch evaluation (eval.csv) averaged over its last "
+             f"{window} epochs, mean (population std) over trials, n = trials."]
     if any(rep.final for rep in reports):
         parts.append("Final evaluation: each run's policy on every pool episode not used for training "
                      f"(final_eval.csv), mean over trials [{100 * CONFIDENCE:g}% bootstrap CI over trials; n/a with "
-                     "fewer than 3 trials]; \"(lowest u)\": the policy whose own training rollout had the lowest "
-                     "ensemble disagreement (chosen without the env reward).")
+                     f"fewer than {MIN_TRIALS_FOR_CI} trials]; \"(lowest u)\": the policy whose own training rollout "
+                     "had the lowest ensemble disagreement (chosen without the env reward).")
     missing = [rep.label for rep in reports if not rep.final]
     if missing:
         parts.append(f"{', '.join(missing)}: no final evaluation (its runs have no final_eval.csv).")
