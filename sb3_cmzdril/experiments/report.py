@@ -67,7 +67,8 @@ def report_outputs() -> List[str]:
 def _source_line(rep: GridReport) -> str:
     records = rep.grid.records
     n_final = sum(bool(r.final) for r in records)
-    return (f"- **{rep.label}**: `{rep.root}`, {len(records)} runs: their `eval.csv` (Table I and Fig. 1/2), "
+    curves = "Table I and Fig. 1/2" if rep.suffix == SUFFIXES[0] else "Table I"  # the curves: main grid only
+    return (f"- **{rep.label}**: `{rep.root}`, {len(records)} runs: their `eval.csv` ({curves}), "
             f"`final_eval.csv` (the final evaluation; {n_final} of the {len(records)} runs have one), `done.json` (the epoch of each "
             "lowest-u policy), `logs/progress_*.csv` (the reward signal) and the demo pools their `config.json` "
             "names (the expert's return in Table I).")
