@@ -270,7 +270,7 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
 
 def write_results(output: Path, pool_path: Path, command: str) -> Path:
     """results.md and results.csv in ``output``; returns results.md's path."""
-    from sb3_cmzdril._atomic import atomic_write_text
+    from sb3_cmzdril.io import atomic_write_text
 
     markdown, table = render_results(output, pool_path, command)
     atomic_write_text(output / "results.csv", table)

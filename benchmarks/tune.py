@@ -19,7 +19,7 @@ from typing import Any, Dict, List
 
 import yaml
 
-from sb3_cmzdril._atomic import atomic_write_text
+from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -21,7 +21,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
 import numpy as np
 from gymnasium import spaces
 
-from sb3_cmzdril._atomic import PathLike, atomic_path
+from sb3_cmzdril.io import PathLike, atomic_path
 
 FORMAT_VERSION = 1
 UNKNOWN_SEED = -1

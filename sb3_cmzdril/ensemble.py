@@ -31,8 +31,8 @@ import torch as th
 from gymnasium import spaces
 from torch import nn
 
-from sb3_cmzdril._atomic import PathLike, atomic_path
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.io import PathLike, atomic_path
 from sb3_cmzdril.policies import observation_statistics
 
 DISAGREEMENT_FORMS = ("std", "quadratic")

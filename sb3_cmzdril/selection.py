@@ -17,7 +17,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_cmzdril._atomic import PathLike, atomic_path
+from sb3_cmzdril.io import PathLike, atomic_path
 
 
 class LowestDisagreementPolicy(BaseCallback):

@@ -30,7 +30,6 @@ import traceback
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
-from sb3_cmzdril._atomic import PathLike, atomic_write_text
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.experiments.runs import (
     DEFAULT_CHECKPOINT_EVERY,
@@ -49,6 +48,7 @@ from sb3_cmzdril.experiments.runs import (
     plan_run,
     run_experiment,
 )
+from sb3_cmzdril.io import PathLike, atomic_write_text
 
 BACKENDS = ("local", "ray")
 #: One line per benchmark invocation in RUNS_DIR (command, grid, outcome): the runs' history.

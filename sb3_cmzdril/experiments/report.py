@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from sb3_cmzdril._atomic import PathLike, atomic_write_text
 from sb3_cmzdril.experiments.figures import (
     FIGURES,
     FINAL_FIGURE,
@@ -51,6 +50,7 @@ from sb3_cmzdril.experiments.sections import (
     table_sections,
 )
 from sb3_cmzdril.experiments.tables import expert_returns, gap_closed, reward_signal, table_csv, table_one
+from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
 SUFFIXES: Tuple[str, str] = ("", "_reference")

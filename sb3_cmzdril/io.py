@@ -1,0 +1,208 @@
+"""Shared file utilities: atomic writes, JSON records, folder locks and provenance.
+
+Every module that writes results (experts, demo pools, runs, reports) uses these, so that a reader
+never sees a half-written file, JSON records look the same everywhere, and one process at a time
+works in a folder.
+
+Atomic writes go to a temporary file in the destination folder (same filesystem, so the final
+``os.replace`` is atomic), are flushed to disk, then renamed over the destination. A hard kill can
+leave such a temporary behind; :func:`remove_stale_temporaries` clears them once the folder's
+lock is held.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import math
+import os
+import platform
+import shlex
+import sys
+import tempfile
+from pathlib import Path
+from typing import IO, Any, Dict, Iterator, Optional, Sequence, Union
+
+import numpy as np
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+#: Name of the lock file :func:`lock_output` holds in a folder.
+LOCK_FILE = ".lock"
+
+_PROC_STATUS = Path("/proc/self/status")
+
+
+# -- atomic writes ---------------------------------------------------------------------------------
+def current_umask() -> int:
+    """The process's file-creation mask, read without changing it.
+
+    Linux reports it in ``/proc/self/status`` (``Umask:`` line). Elsewhere the only way is to set a
+    mask and put the old one back, which for that instant changes the mask of every thread of the
+    process; that is done once and remembered.
+    """
+    try:
+        for line in _PROC_STATUS.read_text(encoding="ascii").splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split(":", 1)[1].strip(), 8)
+    except (OSError, ValueError):
+        pass
+    return _umask_by_setting()
+
+
+@functools.lru_cache(maxsize=1)
+def _umask_by_setting() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_path(path: PathLike, suffix: str = "") -> Iterator[Path]:
+    """Yield a temporary path to write to; on success it replaces ``path`` atomically.
+
+    ``suffix`` is appended to the temporary name so that writers which insist on an extension
+    (``np.savez`` adds ``.npz``, SB3 adds ``.zip`` when there is none) keep the name we chose.
+    On any exception the temporary file is removed and ``path`` is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{suffix}")
+    os.close(fd)
+    tmp = Path(tmp_name)
+    # mkstemp makes 0600 files; results should be readable like any other file the process writes.
+    os.chmod(tmp, 0o666 & ~current_umask())
+
+    try:
+        yield tmp
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def atomic_write_text(path: PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (UTF-8)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def remove_stale_temporaries(*folders: Path) -> None:
+    """Remove the temporaries of atomic writes cut short by a hard kill.
+
+    Call it only while holding the folder's lock: another process's write in progress looks the same.
+    """
+    for folder in folders:
+        for p in Path(folder).glob(".*.tmp*"):
+            if p.is_file():
+                with contextlib.suppress(OSError):
+                    p.unlink()
+
+
+# -- JSON ------------------------------------------------------------------------------------------
+def jsonable(value: Any) -> Any:
+    """``value`` as JSON data: classes by qualified name, numpy scalars as Python numbers,
+    non-finite floats as strings, anything else unknown (schedules, callables) by its repr."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, (bool, int, str)) or value is None:
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if isinstance(value, np.generic):
+        return jsonable(value.item())
+    if isinstance(value, type):
+        return f"{value.__module__}.{value.__qualname__}"
+    return repr(value)
+
+
+def write_json(path: PathLike, data: Dict[str, Any]) -> None:
+    """Write ``data`` (made :func:`jsonable`) to ``path`` atomically, indented, keys in order."""
+    atomic_write_text(path, json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")
+
+
+def read_json(path: PathLike) -> Dict[str, Any]:
+    """The JSON content of ``path``; a ValueError naming the file when it is unreadable or corrupt."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path} is unreadable or corrupt: {e}") from e
+
+
+def read_json_or_empty(path: PathLike) -> Dict[str, Any]:
+    """A JSON object file, or {} when it is missing, unreadable or not an object."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+# -- locks -----------------------------------------------------------------------------------------
+def lock_output(folder: Path, message: Optional[str] = None) -> Optional[IO[str]]:
+    """Hold an exclusive lock on ``folder`` (its :data:`LOCK_FILE`) until :func:`unlock_output`.
+
+    The lock is the operating system's (``flock``), so it ends with the process, however it ends.
+    Returns the open lock file, or None where locking is unsupported (Windows).
+
+    :param message: the ValueError's text when another process holds the lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no locking
+        return None
+    folder = Path(folder)
+    handle = open(folder / LOCK_FILE, "a+")  # held open: it is the lock; unlock_output closes it
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        message = message or f"another process is already running in {folder} (lock {folder / LOCK_FILE})"
+        raise ValueError(message) from None
+    return handle
+
+
+def unlock_output(folder: Path, handle: Optional[IO[str]]) -> None:
+    """Release a lock of :func:`lock_output` and remove its file."""
+    if handle is None:
+        return
+    with contextlib.suppress(OSError):
+        (Path(folder) / LOCK_FILE).unlink()
+    handle.close()
+
+
+# -- provenance ------------------------------------------------------------------------------------
+def versions() -> Dict[str, str]:
+    """Versions of Python and of the packages that decide a result, for metadata records."""
+    import gymnasium as gym
+    import stable_baselines3
+    import torch
+
+    import sb3_cmzdril
+
+    found = {
+        "python": platform.python_version(),
+        "sb3_cmzdril": getattr(sb3_cmzdril, "__version__", "unknown"),
+        "stable_baselines3": stable_baselines3.__version__,
+        "gymnasium": gym.__version__,
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+    }
+    try:
+        import mujoco
+
+        found["mujoco"] = mujoco.__version__
+    except ImportError:  # the mujoco extra is optional (classic control, WaypointNav)
+        found["mujoco"] = "not installed"
+    return found
+
+
+def command_line(argv: Optional[Sequence[str]] = None) -> str:
+    """The command line as typed (``sys.argv`` by default), shell-quoted."""
+    return shlex.join(list(sys.argv if argv is None else argv))

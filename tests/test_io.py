@@ -1,0 +1,124 @@
+"""sb3_cmzdril.io: atomic writes (with the umask's permissions, the umask left alone), JSON records,
+folder locks, provenance."""
+from __future__ import annotations
+
+import json
+import os
+import stat
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_cmzdril import io
+
+
+def test_import_and_write_leave_the_umask_alone_and_apply_it(tmp_path):
+    # A fresh interpreter with a umask of its own, in which os.umask records every call: importing
+    # the package and writing a file must not call it (another thread could create a file in that
+    # instant with mask 0), and the file gets exactly the umask's permissions.
+    script = textwrap.dedent(
+        f"""
+        import os, stat
+        os.umask(0o027)
+        calls = []
+        real_umask = os.umask
+        os.umask = lambda mask: calls.append(mask) or real_umask(mask)
+        import sb3_cmzdril
+        from sb3_cmzdril.io import atomic_write_text, current_umask
+        atomic_write_text({str(tmp_path / "out.txt")!r}, "x")
+        print(calls, oct(current_umask()), oct(stat.S_IMODE(os.stat({str(tmp_path / "out.txt")!r}).st_mode)))
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    if not Path("/proc/self/status").is_file():  # pragma: no cover - other systems use the fallback
+        pytest.skip("no /proc/self/status: the umask is read by setting it")
+    assert result.stdout.split() == ["[]", "0o27", "0o640"]
+
+
+def test_umask_fallback_where_proc_is_absent(tmp_path, monkeypatch):
+    monkeypatch.setattr(io, "_PROC_STATUS", tmp_path / "no-such-file")
+    io._umask_by_setting.cache_clear()
+    previous = os.umask(0o077)
+    try:
+        assert io.current_umask() == 0o077
+        assert os.umask(0o077) == 0o077  # put back as it was
+    finally:
+        os.umask(previous)
+        io._umask_by_setting.cache_clear()
+
+
+def test_atomic_write_replaces_whole_or_not_at_all(tmp_path):
+    path = tmp_path / "sub" / "result.txt"
+    io.atomic_write_text(path, "first")
+    with pytest.raises(RuntimeError):
+        with io.atomic_path(path) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("crash mid-write")
+    assert path.read_text() == "first"
+    assert sorted(p.name for p in path.parent.iterdir()) == ["result.txt"]  # no temporary left
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~io.current_umask()
+
+
+def test_suffix_keeps_the_writers_extension(tmp_path):
+    with io.atomic_path(tmp_path / "d.npz", suffix=".npz") as tmp:
+        assert tmp.name.endswith(".npz") and tmp.name.startswith(".d.npz.")
+        np.savez(tmp, a=np.arange(3))
+    with np.load(tmp_path / "d.npz") as data:
+        assert list(data["a"]) == [0, 1, 2]
+
+
+def test_remove_stale_temporaries_removes_only_temporaries(tmp_path):
+    (tmp_path / ".model.zip.abc.tmp.zip").write_bytes(b"half")
+    (tmp_path / "model.zip").write_bytes(b"whole")
+    (tmp_path / ".lock").write_text("")
+    io.remove_stale_temporaries(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "model.zip"]
+
+
+def test_jsonable_and_round_trip(tmp_path):
+    data = {"a": np.float32(0.5), "b": (1, np.int64(2)), "c": float("inf"), "d": Path, 3: None, "e": [True]}
+    expected = {"a": 0.5, "b": [1, 2], "c": "inf", "d": "pathlib.Path", "3": None, "e": [True]}
+    assert io.jsonable(data) == expected
+    assert io.jsonable(len).startswith("<built-in function len")  # anything else: by its repr
+    io.write_json(tmp_path / "r.json", data)
+    assert io.read_json(tmp_path / "r.json") == expected
+    assert (tmp_path / "r.json").read_text().endswith("}\n")
+
+
+def test_read_json_names_a_corrupt_file_and_or_empty_forgives(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"a": ')
+    with pytest.raises(ValueError, match="bad.json is unreadable or corrupt"):
+        io.read_json(bad)
+    with pytest.raises(ValueError, match="missing.json is unreadable or corrupt"):
+        io.read_json(tmp_path / "missing.json")
+    (tmp_path / "list.json").write_text(json.dumps([1, 2]))
+    for path in (bad, tmp_path / "missing.json", tmp_path / "list.json"):
+        assert io.read_json_or_empty(path) == {}
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="no flock")
+def test_lock_is_exclusive_and_released(tmp_path):
+    held = io.lock_output(tmp_path)
+    try:
+        with pytest.raises(ValueError, match=r"another process is already running in .* \(lock .*\.lock\)"):
+            io.lock_output(tmp_path)
+        with pytest.raises(ValueError, match="^busy$"):
+            io.lock_output(tmp_path, "busy")
+    finally:
+        io.unlock_output(tmp_path, held)
+    assert not (tmp_path / io.LOCK_FILE).exists()
+    io.unlock_output(tmp_path, io.lock_output(tmp_path))  # free again
+    io.unlock_output(tmp_path, None)  # where locking is unsupported: nothing to do
+
+
+def test_provenance():
+    assert io.command_line(["sb3-cmzdril", "train", "--env", "a b"]) == "sb3-cmzdril train --env 'a b'"
+    found = io.versions()
+    for key in ("python", "sb3_cmzdril", "stable_baselines3", "gymnasium", "torch", "numpy", "mujoco"):
+        assert found[key]
