@@ -209,8 +209,9 @@ def _run_evaluate(args) -> int:
     from pathlib import Path
 
     from sb3_cmzdril.experiments.runs import CONFIG_FILE, default_demos_path, load_evaluation_model
-    from sb3_cmzdril.experts import _read_json, check_env_id, load_demonstrations
+    from sb3_cmzdril.experts import check_env_id, load_demonstrations
     from sb3_cmzdril.hyperparams import safe_eval
+    from sb3_cmzdril.io import read_json
     from sb3_cmzdril.metrics import evaluate_against_expert
 
     check_env_id(args.env)
@@ -219,7 +220,7 @@ def _run_evaluate(args) -> int:
         raise FileNotFoundError(f"model file not found: {model_path}")
     # A run folder's config.json knows how the model was trained and evaluated.
     config_path = model_path.parent / CONFIG_FILE
-    run_config = _read_json(config_path) if config_path.is_file() else {}
+    run_config = read_json(config_path) if config_path.is_file() else {}
     if args.env_kwargs is not None:
         env_kwargs = safe_eval(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
@@ -444,12 +445,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     """Run one command; every user error ends here as one line on stderr and exit code 2, an
     interruption (Ctrl-C) as one line and exit code 130."""
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings
+    from sb3_cmzdril.console import show_library_messages
 
     parser = build_parser()
     args = parser.parse_args(argv)
     route_mujoco_warnings()
     try:
-        return int(args.func(args) or 0)
+        with show_library_messages():  # the library logs its notes for a person; the CLI shows them
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         again = "resume" if args.command in RESUMABLE else "start again"
         print(f"sb3-cmzdril {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)

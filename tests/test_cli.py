@@ -23,6 +23,7 @@ from test_experiments import TINY_YAML as TINY_PPO
 from conftest import pendulum_expert, record
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.io import write_json
 
 TINY_SAC = """
 Pendulum-v1:
@@ -181,7 +182,7 @@ def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun
     stale = runs.plan_run(ENV, "bc", 1, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
     train_idx, eval_idx = runs.split_episodes(POOL_EPISODES, 1, 1, 1)
     hp, _ = runs.load_run_hyperparams(setup["ppo"], ENV)
-    runs._write_json(out / "config.json", runs._config(stale, hp, train_idx, eval_idx, Demonstrations.load(setup["pool"])))
+    write_json(out / "config.json", runs._config(stale, hp, train_idx, eval_idx, Demonstrations.load(setup["pool"])))
     assert runs.run_experiment(spec)["status"] == "done"
     assert json.loads((out / "config.json").read_text())["seed"] == 0
 

@@ -1,5 +1,6 @@
 """train-expert (tiny SAC on Pendulum: files, resume, interruption) and collect-demos."""
 import json
+import logging
 import shutil
 from pathlib import Path
 
@@ -169,11 +170,11 @@ def test_train_expert_rejects_unsupported_keys_and_other_runs(tmp_path, tiny_yam
 
 
 def test_second_process_on_same_folder_is_refused(tmp_path, tiny_yaml):
-    from sb3_cmzdril.experts import _lock_output
+    from sb3_cmzdril.io import lock_output
 
     ckpt = tmp_path / "run" / "checkpoints"
     ckpt.mkdir(parents=True)
-    held = _lock_output(ckpt)  # as if another train-expert were running there
+    held = lock_output(ckpt)  # as if another train-expert were running there
     try:
         with pytest.raises(ValueError, match="already running"):
             train_expert(ENV, timesteps=100, hyperparams_path=tiny_yaml, output_dir=tmp_path / "run", **FAST)
@@ -248,6 +249,39 @@ def test_scripted_expert_via_cli(tmp_path):
     assert demos.n_episodes == 2 and list(demos.seeds) == [0, 1]
     again = collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=0, verbose=False)
     np.testing.assert_array_equal(again.observations, demos.observations)
+
+
+def test_library_logs_its_notes_and_the_cli_prints_them(tmp_path, capsys, caplog):
+    # Called as a library: nothing on stdout, the notes go to the package's loggers.
+    register_scripted_expert("test-pendulum-pd", _PendulumPD)
+    caplog.set_level(logging.INFO, logger="sb3_cmzdril")
+    path = tmp_path / "lib" / "pd.npz"
+    collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=0, output=path)
+    assert capsys.readouterr().out == ""
+    messages = [r.getMessage() for r in caplog.records if r.name == "sb3_cmzdril.experts.collect"]
+    assert messages[0].startswith("scripted:test-pendulum-pd on Pendulum-v1: 2 episodes, 400 steps\n")
+    assert messages[0].splitlines()[-1].startswith("    mean")  # the plain table, for any log handler
+    assert messages[1] == f"saved {path} (provenance in {path.parent / 'metadata.json'})"
+
+    # Through the CLI: the same notes on stdout, the table drawn by rich, no prefixes.
+    library_logger = logging.getLogger("sb3_cmzdril")
+    handlers, level = list(library_logger.handlers), library_logger.level
+    path = tmp_path / "cli" / "pd.npz"
+    assert main(["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV, "--episodes", "2", "-o", str(path)]) == 0
+    printed = capsys.readouterr().out
+    assert "┃ episode ┃" in printed and "+/-" in printed
+    assert printed.endswith(f"saved {path} (provenance in {path.parent / 'metadata.json'})\n")
+    assert (library_logger.handlers, library_logger.level) == (handlers, level)  # main restored them
+
+
+def test_cli_says_a_finished_expert_needs_nothing(trained, tiny_yaml, capsys):
+    capsys.readouterr()
+    assert main(["train-expert", "--env", ENV, "--timesteps", "200", "--hyperparams", str(tiny_yaml),
+                 "-o", str(trained), "--no-progress"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        f"{trained} holds a finished sac expert on {ENV} (200 >= 200 steps, metadata.json); nothing to do",
+        str(trained / "model.zip"),
+    ]
 
 
 def test_clear_errors_for_bad_experts(tmp_path, capsys):

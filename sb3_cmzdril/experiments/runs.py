@@ -47,19 +47,17 @@ from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
-from sb3_cmzdril._atomic import PathLike, atomic_path
-from sb3_cmzdril.experts import (
-    _callbacks,
-    _jsonable,
-    _lock_output,
-    _read_json,
-    _remove_stale_temporaries,
-    _versions,
-    _write_json,
-    check_env_id,
-    check_seed,
-    env_name,
-    load_demonstrations,
+from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations
+from sb3_cmzdril.experts.callbacks import ProgressCallback
+from sb3_cmzdril.io import (
+    PathLike,
+    atomic_path,
+    jsonable,
+    lock_output,
+    read_json,
+    remove_stale_temporaries,
+    versions,
+    write_json,
 )
 
 #: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL.
@@ -446,9 +444,9 @@ def _make_training_env(spec: RunSpec, hp, env_seed: int, vecnormalize_path: Opti
     """The training VecEnv (Monitor inside), with VecNormalize when asked (loaded from a checkpoint)."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_cmzdril.experts import _make_vec_env
+    from sb3_cmzdril.experts.envs import make_vec_env
 
-    venv = _make_vec_env(spec.env_id, hp.n_envs, env_seed, hp.env_kwargs)
+    venv = make_vec_env(spec.env_id, hp.n_envs, env_seed, hp.env_kwargs)
     normalize = _normalize_kwargs(hp)
     if normalize is None:
         return venv
@@ -512,7 +510,7 @@ class _RunState:
         self.path = out / STATE_FILE
         self.data: Dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "segments": []}
         if self.path.is_file() and start_steps > 0:
-            self.data.update(_read_json(self.path))
+            self.data.update(read_json(self.path))
         self._base_wall = float(self.data.get("wall_time_s", 0.0))
         self._t0 = time.time()
         self.data["segments"].append({
@@ -526,7 +524,7 @@ class _RunState:
 
     def write(self, num_timesteps: int) -> None:
         self.data.update(num_timesteps=int(num_timesteps), wall_time_s=round(self.wall_time(), 2))
-        _write_json(self.path, self.data)
+        write_json(self.path, self.data)
 
 
 def _config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], pool) -> Dict[str, Any]:
@@ -556,7 +554,7 @@ def _config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], pool) 
         "hyperparams_values": hp.raw,
         "model_kwargs": hp.model_kwargs(),
         "env_kwargs": hp.env_kwargs,
-        "versions": _versions(),
+        "versions": versions(),
         "command": spec.command,
         "train_command": train_command(spec),
         "cwd": os.getcwd(),
@@ -568,7 +566,7 @@ def _as_stored(config: Mapping[str, Any]) -> Dict[str, Any]:
     """``config`` as config.json stores it, to compare like with like."""
     import json
 
-    return json.loads(json.dumps(_jsonable(dict(config))))
+    return json.loads(json.dumps(jsonable(dict(config))))
 
 
 def _check_same_run(out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run") -> None:
@@ -591,16 +589,16 @@ def _check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
     fresh = _as_stored(config)
     trained = (out / MODEL_FILE).is_file() or (out / DONE_FILE).is_file()
     if not path.is_file() or not trained:
-        _write_json(path, config)
+        write_json(path, config)
         return config
-    saved = _read_json(path)
+    saved = read_json(path)
     _check_same_run(out, saved, fresh)
     # A resume may ask for more steps or another cadence: config.json follows, so that its
     # train_command reproduces what the run became (state.json keeps each segment's command).
     changed = {k: fresh[k] for k in _SETTING_KEYS if saved.get(k) != fresh.get(k)}
     if changed:
         saved.update(changed)
-        _write_json(path, saved)
+        write_json(path, saved)
     return saved
 
 
@@ -608,7 +606,7 @@ def _check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
 def _locked(out: Path) -> Iterator[None]:
     """One process per run folder: a second one fails at once instead of corrupting the first."""
     try:
-        lock = _lock_output(out)
+        lock = lock_output(out)
     except ValueError:
         raise ValueError(f"another process is already running in {out} (lock {out / '.lock'})") from None
     try:
@@ -642,7 +640,7 @@ def run_experiment(
         return {**done, "status": "skipped"}
     out.mkdir(parents=True, exist_ok=True)
     with _locked(out):
-        _remove_stale_temporaries(out)
+        remove_stale_temporaries(out)
         return _run_locked(spec, out, progress_bar, list(callbacks), verbose)
 
 
@@ -657,9 +655,9 @@ def check_finished(spec: RunSpec) -> Optional[Dict[str, Any]]:
     done_path = out / DONE_FILE
     if not done_path.is_file():
         return None
-    done = _read_json(done_path)
+    done = read_json(done_path)
     # done.json repeats the first identity entries, for a folder whose config.json went missing.
-    saved = _read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
+    saved = read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
     hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
     pool = _load_pool(spec.demos, _mtime_ns(spec.demos))
     train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
@@ -746,7 +744,6 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
             save(model)  # the BC policy itself, for `sb3-cmzdril evaluate` and later inspection
             _write_pretrain_csv(out / PRETRAIN_CSV, model.pretrain_history)
         else:
-            ProgressCallback, _, _ = _callbacks()
             checkpoint_cb = _checkpoint_callback_class()(save, spec.checkpoint_every)
             progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
             model.learn(
@@ -767,7 +764,7 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
     state.write(model.num_timesteps)
     summary = _summary(spec, model, config, state, csv_path)
     summary["final_evaluation"] = final
-    _write_json(out / DONE_FILE, summary)
+    write_json(out / DONE_FILE, summary)
     with contextlib.suppress(FileNotFoundError):
         (out / ERROR_FILE).unlink()  # an earlier attempt's failure is history once the run is done
     return summary

@@ -1,0 +1,47 @@
+"""Environment ids and seeds as the commands take them: naming, checking, and the training VecEnv.
+
+The checks run before a command creates any folder, so a typo leaves nothing behind.
+"""
+from __future__ import annotations
+
+from typing import Any, Dict, Optional
+
+import gymnasium as gym
+
+
+def env_name(env_id: str) -> str:
+    """``module:EnvId-v0`` -> ``EnvId-v0`` (used for default folder names)."""
+    return env_id.rsplit(":", 1)[-1]
+
+
+def check_env_id(env_id: str) -> str:
+    """The env id if gymnasium knows it (importing a ``module:`` prefix first), else a ValueError."""
+    import importlib
+
+    import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0, which a bare id may name)
+
+    module, sep, name = env_id.rpartition(":")
+    if sep:
+        try:
+            importlib.import_module(module)
+        except ImportError as e:
+            raise ValueError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
+    try:
+        gym.spec(name if sep else env_id)
+    except gym.error.Error as e:
+        raise ValueError(f"unknown environment {env_id!r}: {e}") from None
+    return env_id
+
+
+def check_seed(seed: int) -> int:
+    """A reset/network seed: numpy and gymnasium accept integers in [0, 2**32)."""
+    if isinstance(seed, bool) or int(seed) != seed or not 0 <= int(seed) < 2**32:
+        raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
+    return int(seed)
+
+
+def make_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: Optional[Dict[str, Any]]):
+    """SB3's ``make_vec_env`` (Monitor inside each env, env ``i`` seeded ``seed + i``)."""
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+    return sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or None)
