@@ -15,7 +15,6 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from sb3_cmzdril._atomic import PathLike, atomic_path
 from sb3_cmzdril.experiments.final_eval import (
     CONFIDENCE,
     FinalRow,
@@ -27,6 +26,7 @@ from sb3_cmzdril.experiments.final_eval import (
 )
 from sb3_cmzdril.experiments.records import METHOD_LABELS, METHOD_ORDER, RunRecord, env_key, group
 from sb3_cmzdril.experiments.tables import METRICS
+from sb3_cmzdril.io import PathLike, atomic_path
 
 #: The paper's figures: which methods each compares.
 FIGURES: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (

@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 from typing import Optional, Tuple
 
-from sb3_cmzdril._atomic import PathLike, atomic_write_text
+from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Markers of the README block that ``write_report(readme=...)`` replaces.
 README_BEGIN = "<!-- results table: written by `sb3-cmzdril report --readme`, do not edit by hand -->"

@@ -18,7 +18,6 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from sb3_cmzdril._atomic import PathLike
 from sb3_cmzdril.experiments.runs import (
     CONFIG_FILE,
     DONE_FILE,
@@ -29,6 +28,7 @@ from sb3_cmzdril.experiments.runs import (
     read_eval_csv,
     run_status,
 )
+from sb3_cmzdril.io import PathLike, read_json_or_empty
 
 #: How methods are named in tables and legends (the paper's names).
 METHOD_LABELS: Dict[str, str] = {
@@ -82,14 +82,6 @@ def relative(path: Path, root: Path) -> str:
 
 
 _TRIAL = re.compile(r"^trial(\d+)$")
-
-
-def read_json_or_empty(path: Path) -> Dict[str, Any]:
-    """A JSON file's object, or {} when it is missing or cut short (a run still writing)."""
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
 
 
 def read_final_eval(path: PathLike) -> Dict[str, Dict[str, np.ndarray]]:

@@ -56,6 +56,7 @@ from sb3_cmzdril.io import (
     lock_output,
     read_json,
     remove_stale_temporaries,
+    unlock_output,
     versions,
     write_json,
 )
@@ -612,10 +613,7 @@ def _locked(out: Path) -> Iterator[None]:
     try:
         yield
     finally:
-        if lock is not None:
-            with contextlib.suppress(OSError):
-                (out / ".lock").unlink()
-            lock.close()
+        unlock_output(out, lock)
 
 
 # -- one run -----------------------------------------------------------------------------------

@@ -33,7 +33,6 @@ from sb3_cmzdril.experiments.records import (
     Grid,
     RunRecord,
     env_key,
-    read_json_or_empty,
     relative,
     setting_differences,
 )
@@ -47,6 +46,7 @@ from sb3_cmzdril.experiments.tables import (
     reward_signal,
     table_one,
 )
+from sb3_cmzdril.io import read_json_or_empty
 
 
 @dataclasses.dataclass

@@ -22,10 +22,10 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from sb3_cmzdril._atomic import PathLike
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments.records import RunRecord, group
 from sb3_cmzdril.experiments.runs import TABLE_WINDOW, window_means
+from sb3_cmzdril.io import PathLike
 
 #: Table metrics: (key in window_means, column header, eval.csv column).
 METRICS: Tuple[Tuple[str, str, str], ...] = (
