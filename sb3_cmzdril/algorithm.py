@@ -29,14 +29,19 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
-from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
-from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
+from sb3_cmzdril.policies import (
+    DemoStandardizer,
+    floor_log_std,
+    mean_log_std,
+    observation_statistics,
+    standardizing_policy_kwargs,
+)
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
 from sb3_cmzdril.scoring import RolloutScorer
 
@@ -199,7 +204,7 @@ class CMZDRIL(PPO):
     # -- model construction and persistence --------------------------------------------------
     def _setup_model(self) -> None:
         if self.standardize_observations:
-            self._use_demo_standardizer()
+            self.policy_kwargs = standardizing_policy_kwargs(self.policy_class, self.policy_kwargs)
         super()._setup_model()
         if not isinstance(self.action_space, (spaces.Box, spaces.Discrete)):
             raise ValueError(f"CMZDRIL supports Box and Discrete action spaces, got {self.action_space}")
@@ -213,25 +218,6 @@ class CMZDRIL(PPO):
         self.reward_rule: Optional[RewardRule] = None
         for name in _SAVED_TENSORS:
             setattr(self, name, th.zeros(0))
-
-    def _use_demo_standardizer(self) -> None:
-        kwargs = dict(self.policy_kwargs or {})
-        current = kwargs.get("features_extractor_class")
-        if current not in (None, DemoStandardizer):
-            raise ValueError(
-                f"standardize_observations=True puts DemoStandardizer in place of the features extractor, but "
-                f"policy_kwargs asks for {getattr(current, '__name__', current)}; pass standardize_observations=False to keep yours"
-            )
-        import inspect
-
-        default = inspect.signature(self.policy_class.__init__).parameters.get("features_extractor_class")
-        if current is None and (default is None or default.default is not FlattenExtractor):
-            raise ValueError(
-                f"standardize_observations=True needs a flat-input policy (MlpPolicy); {self.policy_class.__name__} "
-                "has its own features extractor: pass standardize_observations=False"
-            )
-        kwargs["features_extractor_class"] = DemoStandardizer
-        self.policy_kwargs = kwargs
 
     def _excluded_save_params(self) -> list:
         return super()._excluded_save_params() + ["demonstrations", "reward_rule", "ensemble", "bc"]
@@ -346,8 +332,9 @@ class CMZDRIL(PPO):
             self.bc_pretrain_epochs, self.bc_validation_fraction, self.bc_patience, transform, progress_bar
         )
         nll_after = self.bc.nll(transform)
-        log_std_learned = self._log_std_mean()
-        self._apply_log_std_floor()
+        log_std_learned = mean_log_std(self.policy)
+        if self.log_std_floor is not None:
+            floor_log_std(self.policy, self.log_std_floor)
         bc_seconds = time.perf_counter() - start
         start = time.perf_counter()
         self.ensemble.fit(
@@ -365,7 +352,7 @@ class CMZDRIL(PPO):
             "bc_best_epoch": stopping.best_epoch,
             "bc_epochs": stopping.epochs,
             "bc_log_std_learned": log_std_learned,
-            "bc_log_std": self._log_std_mean(),
+            "bc_log_std": mean_log_std(self.policy),
             "bc_seconds": bc_seconds,
             "ensemble_loss": float(np.mean(self.ensemble.train_loss_)),
             "ensemble_seconds": time.perf_counter() - start,
@@ -382,17 +369,6 @@ class CMZDRIL(PPO):
                 + (f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else "")
             )
         return self.pretrain_info
-
-    def _log_std_mean(self) -> float:
-        log_std = getattr(self.policy, "log_std", None)
-        return float(log_std.detach().mean()) if isinstance(log_std, th.Tensor) and not self.use_sde else float("nan")
-
-    def _apply_log_std_floor(self) -> None:
-        log_std = getattr(self.policy, "log_std", None)
-        if self.log_std_floor is None or not isinstance(log_std, th.Tensor) or self.use_sde:
-            return
-        with th.no_grad():
-            log_std.clamp_(min=self.log_std_floor)
 
     def reward_wrapper(self) -> Optional[DisagreementReward]:
         """The per-step DisagreementReward in the training env, or None (the default scores rollouts

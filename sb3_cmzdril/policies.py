@@ -13,12 +13,13 @@ ones it was cloned on. They are buffers of the policy, so they travel with ``mod
 """
 from __future__ import annotations
 
-from typing import Tuple
+import inspect
+from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 
 #: Floor of the per-dimension std: a demo dimension that never varies (a constant sensor, a one-hot
 #: that the expert never switched) would otherwise be divided by ~0 and blow up off the demos.
@@ -70,4 +71,48 @@ class DemoStandardizer(BaseFeaturesExtractor):
         return (self.flatten(observations) - self.obs_mean) / self.obs_std
 
 
-__all__ = ["DemoStandardizer", "observation_statistics", "MIN_OBS_STD"]
+def standardizing_policy_kwargs(policy_class: type, policy_kwargs: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+    """``policy_kwargs`` with :class:`DemoStandardizer` as the features extractor.
+
+    Refuses (ValueError) a features extractor of the user's, and a policy whose default extractor is
+    not the flat one (e.g. ``CnnPolicy``): standardisation replaces the extractor, which would
+    silently drop theirs.
+    """
+    kwargs = dict(policy_kwargs or {})
+    current = kwargs.get("features_extractor_class")
+    if current not in (None, DemoStandardizer):
+        raise ValueError(
+            f"standardize_observations=True puts DemoStandardizer in place of the features extractor, but "
+            f"policy_kwargs asks for {getattr(current, '__name__', current)}; pass standardize_observations=False to keep yours"
+        )
+    default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
+    if current is None and (default is None or default.default is not FlattenExtractor):
+        raise ValueError(
+            f"standardize_observations=True needs a flat-input policy (MlpPolicy); {policy_class.__name__} "
+            "has its own features extractor: pass standardize_observations=False"
+        )
+    kwargs["features_extractor_class"] = DemoStandardizer
+    return kwargs
+
+
+def _gaussian_log_std(policy: Any) -> Optional[th.Tensor]:
+    # A state-independent Gaussian has a log_std parameter; gSDE's log_std means something else.
+    log_std = getattr(policy, "log_std", None)
+    return log_std if isinstance(log_std, th.Tensor) and not getattr(policy, "use_sde", False) else None
+
+
+def mean_log_std(policy: Any) -> float:
+    """Mean log-std of a Gaussian policy's actions (NaN for other distributions)."""
+    log_std = _gaussian_log_std(policy)
+    return float(log_std.detach().mean()) if log_std is not None else float("nan")
+
+
+def floor_log_std(policy: Any, floor: float) -> None:
+    """Raise a Gaussian policy's log-std to at least ``floor`` (other distributions: no-op)."""
+    log_std = _gaussian_log_std(policy)
+    if log_std is not None:
+        with th.no_grad():
+            log_std.clamp_(min=float(floor))
+
+
+__all__ = ["DemoStandardizer", "mean_log_std", "floor_log_std", "observation_statistics", "standardizing_policy_kwargs", "MIN_OBS_STD"]
