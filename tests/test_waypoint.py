@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import sb3_cmzdril  # noqa: F401  (registers the env)
+from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.envs.waypoint import POSITION_SLICE, WaypointField, WaypointNavEnv, obs_dim, obs_index
 from sb3_cmzdril.envs.waypoint_expert import WaypointReactiveExpert
 
@@ -241,6 +243,33 @@ def test_same_seed_same_field_and_expert_trajectory():
         obs = env_b.step(expert.predict(obs)[0])[0]
         replay.append(obs)
     np.testing.assert_array_equal(np.array(replay), obs_a)
+
+
+def test_shipped_demo_pool_replays_exactly():
+    """The shipped pool's episodes come back to the bit from their reset seeds and recorded actions:
+    the fields a seed draws, the lidar, the dynamics and the rewards are all unchanged."""
+    pool = Path(__file__).resolve().parents[1] / "experts" / "WaypointNav-v0" / "demos.npz"
+    demos = Demonstrations.load(pool)
+    env = make()
+    for i in range(demos.n_episodes):
+        ep = demos.episode(i)
+        obs, _ = env.reset(seed=ep["seed"])
+        replay, rewards = [obs], []
+        for t, action in enumerate(ep["actions"]):
+            obs, reward, terminated, truncated, _ = env.step(action)
+            last = t == len(ep["actions"]) - 1
+            assert (terminated or truncated) == last, f"episode {i} ends at step {t}, recorded {len(ep['actions'])}"
+            replay.append(obs)
+            rewards.append(reward)
+        np.testing.assert_array_equal(np.array(replay[:-1]), ep["observations"], err_msg=f"episode {i}")
+        np.testing.assert_array_equal(np.array(rewards, dtype=np.float32), ep["rewards"], err_msg=f"episode {i}")
+
+
+def test_waypoint_field_has_one_definition():
+    from sb3_cmzdril.envs import WaypointField as from_package
+    from sb3_cmzdril.envs.waypoint_field import WaypointField as from_module
+
+    assert WaypointField is from_package is from_module
 
 
 def test_expert_reaches_goal_and_return_telescopes():

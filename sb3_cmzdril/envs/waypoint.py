@@ -30,16 +30,30 @@ computes the Fréchet distance between expert and imitator paths on it.
 The step limit is the env's own ``max_steps`` option (``truncated=True`` when reached), not a
 ``TimeLimit`` wrapper: it is then settable through ``gym.make(..., max_steps=N)``, has one source of
 truth, and holds for ``env.unwrapped`` too. See ``docs/waypoint.md`` for reward and design notes.
+
+This module is the gymnasium Env (spaces, dynamics, reward, episode logic). Its parts live apart:
+scenes (:class:`WaypointField`, random generation, checks) in :mod:`.waypoint_field`, the lidar's
+ray casting in :mod:`.waypoint_lidar`, ``rgb_array`` drawing in :mod:`.waypoint_render`.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Dict, Mapping, Optional, Tuple, Union
+from typing import Any, Dict, Optional, Tuple, Union
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
+# WaypointField is imported from here too (where it was first defined): keep it in this import.
+from sb3_cmzdril.envs.waypoint_field import (
+    WaypointField,
+    as_field,
+    random_field,
+    validate_field,
+    wrap_angle,
+)
+from sb3_cmzdril.envs.waypoint_lidar import Lidar
+from sb3_cmzdril.envs.waypoint_render import draw_background, draw_frame
 
 #: Observation entries after the lidar block (their order is fixed; see the module docstring).
 OBS_TAIL = ("goal_distance", "goal_bearing_sin", "goal_bearing_cos", "heading_sin", "heading_cos",
@@ -61,54 +75,6 @@ def obs_index(n_beams: int) -> Dict[str, Union[int, slice]]:
         index[name] = int(n_beams) + i
     return index
 
-
-@dataclass(frozen=True, eq=False)
-class WaypointField:
-    """One episode's scene, in metres and radians (world frame, arena centred on the origin).
-
-    ``env.unwrapped.field`` is the current one; pass one back with ``env.reset(options={"field": f})``
-    to replay a scene exactly or to build one by hand (tests, figures). A mapping with the same keys
-    is accepted there too.
-
-    :param centres: (K, 2) obstacle centres.
-    :param radii: (K,) obstacle radii (> 0).
-    :param start: (2,) start position of the vehicle.
-    :param goal: (2,) waypoint.
-    :param start_heading: initial heading (rad, 0 = +x, counter-clockwise).
-    :param arena_size: side length of the square arena; ``None`` means "the env's own".
-    """
-
-    centres: np.ndarray
-    radii: np.ndarray
-    start: np.ndarray
-    goal: np.ndarray
-    start_heading: float = 0.0
-    arena_size: Optional[float] = None
-
-    @property
-    def n_obstacles(self) -> int:
-        return int(len(self.radii))
-
-
-def _as_field(value: Any) -> WaypointField:
-    if isinstance(value, WaypointField):
-        return value
-    if isinstance(value, Mapping):
-        unknown = set(value) - {"centres", "radii", "start", "goal", "start_heading", "arena_size"}
-        if unknown:
-            raise ValueError(f"unknown field keys {sorted(unknown)}")
-        missing = {"start", "goal"} - set(value)
-        if missing:
-            raise ValueError(f"a field needs {sorted(missing)}")
-        return WaypointField(
-            centres=value.get("centres", np.zeros((0, 2))), radii=value.get("radii", np.zeros(0)),
-            start=value["start"], goal=value["goal"],
-            start_heading=float(value.get("start_heading", 0.0)), arena_size=value.get("arena_size"))
-    raise ValueError(f"options['field'] must be a WaypointField or a mapping, got {type(value).__name__}")
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class WaypointNavEnv(gym.Env):
@@ -196,21 +162,11 @@ class WaypointNavEnv(gym.Env):
         high = np.ones(n + len(OBS_TAIL), dtype=np.float32)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
-        self.beam_angles = 2.0 * np.pi * np.arange(n) / n
-        self.beam_angles[self.beam_angles > np.pi] -= 2.0 * np.pi
-        self._beam_angles = self.beam_angles.copy()  # the step path's private copies
-        self._beam_angles_s = self.beam_angles - 0.5 * np.pi
-        # Per-step work buffers (no allocations for the (beams x obstacles) intersection in step();
-        # the obstacle-sized ones are made in _set_field).
-        self._u = np.empty((2, n))
-        self._angle = np.empty(n)
-        self._pos = np.zeros(2)
-        self._pos_col = self._pos[:, None]
-        self._inv = np.empty((2, n))
-        self._tmp2 = np.empty((2, n))
-        self._ranges = np.empty(n)
-        self._inv_range = 1.0 / self.lidar_range
-        self._half_n = self.half / self.lidar_range
+        self._lidar = Lidar(n, self.lidar_range, self.half)
+        # A public copy: changing it must not steer the sensor.
+        self.beam_angles = self._lidar.beam_angles
+        # The lidar's own arrays, written in place by every sense(): aliases, not copies.
+        self._ranges = self._lidar.ranges
 
         self._field: Optional[WaypointField] = None
         self._state_ready = False
@@ -235,131 +191,18 @@ class WaypointNavEnv(gym.Env):
         return WaypointField(np.zeros((0, 2)), np.zeros(0), np.array([-h, -h]), np.array([h, h]),
                              0.0, self.arena_size)
 
-    def _validate_field(self, f: WaypointField) -> WaypointField:
-        # Copies: the caller may go on changing its arrays; the env's field must not change with them.
-        centres = np.array(f.centres, dtype=np.float64).reshape(-1, 2) if np.size(f.centres) else np.zeros((0, 2))
-        radii = np.array(f.radii, dtype=np.float64).reshape(-1)
-        start = np.array(f.start, dtype=np.float64).reshape(-1)
-        goal = np.array(f.goal, dtype=np.float64).reshape(-1)
-        if f.arena_size is not None and float(f.arena_size) != self.arena_size:
-            raise ValueError(f"field.arena_size {f.arena_size} differs from the env's arena_size {self.arena_size}")
-        if len(centres) != len(radii):
-            raise ValueError(f"field has {len(centres)} centres but {len(radii)} radii")
-        if start.shape != (2,) or goal.shape != (2,):
-            raise ValueError(f"field start and goal must be (x, y) pairs, got shapes {start.shape} and {goal.shape}")
-        for name, arr in (("centres", centres), ("radii", radii), ("start", start), ("goal", goal)):
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"field {name} contains NaN or inf")
-        if np.any(radii <= 0):
-            raise ValueError("field radii must be > 0")
-        limit = self.half - self.vehicle_radius
-        for name, p in (("start", start), ("goal", goal)):
-            if np.any(np.abs(p) >= limit):
-                raise ValueError(f"field {name} {tuple(p)} is not inside the arena (|x|, |y| < {limit:g})")
-        if len(radii) and np.any(np.hypot(*(centres - start).T) < radii + self.vehicle_radius):
-            raise ValueError("field start overlaps an obstacle")
-        heading = float(f.start_heading)
-        if not math.isfinite(heading):
-            raise ValueError("field start_heading must be finite")
-        return WaypointField(centres, radii, start, goal, _wrap(heading), self.arena_size)
-
     def _set_field(self, f: WaypointField) -> None:
         for arr in (f.centres, f.radii, f.start, f.goal):
             arr.setflags(write=False)  # the field is frozen, its arrays too
         self._field = f
-        k, n = len(f.radii), self.n_beams
-        self._n_obst = k
-        # _sense works in units of the lidar range, so its minimum is the observation directly.
-        scale = 1.0 / self.lidar_range
-        self._centres = np.array(f.centres, dtype=np.float64).reshape(k, 2) * scale
-        self._r2 = (f.radii * scale) ** 2
-        self._contact_dist = (f.radii + self.vehicle_radius) * scale
         self._goal = (float(f.goal[0]), float(f.goal[1]))
         self._background = None
-        self._table = np.empty((k + 3, n))
-        self._table[-1] = 1.0
-        self._table_obst = self._table[:k]
-        self._walls = self._table[k:k + 2]
-        self._w = np.empty((k, 2))
-        self._wx, self._wy = self._w[:, 0], self._w[:, 1]
-        self._dist_k = np.empty(k)
-        self._contact = np.empty(k, dtype=bool)
-        self._b = np.empty((k, n))
-        self._q = np.empty((k, n))
-        self._c = np.empty(k)
-        self._c_col = self._c[:, None]
-        self._miss = np.empty((k, n), dtype=bool)
+        self._lidar.set_obstacles(f.centres, f.radii, self.vehicle_radius)
 
     def _random_field(self) -> WaypointField:
-        rng = self.np_random
-        h = self.half - self.wall_margin
-        min_sep = 0.6 * 2.0 * h
-        for _ in range(100):
-            pts = rng.uniform(-h, h, size=(16, 2, 2))
-            ok = np.hypot(*(pts[:, 0] - pts[:, 1]).T) >= min_sep
-            if not ok.any():
-                continue
-            start, goal = pts[int(np.argmax(ok))]
-            heading = float(rng.uniform(-math.pi, math.pi))
-            obstacles = self._place_obstacles(start, goal)
-            if obstacles is not None:
-                return WaypointField(obstacles[:, :2].copy(), obstacles[:, 2].copy(), start.copy(), goal.copy(),
-                                     heading, self.arena_size)
-        raise RuntimeError(
-            f"could not place {self.n_obstacles} obstacles in a {self.arena_size:g} m arena with "
-            f"{self.min_gap:g} m gaps; use fewer obstacles or a larger arena")
-
-    def _place_obstacles(self, start: np.ndarray, goal: np.ndarray) -> Optional[np.ndarray]:
-        """(n_obstacles, 3) rows (x, y, r), or ``None`` when this start/goal left too little room.
-
-        Random sequential placement: candidates are tested in the order drawn, each accepted when it
-        keeps its distances to the walls, start, goal and the obstacles accepted so far. Candidates
-        come in chunks; accepting one drops every later candidate of its chunk that is too close to
-        it in one vectorised step, so the next survivor is the next accepted obstacle (the same
-        result as testing them one by one, with a few numpy calls per obstacle, not per candidate).
-        """
-        n = self.n_obstacles
-        if n == 0:
-            return np.zeros((0, 3))
-        rng = self.np_random
-        r_lo, r_hi = self.obstacle_radius
-        gap, clear = self.min_gap, self.endpoint_clearance
-        bound = self.half - gap
-
-        def admissible(cand: np.ndarray) -> np.ndarray:
-            x, y, r = cand.T
-            ok = (np.abs(x) <= bound - r) & (np.abs(y) <= bound - r)
-            ok &= np.hypot(x - start[0], y - start[1]) - r >= clear
-            ok &= np.hypot(x - goal[0], y - goal[1]) - r >= clear
-            return ok
-
-        # The first obstacle goes on the start-goal segment so that no episode is a straight run; if
-        # no segment candidate fits (a segment hugging a wall leaves no room) all are uniform.
-        seg = np.empty((16, 3))
-        seg[:, 2] = rng.uniform(r_lo, r_hi, size=16)
-        seg[:, :2] = start + rng.uniform(0.35, 0.65, size=(16, 1)) * (goal - start) + rng.normal(0.0, 0.3, size=(16, 2))
-        ok = np.flatnonzero(admissible(seg))
-        placed = seg[ok[:1]]
-        chunk, max_chunks = 64, 2 + (5 * n) // 8
-        for _ in range(max_chunks):
-            if len(placed) == n:
-                break
-            pool = np.empty((chunk, 3))
-            pool[:, 2] = rng.uniform(r_lo, r_hi, size=chunk)
-            pool[:, :2] = rng.uniform(-1.0, 1.0, size=(chunk, 2)) * (bound - pool[:, 2:])
-            pool = pool[admissible(pool)]
-            if len(placed) and len(pool):
-                d = np.hypot(pool[:, None, 0] - placed[None, :, 0], pool[:, None, 1] - placed[None, :, 1])
-                pool = pool[(d - pool[:, 2:] - placed[None, :, 2] >= gap).all(axis=1)]
-            accepted = []
-            while len(pool) and len(placed) + len(accepted) < n:
-                first = pool[0]
-                accepted.append(first)
-                rest = pool[1:]
-                pool = rest[np.hypot(rest[:, 0] - first[0], rest[:, 1] - first[1]) - rest[:, 2] - first[2] >= gap]
-            if accepted:
-                placed = np.concatenate([placed, np.array(accepted)])
-        return placed if len(placed) == n else None
+        # The class attributes are read now, so a subclass or an instance can change them.
+        return random_field(self.np_random, self.n_obstacles, self.arena_size, self.wall_margin, self.min_gap,
+                            self.endpoint_clearance, self.obstacle_radius)
 
     # -- gym API ----------------------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options: Optional[Dict[str, Any]] = None
@@ -370,7 +213,10 @@ class WaypointNavEnv(gym.Env):
         given = options.pop("field", None)
         if options:
             raise ValueError(f"unknown reset options {sorted(options)}; the only option is 'field'")
-        f = self._validate_field(_as_field(given)) if given is not None else self._random_field()
+        if given is not None:
+            f = validate_field(as_field(given), self.arena_size, self.vehicle_radius)
+        else:
+            f = self._random_field()
         self._set_field(f)
         self._x, self._y = float(f.start[0]), float(f.start[1])
         self._heading = float(f.start_heading)
@@ -380,7 +226,7 @@ class WaypointNavEnv(gym.Env):
         self._state_ready = True
         self._trail = [(self._x, self._y)]
         self._dist = math.hypot(self._goal[0] - self._x, self._goal[1] - self._y)
-        collided = self._sense()
+        collided = self._lidar.sense(self._x, self._y, self._heading)
         obs = self._observation()
         return obs, self._info(False, collided, False)
 
@@ -401,7 +247,7 @@ class WaypointNavEnv(gym.Env):
         a0 = -1.0 if a0 < -1.0 else (1.0 if a0 > 1.0 else a0)
         a1 = -1.0 if a1 < -1.0 else (1.0 if a1 > 1.0 else a1)
 
-        self._heading = _wrap(self._heading + a0 * self.max_turn_rate * self.dt)
+        self._heading = wrap_angle(self._heading + a0 * self.max_turn_rate * self.dt)
         self._speed = 0.5 * (a1 + 1.0) * self.max_speed
         step = self._speed * self.dt
         self._x += step * math.cos(self._heading)
@@ -413,7 +259,7 @@ class WaypointNavEnv(gym.Env):
         self._dist = dist = math.hypot(self._goal[0] - self._x, self._goal[1] - self._y)
         limit = self.half - self.vehicle_radius
         out = abs(self._x) > limit or abs(self._y) > limit
-        collision = self._sense() or out
+        collision = self._lidar.sense(self._x, self._y, self._heading) or out
         if collision:
             # From inside an obstacle or beyond a wall some beams meet a surface behind the sensor
             # (negative range); the terminal observation still has to lie in the observation space.
@@ -428,49 +274,6 @@ class WaypointNavEnv(gym.Env):
         truncated = (not terminated) and self._steps >= self.max_steps
         self._done = terminated or truncated
         return self._observation(), reward, terminated, truncated, self._info(success, collision, out)
-
-    def _sense(self) -> bool:
-        """Lidar ranges / lidar_range (into ``self._ranges``) at the current pose; returns obstacle contact.
-
-        All beams against all obstacles and the walls at once, in units of the lidar range. Rows of
-        ``self._table`` are obstacles, then the two wall axes, then a constant row of 1 (the range
-        limit): one column-wise minimum gives the clipped ranges. (Rows-by-beams rather than
-        beams-by-rows because numpy reduces over the leading axis of a small array several times
-        faster.)
-        """
-        pos = self._pos
-        pos[0] = self._x * self._inv_range
-        pos[1] = self._y * self._inv_range
-        u = self._u                                        # (2, J) world-frame beam directions
-        # sin(a) is taken as cos(a - pi/2): the cosine of a float is never exactly 0 (no float is an
-        # odd multiple of pi/2), whereas sin(0.0) is, and 1/u below must stay finite.
-        np.cos(np.add(self._beam_angles, self._heading, out=self._angle), out=u[0])
-        np.cos(np.add(self._beam_angles_s, self._heading, out=self._angle), out=u[1])
-        # Walls: along an axis the wall ahead is at (half - p*sign(u)) / |u| = half*|1/u| - p/u.
-        inv = np.divide(1.0, u, out=self._inv)
-        walls = np.abs(inv, out=self._walls)
-        walls *= self._half_n
-        walls -= np.multiply(inv, self._pos_col, out=self._tmp2)
-        contact = False
-        if self._n_obst:
-            w = np.subtract(self._centres, pos, out=self._w)   # (K, 2) vehicle -> centre
-            dist = np.hypot(self._wx, self._wy, out=self._dist_k)
-            contact = np.count_nonzero(np.less(dist, self._contact_dist, out=self._contact)) > 0
-            b = np.matmul(w, u, out=self._b)                  # (K, J) centre projected on each beam
-            c = np.multiply(dist, dist, out=self._c)
-            c -= self._r2                                      # |w|^2 - r^2 > 0 outside the disc
-            # Ray p + t*u meets |x - c| = r at t = b - sqrt(b^2 - c). Outside the disc a hit ahead
-            # needs b > 0 and b^2 >= c, i.e. q = b*|b| - c >= 0 (q < 0 also when b <= 0).
-            q = np.abs(b, out=self._q)
-            q *= b
-            q -= self._c_col
-            miss = np.less(q, 0.0, out=self._miss)
-            np.maximum(q, 0.0, out=q)
-            np.sqrt(q, out=q)
-            np.subtract(b, q, out=self._table_obst)
-            np.putmask(self._table_obst, miss, np.inf)
-        np.minimum.reduce(self._table, axis=0, out=self._ranges)
-        return bool(contact)
 
     def _observation(self) -> np.ndarray:
         n = self.n_beams
@@ -509,58 +312,14 @@ class WaypointNavEnv(gym.Env):
             return None
         if not self._state_ready:
             raise RuntimeError("call reset() before render()")
-        return _render(self)
+        if self._background is None:
+            # The scene changes only on reset (_set_field clears this): draw it once per field.
+            self._background = draw_background(self.field, self.arena_size, self.goal_radius)
+        return draw_frame(self._background, self.arena_size, self.trajectory, (self._x, self._y, self._heading),
+                          self.vehicle_radius, self._lidar.hit_points(self._x, self._y))
 
     def close(self) -> None:
         self._background = None
-
-
-# Render size in pixels (square); plain numpy drawing keeps rendering free of display back-ends.
-RENDER_SIZE = 400
-
-
-def _render(env: WaypointNavEnv) -> np.ndarray:
-    size = RENDER_SIZE
-    scale = size / env.arena_size                       # pixels per metre
-    coords = (np.arange(size) + 0.5) / scale - env.half
-    xs, ys = coords[None, :], coords[::-1, None]        # image row 0 is the top (+y)
-    if env._background is None:
-        img = np.full((size, size, 3), 255, dtype=np.uint8)
-        f = env.field
-        for (cx, cy), r in zip(f.centres, f.radii):
-            img[(xs - cx) ** 2 + (ys - cy) ** 2 <= r * r] = (110, 110, 110)
-        gx, gy = f.goal
-        img[(xs - gx) ** 2 + (ys - gy) ** 2 <= env.goal_radius ** 2] = (40, 170, 60)
-        sx, sy = f.start
-        ring = (xs - sx) ** 2 + (ys - sy) ** 2
-        img[(ring <= 0.3 ** 2) & (ring >= 0.18 ** 2)] = (40, 80, 220)
-        img[[0, -1], :] = 0
-        img[:, [0, -1]] = 0
-        env._background = img
-    img = env._background.copy()
-
-    def pixel(px: np.ndarray, py: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        col = np.clip(((px + env.half) * scale).astype(int), 0, size - 1)
-        row = np.clip(((env.half - py) * scale).astype(int), 0, size - 1)
-        return row, col
-
-    trail = env.trajectory
-    if len(trail) > 1:
-        # Dense samples along each segment give a continuous line without a drawing library.
-        s = np.linspace(0.0, 1.0, 8)[:, None, None]
-        pts = (trail[:-1][None] * (1 - s) + trail[1:][None] * s).reshape(-1, 2)
-        img[pixel(pts[:, 0], pts[:, 1])] = (40, 80, 220)
-    hits = env._ranges < 1.0
-    if hits.any():
-        hp = np.array([env._x, env._y]) + env.lidar_range * env._ranges[hits, None] * env._u.T[hits]
-        for dr in (-1, 0, 1):
-            for dc in (-1, 0, 1):
-                r, c = pixel(hp[:, 0], hp[:, 1])
-                img[np.clip(r + dr, 0, size - 1), np.clip(c + dc, 0, size - 1)] = (255, 140, 0)
-    img[(xs - env._x) ** 2 + (ys - env._y) ** 2 <= env.vehicle_radius ** 2] = (220, 30, 30)
-    s = np.linspace(0.0, 2.5 * env.vehicle_radius, 20)
-    img[pixel(env._x + s * math.cos(env._heading), env._y + s * math.sin(env._heading))] = (120, 0, 0)
-    return img
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
