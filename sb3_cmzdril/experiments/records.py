@@ -18,16 +18,16 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from sb3_cmzdril.experiments.runs import (
+from sb3_cmzdril.experiments.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
     EVAL_CSV,
     FINAL_EVAL_COLUMNS,
     FINAL_EVAL_CSV,
-    METHODS,
     read_eval_csv,
     run_status,
 )
+from sb3_cmzdril.experiments.spec import METHODS
 from sb3_cmzdril.io import PathLike, read_json_or_empty
 
 #: How methods are named in tables and legends (the paper's names).

@@ -37,7 +37,7 @@ from sb3_cmzdril.experiments.formatting import fmt, fmt_ci, fmt_mean_std
 from sb3_cmzdril.experiments.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
 from sb3_cmzdril.experiments.readme import README_BEGIN, README_END, link, readme_block, short_command, update_readme
 from sb3_cmzdril.experiments.records import METHOD_LABELS, RunRecord, load_grid, load_runs
-from sb3_cmzdril.experiments.runs import TABLE_WINDOW
+from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW
 from sb3_cmzdril.experiments.sections import (
     GridReport,
     analyse,

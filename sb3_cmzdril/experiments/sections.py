@@ -36,7 +36,7 @@ from sb3_cmzdril.experiments.records import (
     relative,
     setting_differences,
 )
-from sb3_cmzdril.experiments.runs import ERROR_FILE, STATE_FILE, run_status
+from sb3_cmzdril.experiments.run_folder import ERROR_FILE, STATE_FILE, run_status
 from sb3_cmzdril.experiments.tables import (
     METRICS,
     SIGNAL_EPOCHS,

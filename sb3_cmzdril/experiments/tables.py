@@ -24,7 +24,7 @@ import numpy as np
 
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments.records import RunRecord, group
-from sb3_cmzdril.experiments.runs import TABLE_WINDOW, window_means
+from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW, window_means
 from sb3_cmzdril.io import PathLike
 
 #: Table metrics: (key in window_means, column header, eval.csv column).

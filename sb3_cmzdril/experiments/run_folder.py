@@ -1,0 +1,389 @@
+"""A run folder's files: their names, how they are read, and the checks that keep one run per folder.
+
+:func:`~sb3_cmzdril.experiments.runs.run_experiment` writes into the run's own folder::
+
+    DIR/config.json        everything needed to reproduce it: env, method, seeds, the train/eval
+                           episode indices of the demo pool (and its sha256), hyperparameters,
+                           versions, the creating command and the equivalent `sb3-cmzdril train` line
+    DIR/eval.csv           one row per evaluation against the held-out expert episodes
+                           (ExpertEvalCallback: epoch, timesteps, return, Fréchet, action MSE, ...)
+    DIR/model.zip          the latest checkpoint (written atomically every few PPO updates and at
+                           the end; after done.json it is the final model; for bc the BC policy)
+    DIR/vecnormalize.pkl   VecNormalize statistics beside model.zip, when the hyperparameters
+                           ask for ``normalize``
+    DIR/state.json         step count, wall time and the segments (start, resumes) of the run
+    DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
+    DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
+                           (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint
+    DIR/final_eval.csv     the final evaluation: every pool episode not used for training, replayed by
+                           the final policy ("final") and by the lowest-u one ("lowest_u"), one row
+                           per (policy, episode)
+    DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
+    DIR/done.json          written last: the final summary; its presence means "finished"
+
+Here: the file names, eval.csv as columns and its Table I window (:func:`read_eval_csv`,
+:func:`window_means`), moving evaluation rows written after a checkpoint aside
+(:func:`discard_rows_after`), config.json and the identity checks that keep two different runs out
+of one folder (:func:`check_or_write_config`, :func:`check_finished`), state.json
+(:class:`RunState`), the folder's lock, and what a folder holds (:func:`run_status`,
+:func:`latest_epoch`).
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import os
+import time
+from pathlib import Path
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from sb3_cmzdril.experiments.spec import (
+    RunSpec,
+    file_mtime_ns,
+    load_pool,
+    load_run_hyperparams,
+    split_episodes,
+    train_command,
+)
+from sb3_cmzdril.experts import env_name
+from sb3_cmzdril.io import (
+    PathLike,
+    atomic_path,
+    jsonable,
+    lock_output,
+    read_json,
+    unlock_output,
+    versions,
+    write_json,
+)
+
+#: Table I averages each run over its last this-many epochs (paper, Table I caption).
+TABLE_WINDOW = 100
+
+CONFIG_FILE = "config.json"
+DONE_FILE = "done.json"
+STATE_FILE = "state.json"
+MODEL_FILE = "model.zip"
+VECNORMALIZE_FILE = "vecnormalize.pkl"
+EVAL_CSV = "eval.csv"
+FINAL_EVAL_CSV = "final_eval.csv"
+FINAL_EVAL_COLUMNS = ("policy", "episode", "seed", "return", "length", "frechet", "action_mse", "expert_return")
+PRETRAIN_CSV = "pretrain.csv"
+LOWEST_U_FILE = "lowest_u.pt"
+LOWEST_U_MODEL = "model_lowest_u.zip"
+DISCARDED_CSV = "eval.discarded.csv"
+ERROR_FILE = "error.txt"
+LOG_FILE = "log.txt"
+
+#: config.json entries that must agree before a run folder is resumed (the rest may change, e.g.
+#: the requested number of steps or how often to evaluate).
+_IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes", "demos_sha256", "hyperparams_values")
+#: config.json entries a resume may change.
+_SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command")
+
+
+# -- eval.csv ------------------------------------------------------------------------------------
+def read_eval_csv(path: PathLike) -> Dict[str, np.ndarray]:
+    """eval.csv as columns (float arrays, rows sorted by epoch; first row per epoch kept).
+
+    Rows cut short by a killed process (wrong field count, unparsable numbers) are skipped.
+    """
+    from sb3_cmzdril.metrics import ExpertEvalCallback
+
+    columns = ExpertEvalCallback.CSV_COLUMNS
+    rows: Dict[int, List[float]] = {}
+    path = Path(path)
+    if path.is_file():
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                try:
+                    values = [float(row[c]) for c in columns]
+                except (TypeError, ValueError, KeyError):
+                    continue
+                rows.setdefault(int(values[0]), values)
+    ordered = [rows[e] for e in sorted(rows)]
+    table = np.asarray(ordered, dtype=np.float64).reshape(len(ordered), len(columns))
+    return {c: table[:, i] for i, c in enumerate(columns)}
+
+
+def window_means(columns: Mapping[str, np.ndarray], window: int = TABLE_WINDOW) -> Dict[str, float]:
+    """Each metric averaged over the evaluations of the last ``window`` epochs (all, if fewer).
+
+    "Last 100 epochs" counts epochs, not rows: rows with ``epoch > last_epoch - window``.
+    """
+    epochs = columns["epoch"]
+    if epochs.size == 0:
+        return {"return": float("nan"), "frechet": float("nan"), "action_mse": float("nan"), "n_rows": 0,
+                "first_epoch": -1, "last_epoch": -1}
+    keep = epochs > epochs[-1] - window
+    return {
+        "return": float(np.mean(columns["return_mean"][keep])),
+        "frechet": float(np.mean(columns["frechet_mean"][keep])),
+        "action_mse": float(np.mean(columns["action_mse"][keep])),
+        "n_rows": int(keep.sum()),
+        "first_epoch": int(epochs[keep][0]),
+        "last_epoch": int(epochs[-1]),
+    }
+
+
+def discard_rows_after(csv_path: Path, timesteps: int) -> int:
+    """Move eval rows with ``timesteps`` beyond the checkpoint to eval.discarded.csv; returns how many.
+
+    They were evaluated by a process that died after the checkpoint: the policy they describe is
+    gone, and the resumed run evaluates those epochs again.
+    """
+    if not csv_path.is_file():
+        return 0
+    lines = csv_path.read_text().splitlines()
+    if not lines:
+        return 0
+    header, keep, moved = lines[0], [lines[0]], []
+    n_fields = len(header.split(","))
+    for line in lines[1:]:
+        fields = line.split(",")
+        try:
+            later = len(fields) != n_fields or int(fields[1]) > timesteps
+        except ValueError:
+            later = True
+        # A row cut short by the kill counts as later: it is moved out of the way with its text kept.
+        (moved if later else keep).append(line)
+    if not moved:
+        return 0
+    discarded = csv_path.with_name(DISCARDED_CSV)
+    with open(discarded, "a") as f:
+        if discarded.stat().st_size == 0:
+            f.write(header + "\n")
+        f.write("".join(f"{line}\n" for line in moved))
+        f.flush()
+        os.fsync(f.fileno())  # the rows are safe in the discard file before they leave eval.csv
+    with atomic_path(csv_path) as tmp:
+        tmp.write_text("".join(f"{line}\n" for line in keep))
+    return len(moved)
+
+
+
+def write_pretrain_csv(path: Path, history: Mapping[str, Sequence[float]]) -> None:
+    """pretrain.csv: epoch, training NLL, held-out NLL (epoch 0: before training, held-out only)."""
+    train, validation = list(history.get("train_nll", [])), list(history.get("validation_nll", []))
+    n = max(len(train) + (1 if validation else 0), len(validation))
+    lines = ["epoch,train_nll,validation_nll"]
+    offset = 1 if validation else 0  # validation_nll[0] is measured before the first epoch
+    for epoch in range(n):
+        t = train[epoch - offset] if 0 <= epoch - offset < len(train) else float("nan")
+        v = validation[epoch] if epoch < len(validation) else float("nan")
+        lines.append(f"{epoch + 1 - offset},{t:.6g},{v:.6g}")
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+# -- config.json, state.json, the lock -----------------------------------------------------------
+def file_sha256(path: PathLike) -> str:
+    """The file's sha256 (hex): config.json's fingerprint of the demo pool."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class RunState:
+    """state.json: step count, wall time across segments, and how each segment started."""
+
+    def __init__(self, out: Path, spec: RunSpec, start_steps: int) -> None:
+        self.path = out / STATE_FILE
+        self.data: Dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "segments": []}
+        if self.path.is_file() and start_steps > 0:
+            self.data.update(read_json(self.path))
+        self._base_wall = float(self.data.get("wall_time_s", 0.0))
+        self._t0 = time.time()
+        self.data["segments"].append({
+            "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "from_timesteps": int(start_steps),
+            "command": spec.command,
+        })
+
+    def wall_time(self) -> float:
+        return self._base_wall + (time.time() - self._t0)
+
+    def write(self, num_timesteps: int) -> None:
+        self.data.update(num_timesteps=int(num_timesteps), wall_time_s=round(self.wall_time(), 2))
+        write_json(self.path, self.data)
+
+
+def run_config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], pool) -> Dict[str, Any]:
+    """config.json's content for ``spec`` with its hyperparameters ``hp``, split and demo ``pool``."""
+    return {
+        "env_id": spec.env_id,
+        "env_name": env_name(spec.env_id),
+        "method": spec.method,
+        "reward": "none (BC: pretrained policy only)" if spec.method == "bc" else spec.method,
+        "seed": spec.seed,
+        "network_seed": spec.seed,
+        "env_seed": spec.seed,
+        "demos": spec.demos,
+        "demos_sha256": file_sha256(spec.demos),
+        "pool_episodes": int(pool.n_episodes),
+        "split": "numpy.random.default_rng(seed).permutation(pool_episodes): first n_demos train, next n_eval_episodes evaluate",
+        "n_demos": spec.n_demos,
+        "n_eval_episodes": spec.n_eval_episodes,
+        "train_episodes": train_idx,
+        "eval_episodes": eval_idx,
+        "train_episode_seeds": [int(pool.seeds[i]) for i in train_idx],
+        "eval_episode_seeds": [int(pool.seeds[i]) for i in eval_idx],
+        "timesteps": spec.timesteps,
+        "eval_every": spec.eval_every,
+        "checkpoint_every": spec.checkpoint_every,
+        "hyperparams_file": spec.hyperparams,
+        "hyperparams_key": hp.key,
+        "hyperparams_values": hp.raw,
+        "model_kwargs": hp.model_kwargs(),
+        "env_kwargs": hp.env_kwargs,
+        "versions": versions(),
+        "command": spec.command,
+        "train_command": train_command(spec),
+        "cwd": os.getcwd(),
+        "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def as_stored(config: Mapping[str, Any]) -> Dict[str, Any]:
+    """``config`` as config.json stores it, to compare like with like."""
+    import json
+
+    return json.loads(json.dumps(jsonable(dict(config))))
+
+
+def check_same_run(out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run") -> None:
+    """ValueError naming each identity entry in which the folder's run and the asked one differ."""
+    differing = [k for k in _IDENTITY_KEYS if k in saved and saved.get(k) != fresh.get(k)]
+    if differing:
+        raise ValueError(
+            f"{out} holds {what} ({', '.join(f'{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now' for k in differing)}); "
+            "use another output folder or delete that one"
+        )
+
+
+def check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
+    """Write config.json for a new run; for an existing one, refuse to mix two different runs.
+
+    A config.json with nothing trained beside it (an attempt that failed or was stopped before its
+    first checkpoint) is replaced: it must not block the corrected command.
+    """
+    path = out / CONFIG_FILE
+    fresh = as_stored(config)
+    trained = (out / MODEL_FILE).is_file() or (out / DONE_FILE).is_file()
+    if not path.is_file() or not trained:
+        write_json(path, config)
+        return config
+    saved = read_json(path)
+    check_same_run(out, saved, fresh)
+    # A resume may ask for more steps or another cadence: config.json follows, so that its
+    # train_command reproduces what the run became (state.json keeps each segment's command).
+    changed = {k: fresh[k] for k in _SETTING_KEYS if saved.get(k) != fresh.get(k)}
+    if changed:
+        saved.update(changed)
+        write_json(path, saved)
+    return saved
+
+
+@contextlib.contextmanager
+def locked(out: Path) -> Iterator[None]:
+    """One process per run folder: a second one fails at once instead of corrupting the first."""
+    try:
+        lock = lock_output(out)
+    except ValueError:
+        raise ValueError(f"another process is already running in {out} (lock {out / '.lock'})") from None
+    try:
+        yield
+    finally:
+        unlock_output(out, lock)
+
+
+def check_finished(spec: RunSpec) -> Optional[Dict[str, Any]]:
+    """done.json's summary when ``spec.output_dir`` holds this run finished, None when it is not finished.
+
+    :raises ValueError: the folder holds a finished run of something else (another method, seed,
+        split, demo pool or hyperparameters), whose numbers must not pass for this run's; or this
+        run, finished with fewer steps than ``spec.timesteps`` asks for.
+    """
+    out = Path(spec.output_dir)
+    done_path = out / DONE_FILE
+    if not done_path.is_file():
+        return None
+    done = read_json(done_path)
+    # done.json repeats the first identity entries, for a folder whose config.json went missing.
+    saved = read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
+    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
+    pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
+    train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
+    check_same_run(out, saved, as_stored(run_config(spec, hp, train_idx, eval_idx, pool)), "a different, finished run")
+    steps = int(done.get("num_timesteps", 0))
+    if spec.timesteps > steps:
+        raise ValueError(
+            f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to train it "
+            f"further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), or use "
+            "another output folder"
+        )
+    return done
+
+
+# -- what a folder holds ---------------------------------------------------------------------------
+def run_status(output_dir: PathLike) -> str:
+    """``"done"``, ``"failed"`` (error.txt, no done.json), ``"partial"`` (a checkpoint) or ``"new"``."""
+    out = Path(output_dir)
+    if (out / DONE_FILE).is_file():
+        return "done"
+    if (out / ERROR_FILE).is_file():
+        return "failed"
+    if (out / MODEL_FILE).is_file():
+        return "partial"
+    return "new"
+
+
+def latest_epoch(output_dir: PathLike) -> Optional[int]:
+    """The epoch of the last row of a run's eval.csv (cheap: reads the file's tail), or None."""
+    path = Path(output_dir) / EVAL_CSV
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 1024))
+            tail = f.read().decode("utf-8", "replace").strip().splitlines()
+        return int(tail[-1].split(",")[0]) if tail else None
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+__all__ = [
+    "CONFIG_FILE",
+    "DISCARDED_CSV",
+    "DONE_FILE",
+    "ERROR_FILE",
+    "EVAL_CSV",
+    "FINAL_EVAL_COLUMNS",
+    "FINAL_EVAL_CSV",
+    "LOG_FILE",
+    "LOWEST_U_FILE",
+    "LOWEST_U_MODEL",
+    "MODEL_FILE",
+    "PRETRAIN_CSV",
+    "STATE_FILE",
+    "TABLE_WINDOW",
+    "VECNORMALIZE_FILE",
+    "RunState",
+    "as_stored",
+    "check_finished",
+    "check_or_write_config",
+    "check_same_run",
+    "discard_rows_after",
+    "file_sha256",
+    "latest_epoch",
+    "locked",
+    "read_eval_csv",
+    "run_config",
+    "run_status",
+    "window_means",
+    "write_pretrain_csv",
+]
