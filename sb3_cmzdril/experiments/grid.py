@@ -1,10 +1,10 @@
 """The paper's trial grid (envs x methods x trials), run by a local process pool or by Ray.
 
 Trial ``t`` draws its training and evaluation episodes from the env's demo pool with
-``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.runs.split_episodes`) and uses ``t``
+``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.spec.split_episodes`) and uses ``t``
 as network and env seed, so every method of a trial sees the same data and starts from the same
 BC-pretrained policy (the paper: "The same training and evaluation data were used for BC, DRIL, and
-CMZ-DRIL"). Runs go to ``RUNS_DIR/<EnvName>/<method>/trial<t>/`` (layout: :mod:`.runs`).
+CMZ-DRIL"). Runs go to ``RUNS_DIR/<EnvName>/<method>/trial<t>/`` (layout: :mod:`.run_folder`).
 
 Both backends execute :func:`execute_run` one run per worker (one CPU and one torch thread each):
 
@@ -24,30 +24,26 @@ import concurrent.futures
 import contextlib
 import json
 import multiprocessing
-import sys
 import time
 import traceback
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
-from sb3_cmzdril.experts import env_name
-from sb3_cmzdril.experiments.runs import (
+from sb3_cmzdril.experiments.progress import GridProgress
+from sb3_cmzdril.experiments.run_folder import ERROR_FILE, LOG_FILE, check_finished
+from sb3_cmzdril.experiments.runs import run_experiment
+from sb3_cmzdril.experiments.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
-    ERROR_FILE,
-    LOG_FILE,
     METHODS,
     RunSpec,
-    check_env_id,
-    check_finished,
     check_method,
     default_demos_path,
     default_output_dir,
-    latest_epoch,
     missing_pool_error,
     plan_run,
-    run_experiment,
 )
+from sb3_cmzdril.experts import check_env_id, env_name
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 BACKENDS = ("local", "ray")
@@ -231,100 +227,6 @@ def _backend(name: str, workers: int, ray_address: Optional[str]):
     if name == "ray":
         return _RayBackend(workers, ray_address)
     raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
-
-
-# -- progress display --------------------------------------------------------------------------------
-class GridProgress:
-    """Runs done / total and which are running (with their latest evaluated epoch).
-
-    A rich progress bar on a terminal; otherwise (nohup, CI, a notebook log) one line per event and
-    a heartbeat line every ``heartbeat_s`` seconds.
-    """
-
-    def __init__(self, total: int, enabled: bool = True, heartbeat_s: float = 300.0) -> None:
-        self.total = total
-        self.enabled = enabled
-        self.heartbeat_s = heartbeat_s
-        self.counts: collections.Counter = collections.Counter()
-        self.running: Dict[str, RunSpec] = {}
-        self._progress = None
-        self._task = None
-        self._last_line = time.time()
-        if enabled and sys.stderr.isatty():
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-            from rich.text import Text
-
-            display = self
-
-            class _Progress(Progress):
-                """The bar, then one line per running run (a long list would squeeze the bar to nothing)."""
-
-                def get_renderables(self):
-                    yield self.make_tasks_table(self.tasks)
-                    for line in display._running_lines():
-                        yield Text(f"  running: {line}", overflow="ellipsis", no_wrap=True)
-
-            self._progress = _Progress(
-                TextColumn("runs"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                TextColumn("{task.description}"), transient=False,
-            )
-            self._progress.start()
-            self._task = self._progress.add_task("", total=total)
-
-    @property
-    def finished_count(self) -> int:
-        return sum(self.counts.values())
-
-    def _running_lines(self) -> List[str]:
-        lines = []
-        for label, spec in self.running.items():
-            epoch = latest_epoch(spec.output_dir)
-            lines.append(label if epoch is None else f"{label} (epoch {epoch})")
-        return lines
-
-    def _counts_text(self) -> str:
-        return ", ".join(f"{n} {k}" for k, n in sorted(self.counts.items()))
-
-    def _status_text(self) -> str:
-        counts = self._counts_text()
-        return f"{self.finished_count}/{self.total} finished{', ' + counts if counts else ''}; running: {', '.join(self._running_lines()) or '-'}"
-
-    def _line(self, event: str) -> None:
-        self._last_line = time.time()
-        if self._progress is not None:
-            self._progress.console.print(f"[{time.strftime('%H:%M:%S')}] {event}")
-            self.refresh()
-        elif self.enabled:
-            print(f"[{time.strftime('%H:%M:%S')}] {event} | {self._status_text()}", flush=True)
-
-    def started(self, spec: RunSpec) -> None:
-        self.running[spec.label] = spec
-        self._line(f"started {spec.label}")
-
-    def skipped(self, specs: Sequence[RunSpec]) -> None:
-        """Runs finished before this invocation: one line for all of them."""
-        if specs:
-            self.counts["skipped"] += len(specs)
-            self._line(f"{len(specs)} runs already finished (done.json), skipped")
-
-    def finished(self, spec: RunSpec, result: Dict[str, Any]) -> None:
-        self.running.pop(spec.label, None)
-        self.counts[result["status"]] += 1
-        detail = f": {result['error']} (see {Path(spec.output_dir) / ERROR_FILE})" if result.get("error") else ""
-        took = f" in {result['seconds']:.0f} s" if result.get("seconds") else ""
-        self._line(f"{result['status']} {spec.label}{took}{detail}")
-
-    def refresh(self) -> None:
-        if self._progress is not None:
-            self._progress.update(self._task, completed=self.finished_count, description=self._counts_text())
-        elif self.enabled and time.time() - self._last_line >= self.heartbeat_s:
-            self._line("still working")
-
-    def close(self) -> None:
-        if self._progress is not None:
-            self.refresh()
-            self._progress.stop()
-            self._progress = None
 
 
 # -- the grid ---------------------------------------------------------------------------------------
