@@ -44,7 +44,6 @@ from sb3_cmzdril.experiments.run_folder import (
     check_finished,
     check_or_write_config,
     discard_rows_after,
-    file_sha256,
     latest_epoch,
     locked,
     read_eval_csv,
@@ -358,11 +357,9 @@ def _checkpoint_callback_class():
     return CheckpointCallback
 
 
-# The names under which the tests (and, until it moves to run_folder's name, the CLI) reach these
-# helpers, from before they moved to run_folder.
+# The names under which the tests reach these helpers, from before they moved to run_folder.
 _config = run_config
 _discard_rows_after = discard_rows_after
-_sha256 = file_sha256
 
 __all__ = [
     "METHODS", "RunSpec", "plan_run", "run_experiment", "split_episodes", "read_eval_csv", "window_means",

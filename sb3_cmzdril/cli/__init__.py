@@ -1,0 +1,76 @@
+"""Command line: ``sb3-cmzdril <command> --help``.
+
+One module a command group, each command with an ``add_<command>`` function that builds its parser
+and a ``_run_<command>`` function that only translates arguments into calls of the library; the work
+lives in the library's modules:
+
+- :mod:`~sb3_cmzdril.cli.experts`: ``train-expert``, ``collect-demos``
+- :mod:`~sb3_cmzdril.cli.experiment`: ``train``, ``benchmark``
+- :mod:`~sb3_cmzdril.cli.evaluate`: ``evaluate``
+- :mod:`~sb3_cmzdril.cli.report`: ``report``
+
+Here: the parser of all commands and :func:`main`, the console script ``sb3-cmzdril`` (also
+``python -m sb3_cmzdril``), which turns a user's error into one line and an exit code.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import List, Optional
+
+from sb3_cmzdril.cli.evaluate import add_evaluate
+from sb3_cmzdril.cli.experiment import add_benchmark, add_train
+from sb3_cmzdril.cli.experts import add_collect_demos, add_train_expert
+from sb3_cmzdril.cli.report import add_report
+
+#: The commands, in the order ``--help`` lists them.
+_COMMANDS = (add_train_expert, add_collect_demos, add_train, add_evaluate, add_benchmark, add_report)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``sb3-cmzdril`` parser, one subcommand each of :data:`_COMMANDS`."""
+    parser = argparse.ArgumentParser(
+        prog="sb3-cmzdril",
+        description="CMZ-DRIL imitation learning for stable-baselines3: experts, demos, training, benchmarks.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_COMMANDS):
+        add(sub)
+    return parser
+
+
+#: Exceptions that mean "the input is wrong" (a bad value, a missing or existing file, an optional
+#: package not installed): one line and exit code 2. Anything else is a bug and keeps its traceback.
+USER_ERRORS = (ValueError, OSError, KeyError, ImportError)
+#: Commands that continue from their checkpoints when run again.
+RESUMABLE = ("train-expert", "train", "benchmark")
+
+
+def _one_line(error: BaseException) -> str:
+    # str(KeyError("x")) is "'x'", quoted; its argument is the message.
+    text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+    return "; ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Run one command; every user error ends here as one line on stderr and exit code 2, an
+    interruption (Ctrl-C) as one line and exit code 130."""
+    from sb3_cmzdril._mujoco_log import route_mujoco_warnings
+    from sb3_cmzdril.console import show_library_messages
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    route_mujoco_warnings()
+    try:
+        with show_library_messages():  # the library logs its notes for a person; the CLI shows them
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        again = "resume" if args.command in RESUMABLE else "start again"
+        print(f"sb3-cmzdril {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)
+        return 130
+    except USER_ERRORS as e:
+        print(f"sb3-cmzdril {args.command}: error: {_one_line(e)}", file=sys.stderr)
+        return 2
+
+
+__all__ = ["RESUMABLE", "USER_ERRORS", "build_parser", "main"]

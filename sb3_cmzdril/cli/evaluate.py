@@ -1,0 +1,159 @@
+"""The ``evaluate`` command: a model against expert episodes, with the episodes, env_kwargs and
+VecNormalize statistics of the model's run folder where it has them."""
+from __future__ import annotations
+
+from typing import Optional
+
+
+def add_evaluate(sub) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="replay expert episodes' starts with a model: return, Fréchet distance and action MSE per episode",
+        description=(
+            "Evaluate a model zip (a CMZDRIL run's model.zip, or any SB3 model such as an expert) against "
+            "expert episodes: each episode's reset seed is replayed with the model's deterministic actions "
+            "and compared with the expert's path (discrete Fréchet distance) and actions (MSE). "
+            "The demo pool, env_kwargs and VecNormalize statistics are taken from the model's run folder "
+            "(config.json, vecnormalize.pkl) when it has them."
+        ),
+    )
+    p.add_argument("--model", required=True, help="model zip")
+    p.add_argument("--env", required=True, help="environment id")
+    p.add_argument("--demos", default=None,
+                   help="demonstrations npz (default: the demo pool in config.json beside the model, else experts/<EnvName>/demos.npz)")
+    p.add_argument("--episodes", default=None,
+                   help="comma-separated episode indices of the demos file (default: for a run's model, the run's "
+                        "held-out eval_episodes of its config.json; otherwise all)")
+    p.add_argument("--env-kwargs", default=None,
+                   help='e.g. "dict(max_steps=200)" (default: env_kwargs of config.json beside the model, if any)')
+    p.add_argument("--vecnormalize", default=None,
+                   help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any; required for a run "
+                        "that normalised)")
+    p.set_defaults(func=_run_evaluate)
+
+
+def _run_evaluate(args) -> int:
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.run_folder import CONFIG_FILE
+    from sb3_cmzdril.experiments.runs import load_evaluation_model
+    from sb3_cmzdril.experiments.spec import default_demos_path
+    from sb3_cmzdril.experts import check_env_id, load_demonstrations
+    from sb3_cmzdril.hyperparams import safe_eval
+    from sb3_cmzdril.io import read_json
+    from sb3_cmzdril.metrics import evaluate_against_expert
+
+    check_env_id(args.env)
+    model_path = Path(args.model)
+    if not model_path.is_file():
+        raise FileNotFoundError(f"model file not found: {model_path}")
+    # A run folder's config.json knows how the model was trained and evaluated.
+    config_path = model_path.parent / CONFIG_FILE
+    run_config = read_json(config_path) if config_path.is_file() else {}
+    if args.env_kwargs is not None:
+        env_kwargs = safe_eval(args.env_kwargs)
+        if not isinstance(env_kwargs, dict):
+            raise ValueError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
+    else:
+        env_kwargs = run_config.get("env_kwargs") or {}
+    demos_path = Path(args.demos or run_config.get("demos") or default_demos_path(args.env))
+    demos = load_demonstrations(demos_path)
+    indices, which = _evaluation_episodes(args.episodes, demos.n_episodes, demos_path, run_config)
+    vecnormalize, vecnormalize_note = _evaluation_statistics(args.vecnormalize, model_path, run_config)
+    selected = demos.select(indices)
+    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize)
+    print(f"episodes {','.join(map(str, indices))} of {demos_path}: {which}")
+    if vecnormalize_note:
+        print(vecnormalize_note)
+    result = evaluate_against_expert(model, args.env, selected, obs_transform=transform, env_kwargs=env_kwargs or None)
+
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{model_path} on {args.env}: {selected.n_episodes} episodes of {demos_path}")
+    for column in ("episode", "seed", "return", "expert return", "Fréchet", "action MSE", "length"):
+        table.add_column(column, justify="right")
+    for row, index in enumerate(indices):
+        table.add_row(
+            str(index), str(int(result.seeds[row])), f"{result.returns[row]:.2f}", f"{result.expert_returns[row]:.2f}",
+            f"{result.frechet[row]:.4g}", f"{result.episode_action_mse[row]:.4g}", str(int(result.lengths[row])),
+        )
+    table.add_section()
+    table.add_row(
+        "mean", "", f"{result.mean_return:.2f} ± {result.std_return:.2f}", f"{float(result.expert_returns.mean()):.2f}",
+        f"{result.mean_frechet:.4g}", f"{result.action_mse:.4g}", f"{result.mean_length:.1f}",
+    )
+    Console().print(table)
+    return 0
+
+
+def _evaluation_episodes(text: Optional[str], n_pool: int, demos_path, run_config: dict):
+    """``(episode indices, how they were chosen)`` for ``evaluate``.
+
+    Without ``--episodes``, a run's model is evaluated on the run's held-out episodes only: its
+    training episodes would flatter it. They are indices into the run's pool, so they are used only
+    on that very file (same path and sha256).
+    """
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.run_folder import file_sha256
+
+    if text:
+        try:
+            indices = [int(i) for i in text.split(",") if i.strip()]
+        except ValueError:
+            raise ValueError(f"--episodes must be comma-separated integers, got {text!r}") from None
+        bad = [i for i in indices if not 0 <= i < n_pool]
+        if bad or not indices:
+            raise ValueError(f"--episodes {text}: {demos_path} has {n_pool} episodes, numbered 0 to {n_pool - 1}")
+        return indices, "as asked (--episodes)"
+    held_out = run_config.get("eval_episodes")
+    if held_out and run_config.get("demos") and Path(run_config["demos"]).resolve() == Path(demos_path).resolve():
+        if run_config.get("demos_sha256") not in (None, file_sha256(demos_path)):
+            raise ValueError(
+                f"{demos_path} changed since the run was trained (sha256 differs from its config.json): its held-out "
+                "episodes cannot be told apart; pass --episodes"
+            )
+        return [int(i) for i in held_out], "the run's held-out episodes (eval_episodes of its config.json)"
+    note = " (not the run's demo pool: no held-out split applies)" if held_out else ""
+    return list(range(n_pool)), f"all {n_pool} episodes{note}"
+
+
+def _evaluation_statistics(path: Optional[str], model_path, run_config: dict):
+    """``(VecNormalize statistics file or None, a line saying which)`` for ``evaluate``.
+
+    A policy trained on normalised observations and fed raw ones acts nonsensically, and its
+    numbers would still print: a missing --vecnormalize file is an error, statistics beside the
+    model are used (and said so), and a run whose config.json says it normalised needs them.
+    """
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.run_folder import VECNORMALIZE_FILE
+
+    if path is not None:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"VecNormalize statistics not found: {path}")
+        return Path(path), f"observations normalised with {path} (--vecnormalize)"
+    beside = Path(model_path).parent / VECNORMALIZE_FILE
+    if beside.is_file():
+        return beside, f"observations normalised with {beside}, found beside the model"
+    if _normalises_observations((run_config.get("hyperparams_values") or {}).get("normalize")):
+        raise FileNotFoundError(
+            f"{model_path} was trained on VecNormalize'd observations (normalize in its config.json) but {beside} "
+            "is missing; pass the statistics with --vecnormalize"
+        )
+    return None, None
+
+
+def _normalises_observations(normalize) -> bool:
+    """Whether a zoo ``normalize`` entry (True, a dict, or its string form) normalises observations."""
+    from sb3_cmzdril.hyperparams import safe_eval
+
+    if isinstance(normalize, str):
+        normalize = safe_eval(normalize)
+    if isinstance(normalize, dict):
+        return bool(normalize.get("norm_obs", True))
+    return bool(normalize)
+
+
+__all__ = ["add_evaluate"]

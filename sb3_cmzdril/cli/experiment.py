@@ -1,0 +1,118 @@
+"""The experiment's commands: ``train`` (one run) and ``benchmark`` (the trial grid), which share the
+options of a run (:func:`_add_run_options`)."""
+from __future__ import annotations
+
+_METHODS_HELP = "bc (pretrained policy only), zero, env, dril or cmz"
+
+
+def _add_run_options(p, what: str) -> None:
+    """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
+    from sb3_cmzdril.experiments.spec import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
+
+    p.add_argument("--n-demos", type=int, default=None,
+                   help="training episodes per trial (default: n_demos of the YAML entry: 1 for MuJoCo, 5 for WaypointNav)")
+    p.add_argument("--eval-episodes", type=int, default=DEFAULT_EVAL_EPISODES,
+                   help=f"held-out expert episodes per evaluation (default {DEFAULT_EVAL_EPISODES})")
+    p.add_argument("--timesteps", type=int, default=None, help="total PPO steps per run (default: n_timesteps of the YAML)")
+    p.add_argument("--eval-every", type=int, default=1, help="evaluate every k PPO updates (default 1: every epoch)")
+    p.add_argument("--checkpoint-every", type=int, default=DEFAULT_CHECKPOINT_EVERY,
+                   help=f"checkpoint model.zip every k PPO updates (default {DEFAULT_CHECKPOINT_EVERY})")
+    p.add_argument("--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/cmzdril.yml)")
+    p.add_argument("--no-progress", action="store_true", help=f"no {what}")
+
+
+def add_train(sub) -> None:
+    p = sub.add_parser(
+        "train",
+        help="one run: an env, a method, a trial seed; writes eval.csv, config.json, model.zip, done.json; resumable",
+        description=(
+            "Train one imitator. The demo pool's episodes are split with --seed S (numpy default_rng(S) "
+            "permutation: first --n-demos train, the next --eval-episodes are held out for evaluation); "
+            "S also seeds the networks and the env. Writes OUTPUT/config.json (how to reproduce it), "
+            "OUTPUT/eval.csv (return, Fréchet distance and action MSE against the held-out expert "
+            "episodes, per epoch from epoch 0 = the BC-pretrained policy), OUTPUT/model.zip (checkpoint "
+            "every --checkpoint-every updates) and OUTPUT/done.json at the end. Running the same command "
+            "again skips a finished run and continues an interrupted one from its checkpoint."
+        ),
+    )
+    p.add_argument("--env", required=True, help="environment id (anything gym.make accepts)")
+    p.add_argument("--reward", required=True, metavar="METHOD", help=_METHODS_HELP)
+    p.add_argument("--demos", default=None, help="demo pool npz (default: experts/<EnvName>/demos.npz)")
+    p.add_argument("--seed", type=int, default=0, help="trial seed: data split, networks and env (default 0)")
+    _add_run_options(p, "progress bar")
+    p.add_argument("-o", "--output", default=None, help="run folder (default: runs/<EnvName>/<method>/trial<seed>)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
+    p.set_defaults(func=_run_train)
+
+
+def _run_train(args) -> int:
+    import torch
+
+    from sb3_cmzdril.experiments.runs import run_experiment
+    from sb3_cmzdril.experiments.spec import plan_run
+    from sb3_cmzdril.experts import check_threads, command_line
+
+    torch.set_num_threads(check_threads(args.threads))
+    spec = plan_run(
+        args.env, args.reward, args.seed, demos=args.demos, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
+        timesteps=args.timesteps, output_dir=args.output, hyperparams=args.hyperparams, eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every, command=command_line(),
+    )
+    result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
+    if result["status"] == "skipped":
+        print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
+    window = result.get("final_window")
+    if window:
+        print(
+            f"{result['status']}: {spec.label} -> {spec.output_dir}; epochs {window['first_epoch']}-{window['last_epoch']}: "
+            f"return {window['return']:.2f}, Fréchet {window['frechet']:.4g}, action MSE {window['action_mse']:.4g}"
+        )
+    else:
+        print(f"{result['status']} at {result.get('num_timesteps')} steps: {spec.output_dir} (run again to continue)")
+    return 0 if result["status"] in ("done", "skipped") else 1
+
+
+def add_benchmark(sub) -> None:
+    p = sub.add_parser(
+        "benchmark",
+        help="the paper's trial grid (envs x methods x trials) on local processes or Ray; resumable",
+        description=(
+            "Run every method on every env for --trials trials. Trial t splits the env's demo pool "
+            "(DEMOS_DIR/<EnvName>/demos.npz) with numpy default_rng(t) into --n-demos training and "
+            "--eval-episodes evaluation episodes and uses t as network/env seed: all methods of a trial "
+            "share data and seeds. Runs go to OUTPUT/<EnvName>/<method>/trial<t>/ (see `train`), --workers "
+            "at a time, one torch thread each. Running the command again skips finished runs and continues "
+            "interrupted ones from their checkpoints; a failed run leaves error.txt and the others go on."
+        ),
+    )
+    p.add_argument("--env", required=True, help="environment id(s), comma-separated")
+    from sb3_cmzdril.experiments.spec import METHODS
+
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)")
+    p.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5, as the paper)")
+    p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
+    _add_run_options(p, "progress display")
+    p.add_argument("--demos-dir", default="experts", help="folder holding <EnvName>/demos.npz (default: experts)")
+    p.add_argument("--backend", default="local", help="local (process pool, default) or ray")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address for ray.init (default: start a local Ray)")
+    p.add_argument("-o", "--output", default="runs", help="runs folder (default: runs)")
+    p.set_defaults(func=_run_benchmark)
+
+
+def _run_benchmark(args) -> int:
+    from sb3_cmzdril.experiments.grid import benchmark, summarize_outcomes
+    from sb3_cmzdril.experts import command_line
+
+    outcomes = benchmark(
+        args.env, args.methods, args.trials, args.output, workers=args.workers, backend=args.backend,
+        ray_address=args.ray_address, progress=not args.no_progress, command=command_line(),
+        timesteps=args.timesteps, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
+        eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, demos_dir=args.demos_dir,
+        hyperparams=args.hyperparams,
+    )
+    print(summarize_outcomes(outcomes))
+    return 1 if any(o["status"] == "failed" for o in outcomes) else 0
+
+
+__all__ = ["add_benchmark", "add_train"]
