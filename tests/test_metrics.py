@@ -423,11 +423,11 @@ def test_callback_writes_csv_and_logs(tmp_path: Any, demos: Demonstrations) -> N
     assert float(rows[-1]["action_mse"]) == pytest.approx(final.action_mse)
     assert callback.history[-1]["epoch"] == 3
 
-    logged = [d for d in writer.dumps if "eval/return" in d]
+    logged = [d for d in writer.dumps if "eval/mean_reward" in d]
     assert len(logged) == 4
-    for key in ("eval/return", "eval/frechet", "eval/action_mse"):
+    for key in ("eval/mean_reward", "eval/std_reward", "eval/mean_ep_length", "eval/frechet", "eval/action_mse"):
         assert all(key in d for d in logged)
-    assert logged[-1]["eval/return"] == pytest.approx(final.mean_return)
+    assert logged[-1]["eval/mean_reward"] == pytest.approx(final.mean_return)
 
     # Resumed run with a new callback: rows are kept, the restart epoch is not logged twice.
     resumed = ExpertEvalCallback("Pendulum-v1", held_out, eval_every=2, csv_path=path, env_kwargs=PENDULUM_KWARGS)

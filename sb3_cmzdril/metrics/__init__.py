@@ -6,7 +6,7 @@
 * :func:`evaluate_against_expert` — replays held-out expert episodes from their recorded reset seeds
   with the agent in control, and reports return, Fréchet distance to the expert's path and action MSE.
 * :class:`ExpertEvalCallback` — runs that evaluation every k PPO updates (epoch 0 included: the
-  BC-pretrained policy), logs ``eval/return``, ``eval/frechet``, ``eval/action_mse`` and appends to a CSV.
+  BC-pretrained policy), logs ``eval/mean_reward`` (SB3's key), ``eval/frechet``, ``eval/action_mse`` and appends to a CSV.
 
 The paper does not say on which features it measures the Fréchet distance. We use the vehicle's 2-D
 position for WaypointNav (the paper's PyUXV path) and the full observation vector elsewhere

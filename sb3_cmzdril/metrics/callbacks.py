@@ -31,8 +31,9 @@ class ExpertEvalCallback(BaseCallback):
     the BC-pretrained one) is evaluated at the first rollout, then every ``eval_every`` epochs, and
     the last epoch at the end of training if it was not already.
 
-    Each evaluation records ``eval/return``, ``eval/return_std``, ``eval/frechet``,
-    ``eval/action_mse`` and ``eval/length`` with the model's logger (dumped with the logs of the
+    Each evaluation records SB3's EvalCallback keys ``eval/mean_reward``, ``eval/std_reward`` and
+    ``eval/mean_ep_length`` (the true return; the same keys as the expert training's evaluation), plus
+    ``eval/frechet``, ``eval/action_mse`` and ``eval/epoch``, with the model's logger (dumped with the logs of the
     rollout that follows; the final one is dumped at once) and appends a row with :attr:`CSV_COLUMNS` to
     ``csv_path``, flushed row by row. An existing CSV keeps its rows: the run appends to it, and a
     resumed run does not re-evaluate an (epoch, timesteps) already there.
@@ -160,11 +161,11 @@ class ExpertEvalCallback(BaseCallback):
         row: Dict[str, float] = {"epoch": epoch, "timesteps": timesteps, **result.summary()}
         self.history.append(row)
 
-        self.logger.record("eval/return", result.mean_return)
-        self.logger.record("eval/return_std", result.std_return)
+        self.logger.record("eval/mean_reward", result.mean_return)
+        self.logger.record("eval/std_reward", result.std_return)
         self.logger.record("eval/frechet", result.mean_frechet)
         self.logger.record("eval/action_mse", result.action_mse)
-        self.logger.record("eval/length", result.mean_length)
+        self.logger.record("eval/mean_ep_length", result.mean_length)
         self.logger.record("eval/epoch", epoch)
         if dump:
             self.logger.dump(timesteps)
