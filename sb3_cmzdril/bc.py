@@ -166,6 +166,6 @@ def _snapshot(module: th.nn.Module) -> Dict[str, th.Tensor]:
 def _epochs(n: int, progress_bar: bool, desc: str) -> Iterable[int]:
     if not progress_bar:
         return range(n)
-    from tqdm.auto import tqdm
+    from sb3_cmzdril.extras import require_extra
 
-    return tqdm(range(n), desc=desc, leave=False)
+    return require_extra("tqdm.auto", "experiments", "progress_bar=True").tqdm(range(n), desc=desc, leave=False)

@@ -155,9 +155,9 @@ class BCEnsemble(nn.Module):
         optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
         epochs = range(n_epochs)
         if progress_bar:
-            from tqdm.auto import tqdm
+            from sb3_cmzdril.extras import require_extra
 
-            epochs = tqdm(epochs, desc="fit ensemble", leave=False)
+            epochs = require_extra("tqdm.auto", "experiments", "progress_bar=True").tqdm(epochs, desc="fit ensemble", leave=False)
         self.train()
         epoch_loss = np.zeros(self.n_members)
         for _ in epochs:

@@ -39,6 +39,36 @@ def test_import_and_training_need_no_extra():
     assert result.stdout.split()[:3] == ["OK", "32", "[]"]
 
 
+def test_progress_bars_and_the_command_line_name_the_experiments_extra():
+    script = textwrap.dedent(
+        f"""
+        import sys
+
+        for name in {EXTRA_ONLY!r}:
+            sys.modules[name] = None
+        import numpy as np
+        from sb3_cmzdril import CMZDRIL, Demonstrations
+        from sb3_cmzdril.cli import main
+        from sb3_cmzdril.extras import MissingExtraError
+        rng = np.random.default_rng(0)
+        demos = Demonstrations(rng.normal(size=(40, 3)), rng.uniform(-2, 2, size=(40, 1)), [20, 20])
+        model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=demos, n_steps=32, batch_size=32,
+                        ensemble_size=2, bc_pretrain_epochs=1, seed=0, device="cpu")
+        try:
+            model.pretrain(progress_bar=True)
+        except MissingExtraError as e:
+            print("PRETRAIN", e)
+        print("CLI", main(["report", "nowhere"]))
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    needs = "needs the 'experiments' extra: pip install 'sb3-cmzdril[experiments]'"
+    assert f"PRETRAIN progress_bar=True {needs}" in result.stdout
+    assert "CLI 2" in result.stdout
+    assert f"sb3-cmzdril report: error: the sb3-cmzdril command line {needs}" in result.stderr
+
+
 def test_require_extra_returns_the_module():
     assert require_extra("json", "experiments").dumps([1]) == "[1]"
 

@@ -57,11 +57,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     interruption (Ctrl-C) as one line and exit code 130."""
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings
     from sb3_cmzdril.console import show_library_messages
+    from sb3_cmzdril.extras import require_extra
 
     parser = build_parser()
     args = parser.parse_args(argv)
     route_mujoco_warnings()
     try:
+        # Progress displays and tables are rich's: the command line is the experiments extra's tooling.
+        require_extra("rich", "experiments", "the sb3-cmzdril command line")
         with show_library_messages():  # the library logs its notes for a person; the CLI shows them
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
