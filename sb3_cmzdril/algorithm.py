@@ -86,7 +86,10 @@ class CMZDRIL(PPO):
     :param bc_batch_size: minibatch size of the NLL epochs.
     :param bc_learning_rate: Adam step size of the NLL epochs.
     :param log_std_floor: after pretraining, raise the Gaussian policy's log-std to at least this
-        (None keeps what NLL learned).
+        (None keeps what NLL learned). NLL on a few demos collapses it (HalfCheetah/Hopper: about
+        -2, std 0.13), and PPO then barely leaves the cloned trajectory, so the disagreement reward
+        has nothing to correct; from std 0.37 (-1.0) the BC epochs and PPO anneal it again (to about
+        0.1 by 300k steps). Measured in docs/tuning/logstd-floor-1 against docs/tuning/logstd-keep.
     :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
@@ -118,7 +121,7 @@ class CMZDRIL(PPO):
         bc_epochs_per_update: int = 1,
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
-        log_std_floor: Optional[float] = None,
+        log_std_floor: Optional[float] = -1.0,
         batch_scoring: bool = True,
         learning_rate: Union[float, Schedule] = 3e-4,
         n_steps: int = 2048,
