@@ -74,8 +74,9 @@ class CMZDRIL(PPO):
     :param ensemble_learning_rate: Adam step size of ensemble fitting.
     :param standardize_observations: the policy sees observations standardised with fixed statistics
         of the demonstrations (the ensemble's; :mod:`sb3_cmzdril.policies`). False gives SB3's raw
-        inputs (the paper-faithful setting). Ignored, with a warning, when a VecNormalize already
-        normalises the observations.
+        inputs (the paper-faithful setting); prefer it where the observations are already scaled to
+        about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). Ignored,
+        with a warning, when a VecNormalize already normalises the observations.
     :param bc_pretrain_epochs: most NLL epochs before RL.
     :param bc_validation_fraction: share of the demo steps held out to stop pretraining when their
         NLL has not improved for ``bc_patience`` epochs (the best epoch's weights are kept); 0
