@@ -259,10 +259,30 @@ def test_report_gap_closed_and_window_on_synthetic_runs(tmp_path):
     text = path.read_text()
     assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 210 (10.0) | 4.00 (0) | 0.4 (0) |" in text
     assert "| HalfCheetah-v5 | BC | 2 | 60.0 (10.0) | 6.00 (0) | 0.6 (0) |" in text
-    assert "| HalfCheetah-v5 | 50% | 25% | 50% |" in text  # (210-110)/(310-110), (4-5)/(1-5), (0.4-0.5)/(0.3-0.5)
+    assert "| HalfCheetah-v5 | 2 | 50% | 25% | 50% |" in text  # (210-110)/(310-110), (4-5)/(1-5), (0.4-0.5)/(0.3-0.5)
     assert "paper's Table I" not in text
     gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))
     assert gaps["HalfCheetah-v5"]["return"] == pytest.approx(0.5)
+
+
+def test_report_gap_closed_pairs_trials_of_a_partial_grid(tmp_path):
+    # env reward has only trial 1 so far: the gap must use trial 1 of every method, not the means of
+    # two cmz and zero trials against one env-reward trial
+    runs_dir = tmp_path / "runs"
+    for trial, shift in ((0, 0.0), (1, 1000.0)):
+        write_run(runs_dir, "zero", trial, [100 + shift] * 3)
+        write_run(runs_dir, "cmz", trial, [200 + shift] * 3)
+    write_run(runs_dir, "env", 1, [1300.0] * 3)
+    rows = report.table_one(report.load_runs(runs_dir))
+    assert report.gap_trials(rows) == {"HalfCheetah-v5": [1]}
+    assert report.gap_closed(rows)["HalfCheetah-v5"]["return"] == pytest.approx(0.5)  # (1200-1100)/(1300-1100)
+    write_run(tmp_path / "none", "cmz", 0, [1.0] * 3)
+    write_run(tmp_path / "none", "zero", 0, [1.0] * 3)
+    write_run(tmp_path / "none", "env", 1, [2.0] * 3)
+    lonely = report.table_one(report.load_runs(tmp_path / "none"))
+    assert report.gap_closed(lonely)["HalfCheetah-v5"]["return"] is None
+    text = report.write_report(tmp_path / "none", tmp_path / "docs", references=(), figures=False).read_text()
+    assert "| HalfCheetah-v5 | 0 | n/a | n/a | n/a |" in text
 
 
 def _progress_csv(run_dir: Path, start: int, u, ep_len) -> None:

@@ -49,7 +49,7 @@ from sb3_cmzdril.experiments.sections import (
     status_lines,
     table_sections,
 )
-from sb3_cmzdril.experiments.tables import expert_returns, gap_closed, reward_signal, table_csv, table_one
+from sb3_cmzdril.experiments.tables import expert_returns, gap_closed, gap_trials, reward_signal, table_csv, table_one
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
@@ -223,6 +223,7 @@ __all__ = [
     "load_runs",
     "table_one",
     "gap_closed",
+    "gap_trials",
     "expert_returns",
     "reward_signal",
     "final_table",

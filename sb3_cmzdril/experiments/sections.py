@@ -43,6 +43,7 @@ from sb3_cmzdril.experiments.tables import (
     TableRow,
     expert_returns,
     gap_closed,
+    gap_trials,
     reward_signal,
     table_one,
 )
@@ -190,6 +191,7 @@ def final_sections(rep: GridReport, h: str, figure: Optional[Path]) -> List[str]
 def table_sections(rep: GridReport, h: str, window: int) -> List[str]:
     """Table I, the gap closed by CMZ-DRIL and the reward signal of one grid."""
     rows, experts = rep.rows, rep.experts
+    gaps = gap_closed(rows)
     parts = [
         f"{h} Table I", "",
         f"Mean (std over trials) of each run's evaluation metric averaged over its last {window} epochs (all epochs "
@@ -206,13 +208,15 @@ def table_sections(rep: GridReport, h: str, window: int) -> List[str]:
             "trial's mean; from the demo pool each run's config.json names):" if experts else ":"), "",
         _paper_layout(rep), "",
         f"{h} Gap closed by CMZ-DRIL", "",
-        "(CMZ-DRIL - no reward) / (env. reward - no reward) of the Table I means: 0 = no better than PPO+BC without "
+        "(CMZ-DRIL - no reward) / (env. reward - no reward) of the Table I means, over the trials that all three "
+        "methods have (Trials): 0 = no better than PPO+BC without "
         "reward, 1 = as good as training on the true reward (the paper: about 50% for the reward). For Fréchet "
         "distance and action MSE, where lower is better, the same ratio measures how far CMZ-DRIL moves from no "
         "reward toward env. reward.", "",
-        md_table(["Env", *(label for _, label, _ in METRICS)],
-                 ([env, *(("n/a" if g[k] is None else f"{100 * g[k]:.0f}%") for k, _, _ in METRICS)]
-                  for env, g in gap_closed(rows).items())), "",
+        md_table(["Env", "Trials", *(label for _, label, _ in METRICS)],
+                 ([env, str(len(trials)),
+                   *(("n/a" if gaps[env][k] is None else f"{100 * gaps[env][k]:.0f}%") for k, _, _ in METRICS)]
+                  for env, trials in gap_trials(rows).items())), "",
     ]
     if rep.signal:
         ordered = sorted(rep.signal.items(), key=lambda kv: (env_key(kv[0][0]), METHOD_ORDER.index(kv[0][1])))

@@ -66,19 +66,39 @@ def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> List[
     return rows
 
 
+GAP_METHODS: Tuple[str, ...] = ("cmz", "zero", "env")
+
+
+def gap_trials(rows: Sequence[TableRow]) -> Dict[str, List[int]]:
+    """env -> the trials that CMZ-DRIL, no reward and env reward all have (the gap compares them paired)."""
+    by = {(r.env, r.method): r for r in rows}
+    result: Dict[str, List[int]] = {}
+    for env in dict.fromkeys(r.env for r in rows):
+        sets = [{run.trial for run in by[(env, m)].runs} if (env, m) in by else set() for m in GAP_METHODS]
+        result[env] = sorted(set.intersection(*sets))
+    return result
+
+
 def gap_closed(rows: Sequence[TableRow]) -> Dict[str, Dict[str, Optional[float]]]:
-    """env -> metric -> (cmz - zero) / (env - zero), None where a method is missing or env == zero."""
+    """env -> metric -> (cmz - zero) / (env - zero) over the trials all three have (:func:`gap_trials`):
+    a grid still running must not divide one trial's env reward into five trials' means. None where no
+    trial has all three or env == zero."""
     by = {(r.env, r.method): r for r in rows}
     result: Dict[str, Dict[str, Optional[float]]] = {}
-    for env in dict.fromkeys(r.env for r in rows):
-        cmz, zero, true = by.get((env, "cmz")), by.get((env, "zero")), by.get((env, "env"))
+    for env, trials in gap_trials(rows).items():
         result[env] = {}
         for key, _, _ in METRICS:
-            if cmz is None or zero is None or true is None or true.mean(key) == zero.mean(key):
+            if not trials:
                 result[env][key] = None
-            else:
-                result[env][key] = (cmz.mean(key) - zero.mean(key)) / (true.mean(key) - zero.mean(key))
+                continue
+            cmz, zero, true = (_mean_over(by[(env, m)], key, trials) for m in GAP_METHODS)
+            result[env][key] = None if true == zero else (cmz - zero) / (true - zero)
     return result
+
+
+def _mean_over(row: TableRow, metric: str, trials: Sequence[int]) -> float:
+    """The row's metric averaged over the runs of the given trials."""
+    return float(np.mean([v for run, v in zip(row.runs, row.per_run[metric], strict=True) if run.trial in trials]))
 
 
 def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
@@ -190,6 +210,7 @@ __all__ = [
     "TableRow",
     "table_one",
     "gap_closed",
+    "gap_trials",
     "table_csv",
     "expert_returns",
     "reward_signal",
