@@ -275,8 +275,10 @@ def test_finished_run_reused_with_another_method_is_refused(setup, tmp_path, cap
 def test_finished_run_asked_for_more_steps_says_how_to_extend(setup, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(train_args(setup, "--timesteps", "128", "-o", str(out), reward="zero")) == 0
+    shown = capsys.readouterr().out  # the final evaluation of both kept policies, with their files
+    assert "final evaluation, final policy: return" in shown and str(out / "model.zip") in shown
+    assert "final evaluation, lowest-u policy (epoch " in shown and str(out / "model_lowest_u.zip") in shown
     before = snapshot(out)
-    capsys.readouterr()
     assert main(train_args(setup, "--timesteps", "192", "-o", str(out), reward="zero")) == 2
     line = error_line(capsys, "train")
     assert "is finished at 128 steps (done.json), fewer than the 192 asked" in line and "delete" in line

@@ -2,6 +2,11 @@
 options of a run (:func:`_add_run_options`)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, Dict, List, Optional
+
+if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
+    from sb3_cmzdril.io import PathLike
+
 _METHODS_HELP = "bc (pretrained policy only), zero, env, dril or cmz"
 
 
@@ -70,7 +75,28 @@ def _run_train(args) -> int:
         )
     else:
         print(f"{result['status']} at {result.get('num_timesteps')} steps: {spec.output_dir} (run again to continue)")
+    for line in final_evaluation_lines(result.get("final_evaluation"), spec.output_dir):
+        print(line)
     return 0 if result["status"] in ("done", "skipped") else 1
+
+
+def final_evaluation_lines(final: Optional[Dict[str, Any]], output_dir: PathLike) -> List[str]:
+    """One line per finally-evaluated policy: its held-out return and the file that holds it, so a user
+    sees that the lowest-disagreement policy (chosen without the env reward) may be the better one."""
+    from pathlib import Path
+
+    from sb3_cmzdril.experiments.run_folder import LOWEST_U_MODEL, MODEL_FILE
+
+    files = {"final": ("final policy", MODEL_FILE), "lowest_u": ("lowest-u policy", LOWEST_U_MODEL)}
+    lines = []
+    for policy, ev in (final or {}).items():
+        if policy not in files or not isinstance(ev, dict) or "return_mean" not in ev:
+            continue
+        label, name = files[policy]
+        epoch = f" (epoch {ev['epoch']})" if "epoch" in ev else ""
+        lines.append(f"final evaluation, {label}{epoch}: return {ev['return_mean']:.2f} (std {ev.get('return_std', float('nan')):.2f}) "
+                     f"over {ev.get('n_episodes', '?')} held-out episodes: {Path(output_dir) / name}")
+    return lines
 
 
 def add_benchmark(sub) -> None:
