@@ -19,7 +19,7 @@ from scipy.stats import bootstrap
 
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.final_eval import final_table, mean_ci
+from sb3_cmzdril.experiments.final_eval import expert_level_share, final_table, mean_ci
 from sb3_cmzdril.experiments.records import NOT_SET, load_runs, read_final_eval, setting_differences
 
 ENV = "HalfCheetah-v5"
@@ -123,6 +123,20 @@ def test_final_table_means_and_cis_equal_hand_computed(main_grid, tmp_path):
     assert "| 10, 11, 12, 13 |" in text  # the epochs each lowest-u choice came from
     assert (tmp_path / "docs" / "fig3_final_eval.png").read_bytes()[:8] == PNG
     assert "](fig3_final_eval.png)" in text
+
+
+def test_expert_level_share_counts_episodes_at_half_the_expert_return(main_grid, tmp_path):
+    # The fixture's expert returns are 1000 + 10 trial + episode: only CMZ-DRIL's trial 2 (500, 600, 700
+    # against 1020, 1021, 1022) has episodes at half of it or more, two of three.
+    report.write_report(main_grid, tmp_path / "docs", references=())
+    table = {(r["method"], r["policy"]): r for r in _rows(tmp_path / "docs" / "final_table.csv")}
+    assert float(table[("cmz", "final")]["expert_level_mean"]) == pytest.approx((0 + 0 + 2 / 3 + 0) / 4)
+    for key in [("bc", "final"), ("zero", "final"), ("cmz", "lowest_u")]:
+        assert float(table[key]["expert_level_mean"]) == 0.0
+    assert "Episodes at expert level" in (tmp_path / "docs" / "results.md").read_text()
+    share = {"return": np.array([50.0, 49.9, 120.0]), "expert_return": np.array([100.0, 100.0, 100.0])}
+    assert expert_level_share(share) == pytest.approx(2 / 3)  # exactly half counts
+    assert math.isnan(expert_level_share({"return": np.array([-10.0]), "expert_return": np.array([-20.0])}))
 
 
 def test_mean_ci_needs_three_finite_values():

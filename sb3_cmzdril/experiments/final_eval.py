@@ -7,6 +7,9 @@ used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.runs
 * :func:`final_table` — per env, method and policy ("final", or "lowest_u": the policy whose own
   training rollout had the lowest ensemble disagreement), the mean over trials of each run's mean
   over its held-out episodes, with a bootstrap confidence interval over trials (:func:`mean_ci`).
+* the share of held-out episodes a policy completes at expert level (:data:`EXPERT_LEVEL`): on
+  HalfCheetah-v5 an episode either runs near the expert's return or fails outright (the cheetah
+  flips), so a run's mean return mostly says how often it fails, and this column says it directly.
 * :func:`paired` — a method against a baseline trial by trial (same seed, so the same demo split and
   the same held-out episodes): in how many trials it is higher, and the mean difference with its CI.
 """
@@ -29,7 +32,12 @@ FINAL_METRICS: Tuple[Tuple[str, str], ...] = (
     ("return", "Return"),
     ("frechet", "Fréchet distance"),
     ("action_mse", "Action MSE"),
+    ("expert_level", "Episodes at expert level"),
 )
+#: An episode is "at expert level" when its return is at least this fraction of the expert's return on
+#: the same episode (same reset seed). Undefined (nan) for a run whose expert returns are not all
+#: positive: a fraction of a negative return does not order episodes.
+EXPERT_LEVEL = 0.5
 CONFIDENCE = 0.95
 #: The bootstrap's seed: the same runs give the same intervals on every report.
 BOOTSTRAP_SEED = 0
@@ -74,7 +82,10 @@ class FinalRow:
         return label(self.method, self.policy)
 
     def per_run(self, column: str) -> List[float]:
-        """Each run's mean of ``column`` over its held-out episodes, in run order."""
+        """Each run's mean of ``column`` over its held-out episodes, in run order; ``expert_level``:
+        each run's share of episodes at expert level (:func:`expert_level_share`)."""
+        if column == "expert_level":
+            return [expert_level_share(r.final[self.policy]) for r in self.runs]
         return [float(np.mean(r.final[self.policy][column])) for r in self.runs]
 
     def per_trial(self, column: str = "return") -> Dict[int, float]:
@@ -92,6 +103,15 @@ class FinalRow:
         """The epoch of each run's lowest-u policy (done.json), None where it is not recorded."""
         chosen = [r.summary.get("final_evaluation", {}).get(self.policy, {}).get("epoch") for r in self.runs]
         return [None if e is None else int(e) for e in chosen]
+
+
+def expert_level_share(columns: Dict[str, np.ndarray]) -> float:
+    """The share of a run's held-out episodes whose return is at least :data:`EXPERT_LEVEL` times the
+    expert's on the same episode; nan unless every expert return is positive."""
+    expert = np.asarray(columns["expert_return"], dtype=np.float64)
+    if expert.size == 0 or not (expert > 0).all():
+        return math.nan
+    return float(np.mean(np.asarray(columns["return"], dtype=np.float64) >= EXPERT_LEVEL * expert))
 
 
 def final_table(records: Sequence[RunRecord]) -> List[FinalRow]:
@@ -199,7 +219,9 @@ def method_text(confidence: float = CONFIDENCE) -> str:
         f"the mean over trials [{100 * confidence:g}% bootstrap confidence interval over trials: "
         f"scipy.stats.bootstrap, {BOOTSTRAP_METHOD}, {BOOTSTRAP_RESAMPLES} resamples, seed {BOOTSTRAP_SEED}; "
         f"n/a with fewer than {MIN_TRIALS_FOR_CI} trials]. \"(lowest u)\" is the policy whose own training "
-        "rollout had the lowest ensemble disagreement: chosen without the env reward."
+        "rollout had the lowest ensemble disagreement: chosen without the env reward. \"Episodes at expert "
+        f"level\": the share of a run's held-out episodes whose return is at least {EXPERT_LEVEL:g} times the "
+        "expert's on the same episode (n/a where the expert's returns are not all positive)."
     )
 
 
@@ -229,6 +251,8 @@ __all__ = [
     "Paired",
     "mean_ci",
     "final_table",
+    "expert_level_share",
+    "EXPERT_LEVEL",
     "paired",
     "baselines",
     "find",
