@@ -20,7 +20,7 @@ noise around 0.
 from __future__ import annotations
 
 import argparse
-from typing import Callable, Dict, List
+from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np
@@ -36,7 +36,7 @@ from sb3_cmzdril.experiments.runs import (
 )
 
 
-def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement, seed: int) -> Dict[str, float]:
+def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement, seed: int) -> dict[str, float]:
     """One episode from ``seed``: its true return, length and mean u of the observations acted on."""
     obs, _ = env.reset(seed=seed)
     total, us, done = 0.0, [], False
@@ -48,7 +48,7 @@ def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement,
     return {"return": total, "length": float(len(us)), "u": float(np.mean(us))}
 
 
-def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> Dict[str, Dict[str, float]]:
+def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> dict[str, dict[str, float]]:
     hp, settings = load_run_hyperparams(hyperparams, env_id)
     pool = Demonstrations.load(default_demos_path(env_id, demos_dir))
     train_idx, eval_idx = split_episodes(pool.n_episodes, int(settings.get("n_demos", 1)), 5, trial)
@@ -65,7 +65,7 @@ def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> Dict[s
         "policy, deterministic (BC)": lambda o: np.clip(model.predict(o, deterministic=True)[0], low, high),
         "ensemble mean action": lambda o: ens.predict(o[None])[0],
     }
-    out: Dict[str, Dict[str, float]] = {
+    out: dict[str, dict[str, float]] = {
         "training demo": {"u": float(ens.disagreement(train.observations).mean())},
         "held-out expert episodes": {
             "u": float(ens.disagreement(held_out.observations).mean()),
@@ -88,7 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     for env_id in (check_env_id(e.strip()) for e in args.env.split(",")):
-        results: List[Dict[str, Dict[str, float]]] = [
+        results: list[dict[str, dict[str, float]]] = [
             measure(env_id, int(t), args.hyperparams, args.demos_dir) for t in args.trials.split(",")
         ]
         print(f"\n{env_id} (trials {args.trials}; mean over trials of each trial's mean over its 5 held-out seeds)")

@@ -12,14 +12,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 import gymnasium as gym
 
 import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0)
 
 
-def steps_per_second(env_id: str, n_steps: int, seed: int = 0, env_kwargs: Optional[Dict[str, Any]] = None) -> float:
+def steps_per_second(env_id: str, n_steps: int, seed: int = 0, env_kwargs: dict[str, Any] | None = None) -> float:
     """Random-action steps/s of one ``gym.make(env_id)``, resets counted in the time."""
     env = gym.make(env_id, **(env_kwargs or {}))
     env.action_space.seed(seed)
@@ -36,7 +36,7 @@ def steps_per_second(env_id: str, n_steps: int, seed: int = 0, env_kwargs: Optio
     return n_steps / elapsed
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--repeats", type=int, default=3)
@@ -46,7 +46,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     kwargs = {k: v for k, v in (("n_beams", args.n_beams), ("n_obstacles", args.n_obstacles)) if v is not None}
 
     envs = (("WaypointNav-v0", "sb3_cmzdril:WaypointNav-v0", kwargs), ("HalfCheetah-v5", "HalfCheetah-v5", {}))
-    runs: Dict[str, List[float]] = {name: [] for name, _, _ in envs}
+    runs: dict[str, list[float]] = {name: [] for name, _, _ in envs}
     for i in range(args.repeats):
         # Alternate the two so that a burst of load from other processes hits both alike.
         for name, env_id, kw in envs:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from typing import Callable, Tuple
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.distance import cdist
@@ -82,7 +82,7 @@ def naive_wavefront(P: np.ndarray, Q: np.ndarray) -> float:
     return float(ca[n, m])
 
 
-def best_time(fn: Callable[[], float], repeats: int) -> Tuple[float, float]:
+def best_time(fn: Callable[[], float], repeats: int) -> tuple[float, float]:
     """(best wall time in seconds, value) over ``repeats`` calls."""
     best, value = math.inf, math.nan
     for _ in range(repeats):
@@ -104,7 +104,10 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     P = np.cumsum(rng.normal(size=(args.n, args.dim)), axis=0)
     Q = np.cumsum(rng.normal(size=(args.n, args.dim)), axis=0)
-    print(f"random walks: n = m = {args.n}, d = {args.dim}, seed {args.seed}; best of {args.repeats} (loops: {args.loop_repeats})")
+    print(
+        f"random walks: n = m = {args.n}, d = {args.dim}, seed {args.seed}; "
+        f"best of {args.repeats} (loops: {args.loop_repeats})"
+    )
 
     ours_t, ours = best_time(lambda: frechet_distance(P, Q), args.repeats)
     results = [("frechet_distance (ours)", ours_t, ours)]

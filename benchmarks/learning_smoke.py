@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Dict, List
 
 import numpy as np
 import torch
@@ -47,14 +46,19 @@ def main() -> None:
     eval_demos = collect_demos(args.expert, args.env, n_episodes=args.eval_episodes, seed=10_000)
     expert_return = float(np.mean(eval_demos.episode_returns))
     trajectory_fn = trajectory_features(args.env)
-    print(f"{args.env}: {args.n_demos} training demos ({len(train_demos)} steps), {args.eval_episodes} evaluation episodes, "
-          f"expert return on them {expert_return:.2f}")
+    print(
+        f"{args.env}: {args.n_demos} training demos ({len(train_demos)} steps), "
+        f"{args.eval_episodes} evaluation episodes, "
+        f"expert return on them {expert_return:.2f}"
+    )
 
-    results: Dict[str, List[Dict[str, float]]] = {m: [] for m in methods}
+    results: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
     for seed in (int(s) for s in args.seeds.split(",")):
         for method in methods:
             start = time.perf_counter()
-            model = CMZDRIL("MlpPolicy", args.env, demonstrations=train_demos, reward="cmz" if method == "bc" else method, seed=seed)
+            model = CMZDRIL(
+                "MlpPolicy", args.env, demonstrations=train_demos, reward="cmz" if method == "bc" else method, seed=seed
+            )
             if method == "bc":
                 model.pretrain()
             else:
@@ -62,8 +66,11 @@ def main() -> None:
             ev = evaluate_against_expert(model, args.env, eval_demos, trajectory_fn=trajectory_fn)
             row = {"return": ev.mean_return, "frechet": ev.mean_frechet, "action_mse": ev.action_mse}
             results[method].append(row)
-            print(f"seed {seed} {METHOD_NAMES[method]:10s} return {row['return']:8.2f}  Frechet {row['frechet']:.3f}  "
-                  f"action MSE {row['action_mse']:.4f}  ({time.perf_counter() - start:.0f}s)", flush=True)
+            print(
+                f"seed {seed} {METHOD_NAMES[method]:10s} return {row['return']:8.2f}  Frechet {row['frechet']:.3f}  "
+                f"action MSE {row['action_mse']:.4f}  ({time.perf_counter() - start:.0f}s)",
+                flush=True,
+            )
 
     print(f"\nmean over seeds {args.seeds} (expert {expert_return:.2f}):")
     for method in methods:
@@ -71,7 +78,10 @@ def main() -> None:
         r = np.array([x["return"] for x in rows])
         f = np.array([x["frechet"] for x in rows])
         m = np.array([x["action_mse"] for x in rows])
-        print(f"{METHOD_NAMES[method]:10s} return {r.mean():8.2f} (std {r.std():.2f})  Frechet {f.mean():.3f}  action MSE {m.mean():.4f}")
+        print(
+            f"{METHOD_NAMES[method]:10s} return {r.mean():8.2f} (std {r.std():.2f})  "
+            f"Frechet {f.mean():.3f}  action MSE {m.mean():.4f}"
+        )
 
 
 if __name__ == "__main__":

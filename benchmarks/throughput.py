@@ -66,7 +66,9 @@ def one_demo(seed: int = 0) -> tuple[Demonstrations, str]:
         obs, _, terminated, truncated, _ = env.step(act)
         if terminated or truncated:
             obs, _ = env.reset()
-    return Demonstrations(np.array(observations), np.array(actions), [1000]), "1,000 steps of a fixed linear feedback policy"
+    return Demonstrations(
+        np.array(observations), np.array(actions), [1000]
+    ), "1,000 steps of a fixed linear feedback policy"
 
 
 def run(kind: str, steps: int, demos: Demonstrations, seed: int, batch_scoring: bool = True) -> dict:
@@ -76,11 +78,21 @@ def run(kind: str, steps: int, demos: Demonstrations, seed: int, batch_scoring: 
         model = PPO("MlpPolicy", ENV_ID, seed=seed, device="cpu")
     else:
         model = CMZDRIL(
-            "MlpPolicy", ENV_ID, demonstrations=demos, reward="cmz", seed=seed, device="cpu", batch_scoring=batch_scoring
+            "MlpPolicy",
+            ENV_ID,
+            demonstrations=demos,
+            reward="cmz",
+            seed=seed,
+            device="cpu",
+            batch_scoring=batch_scoring,
         )
     model.learn(steps, callback=timer)
     total = time.perf_counter() - start
-    result = {"loop_sps": timer.steps / timer.seconds, "total_sps": timer.steps / total, "setup_s": total - timer.seconds}
+    result = {
+        "loop_sps": timer.steps / timer.seconds,
+        "total_sps": timer.steps / total,
+        "setup_s": total - timer.seconds,
+    }
     if kind != "ppo":
         info = model.pretrain_info
         result.update(bc_s=info["bc_seconds"], bc_epochs=info["bc_epochs"], ensemble_s=info["ensemble_seconds"])
@@ -92,23 +104,34 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20480, help="environment steps per run (default 10 PPO updates)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (DESIGN.md: 1 is fastest here)")
-    parser.add_argument("--per-step-scoring", action="store_true", help="CMZ-DRIL scores every env step (batch_scoring=False)")
+    parser.add_argument(
+        "--per-step-scoring", action="store_true", help="CMZ-DRIL scores every env step (batch_scoring=False)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     demos, source = one_demo()
     scoring = "per step" if args.per_step_scoring else "batched per rollout"
-    print(f"{ENV_ID}, {args.steps} steps per run, {args.repeats} repeats, torch threads {args.threads}, CMZ-DRIL scoring {scoring}")
+    print(
+        f"{ENV_ID}, {args.steps} steps per run, {args.repeats} repeats, "
+        f"torch threads {args.threads}, CMZ-DRIL scoring {scoring}"
+    )
     print(f"demonstration: {source}, {len(demos)} steps")
     results: dict = {"ppo": [], "cmzdril": []}
     for repeat in range(args.repeats):
         for kind in ("ppo", "cmzdril"):
             r = run(kind, args.steps, demos, seed=repeat, batch_scoring=not args.per_step_scoring)
             results[kind].append(r)
-            print(f"  repeat {repeat}: {kind:8s} loop {r['loop_sps']:7.0f} steps/s, end to end {r['total_sps']:7.0f} steps/s, set-up {r['setup_s']:.1f}s")
+            print(
+                f"  repeat {repeat}: {kind:8s} loop {r['loop_sps']:7.0f} steps/s, "
+                f"end to end {r['total_sps']:7.0f} steps/s, set-up {r['setup_s']:.1f}s"
+            )
     med = {k: statistics.median(r["loop_sps"] for r in v) for k, v in results.items()}
     med_total = {k: statistics.median(r["total_sps"] for r in v) for k, v in results.items()}
     print(f"PPO      median training-loop throughput: {med['ppo']:.0f} steps/s (end to end {med_total['ppo']:.0f})")
-    print(f"CMZ-DRIL median training-loop throughput: {med['cmzdril']:.0f} steps/s (end to end {med_total['cmzdril']:.0f}, incl. pretraining)")
+    print(
+        f"CMZ-DRIL median training-loop throughput: {med['cmzdril']:.0f} steps/s "
+        f"(end to end {med_total['cmzdril']:.0f}, incl. pretraining)"
+    )
     pre = results["cmzdril"]
     print(
         f"CMZ-DRIL pretraining (median): BC {statistics.median(r['bc_s'] for r in pre):.1f}s "

@@ -15,7 +15,7 @@ import argparse
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
 import yaml
 
@@ -24,9 +24,9 @@ from sb3_cmzdril.io import atomic_write_text
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def parse_sets(pairs: List[str]) -> Dict[str, Any]:
+def parse_sets(pairs: list[str]) -> dict[str, Any]:
     """``["a=1", "b=[2, 3]"]`` -> ``{"a": 1, "b": [2, 3]}`` (values parsed as YAML)."""
-    out: Dict[str, Any] = {}
+    out: dict[str, Any] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
@@ -43,7 +43,7 @@ def parse_sets(pairs: List[str]) -> Dict[str, Any]:
 
 def main() -> None:
     argv = sys.argv[1:]
-    rest: List[str] = []
+    rest: list[str] = []
     if "--" in argv:
         cut = argv.index("--")
         argv, rest = argv[:cut], argv[cut + 1:]

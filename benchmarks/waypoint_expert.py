@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -22,8 +22,8 @@ from sb3_cmzdril.experts import SCRIPTED_EXPERTS
 ENV_ID = "sb3_cmzdril:WaypointNav-v0"
 
 
-def run_episodes(n_episodes: int, env_kwargs: Optional[Dict[str, Any]] = None, first_seed: int = 0
-                 ) -> List[Dict[str, Any]]:
+def run_episodes(n_episodes: int, env_kwargs: dict[str, Any] | None = None, first_seed: int = 0
+                 ) -> list[dict[str, Any]]:
     """Run the registered expert on seeds ``first_seed ..``; one dict of outcomes per episode."""
     env = gym.make(ENV_ID, **(env_kwargs or {}))
     expert = SCRIPTED_EXPERTS["waypoint-reactive"](env)
@@ -45,7 +45,7 @@ def run_episodes(n_episodes: int, env_kwargs: Optional[Dict[str, Any]] = None, f
     return results
 
 
-def save_figure(path: str, results: List[Dict[str, Any]], columns: int = 2) -> None:
+def save_figure(path: str, results: list[dict[str, Any]], columns: int = 2) -> None:
     """A grid of fields with the expert's path on each (the first ``len(results)`` seeds)."""
     import matplotlib
 
@@ -56,7 +56,7 @@ def save_figure(path: str, results: List[Dict[str, Any]], columns: int = 2) -> N
 
     rows = (len(results) + columns - 1) // columns
     fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 4.2 * rows), squeeze=False)
-    for ax, r in zip(axes.flat, results):
+    for ax, r in zip(list(axes.flat)[: len(results)], results, strict=True):
         outcome = "goal" if r["success"] else ("collision" if r["collision"] or r["out_of_bounds"] else "time-out")
         plot_trajectories(r["field"], {"expert": r["path"]}, ax=ax,
                           title=f"seed {r['seed']}: {r['length']} steps, {outcome}, return {r['return']:.1f}")
@@ -68,7 +68,7 @@ def save_figure(path: str, results: List[Dict[str, Any]], columns: int = 2) -> N
     plt.close(fig)
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=200, help="episodes, seeds first-seed.. (default 200)")
     parser.add_argument("--first-seed", type=int, default=0)
@@ -90,7 +90,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     print(f"WaypointNav-v0 {kwargs or 'defaults'}, reactive expert, seeds {args.first_seed}.."
           f"{args.first_seed + args.episodes - 1} ({wall:.1f} s)")
     print(f"success rate   {100 * success:.1f}% ({int(round(success * len(res)))}/{len(res)})")
-    print(f"collisions     {sum(r['collision'] for r in res)} (obstacle), {sum(r['out_of_bounds'] for r in res)} (wall)")
+    print(
+        f"collisions     {sum(r['collision'] for r in res)} (obstacle), {sum(r['out_of_bounds'] for r in res)} (wall)"
+    )
     print(f"truncated      {sum(r['truncated'] for r in res)}")
     print(f"mean return    {returns.mean():.2f} (std {returns.std():.2f})")
     print(f"mean length    {lengths.mean():.1f} (std {lengths.std():.1f}, min {lengths.min()}, max {lengths.max()})")

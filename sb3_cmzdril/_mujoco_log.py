@@ -10,10 +10,9 @@ creation printed that warning and left the file behind. It is not a Python warni
 from __future__ import annotations
 
 import sys
-from typing import Tuple
 
 #: Warnings that say nothing about the user's run (their start, as MuJoCo words them).
-KNOWN_NOISE: Tuple[str, ...] = ("compiler attribute 'settotalmass' is deprecated",)
+KNOWN_NOISE: tuple[str, ...] = ("compiler attribute 'settotalmass' is deprecated",)
 
 
 def _handle(message: str) -> None:

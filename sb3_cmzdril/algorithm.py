@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from typing import Any, ClassVar, Dict, List, Optional, Sequence, Tuple, Type, TypeVar, Union
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -47,10 +48,16 @@ from sb3_cmzdril.scoring import RolloutScorer
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
-DemosLike = Union[Demonstrations, str, list, None]
+DemosLike = Demonstrations | str | list | None
 
 # Tensors that travel in the zip next to the state dicts (SB3 loads them with weights_only=True).
-_SAVED_TENSORS = ("_saved_demo_obs", "_saved_demo_actions", "_saved_demo_lengths", "_saved_demo_seeds", "_saved_reward_state")
+_SAVED_TENSORS = (
+    "_saved_demo_obs",
+    "_saved_demo_actions",
+    "_saved_demo_lengths",
+    "_saved_demo_seeds",
+    "_saved_reward_state",
+)
 
 
 class CMZDRIL(PPO):
@@ -97,12 +104,12 @@ class CMZDRIL(PPO):
         VecNormalize gets anyway. The rewards are the same.
     """
 
-    policy_aliases: ClassVar[Dict[str, Type[BasePolicy]]] = PPO.policy_aliases
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = PPO.policy_aliases
 
     def __init__(
         self,
-        policy: Union[str, Type[ActorCriticPolicy]],
-        env: Union[GymEnv, str],
+        policy: str | type[ActorCriticPolicy],
+        env: GymEnv | str,
         demonstrations: DemosLike = None,
         reward: str = "cmz",
         alpha: float = 10.0,
@@ -122,31 +129,31 @@ class CMZDRIL(PPO):
         bc_epochs_per_update: int = 1,
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
-        log_std_floor: Optional[float] = -1.0,
+        log_std_floor: float | None = -1.0,
         batch_scoring: bool = True,
-        learning_rate: Union[float, Schedule] = 3e-4,
+        learning_rate: float | Schedule = 3e-4,
         n_steps: int = 2048,
         batch_size: int = 64,
         n_epochs: int = 10,
         gamma: float = 0.99,
         gae_lambda: float = 0.95,
-        clip_range: Union[float, Schedule] = 0.2,
-        clip_range_vf: Union[None, float, Schedule] = None,
+        clip_range: float | Schedule = 0.2,
+        clip_range_vf: None | float | Schedule = None,
         normalize_advantage: bool = True,
         ent_coef: float = 0.0,
         vf_coef: float = 0.5,
         max_grad_norm: float = 0.5,
         use_sde: bool = False,
         sde_sample_freq: int = -1,
-        rollout_buffer_class: Optional[Type[RolloutBuffer]] = None,
-        rollout_buffer_kwargs: Optional[Dict[str, Any]] = None,
-        target_kl: Optional[float] = None,
+        rollout_buffer_class: type[RolloutBuffer] | None = None,
+        rollout_buffer_kwargs: dict[str, Any] | None = None,
+        target_kl: float | None = None,
         stats_window_size: int = 100,
-        tensorboard_log: Optional[str] = None,
-        policy_kwargs: Optional[Dict[str, Any]] = None,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
-        seed: Optional[int] = None,
-        device: Union[th.device, str] = "auto",
+        seed: int | None = None,
+        device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
         if reward not in REWARD_MODES:
@@ -164,13 +171,15 @@ class CMZDRIL(PPO):
             raise ValueError(f"bc_patience must be >= 1, got {bc_patience}")
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise ValueError(f"log_std_floor must be finite or None, got {log_std_floor}")
-        self.demonstrations: Optional[Demonstrations] = None if demonstrations is None else as_demonstrations(demonstrations)
+        self.demonstrations: Demonstrations | None = (
+            None if demonstrations is None else as_demonstrations(demonstrations)
+        )
         self.reward = reward
         self.alpha = float(alpha)
         self.ema = float(ema)
         self.u0 = float(u0)
         self.dril_quantile = float(dril_quantile)
-        self.dril_threshold: Optional[float] = None
+        self.dril_threshold: float | None = None
         self.disagreement = disagreement
         self.ensemble_size = int(ensemble_size)
         self.ensemble_hidden = tuple(int(h) for h in ensemble_hidden)
@@ -186,20 +195,39 @@ class CMZDRIL(PPO):
         self.bc_learning_rate = float(bc_learning_rate)
         self.log_std_floor = None if log_std_floor is None else float(log_std_floor)
         self.batch_scoring = bool(batch_scoring)
-        self.pretrain_info: Dict[str, float] = {}
-        self.pretrain_history: Dict[str, List[float]] = {}
-        self.rollout_disagreement: Optional[float] = None
+        self.pretrain_info: dict[str, float] = {}
+        self.pretrain_history: dict[str, list[float]] = {}
+        self.rollout_disagreement: float | None = None
         #: whether the policy was trained on VecNormalize'd observations (saved with the model, so that
         #: an evaluation without the statistics can be refused instead of silently wrong)
         self.vecnormalize_obs = False
         self._imitation_ready = False
         super().__init__(
-            policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs,
-            gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, clip_range_vf=clip_range_vf,
-            normalize_advantage=normalize_advantage, ent_coef=ent_coef, vf_coef=vf_coef, max_grad_norm=max_grad_norm,
-            use_sde=use_sde, sde_sample_freq=sde_sample_freq, rollout_buffer_class=rollout_buffer_class,
-            rollout_buffer_kwargs=rollout_buffer_kwargs, target_kl=target_kl, stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
+            policy,
+            env,
+            learning_rate=learning_rate,
+            n_steps=n_steps,
+            batch_size=batch_size,
+            n_epochs=n_epochs,
+            gamma=gamma,
+            gae_lambda=gae_lambda,
+            clip_range=clip_range,
+            clip_range_vf=clip_range_vf,
+            normalize_advantage=normalize_advantage,
+            ent_coef=ent_coef,
+            vf_coef=vf_coef,
+            max_grad_norm=max_grad_norm,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs,
+            target_kl=target_kl,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
             _init_setup_model=False,
         )
         if _init_setup_model:
@@ -219,18 +247,18 @@ class CMZDRIL(PPO):
             self.observation_space, self.action_space, self.ensemble_size, self.ensemble_hidden, self.disagreement, seed
         ).to(self.device)
         self.bc = BehaviourCloner(self.policy, self.bc_batch_size, self.bc_learning_rate, self.max_grad_norm, seed=seed)
-        self.reward_rule: Optional[RewardRule] = None
+        self.reward_rule: RewardRule | None = None
         for name in _SAVED_TENSORS:
             setattr(self, name, th.zeros(0))
 
     def _excluded_save_params(self) -> list:
         return super()._excluded_save_params() + ["demonstrations", "reward_rule", "ensemble", "bc"]
 
-    def _get_torch_save_params(self) -> Tuple[list, list]:
+    def _get_torch_save_params(self) -> tuple[list, list]:
         state_dicts, variables = super()._get_torch_save_params()
         return state_dicts + ["ensemble", "bc.optimizer"], variables + list(_SAVED_TENSORS)
 
-    def save(self, path: Any, exclude: Optional[Any] = None, include: Optional[Any] = None) -> None:
+    def save(self, path: Any, exclude: Any | None = None, include: Any | None = None) -> None:
         """Save like PPO, plus ensemble, BC optimiser, demonstrations and reward-rule state."""
         demos = self.demonstrations
         if demos is not None:
@@ -244,11 +272,11 @@ class CMZDRIL(PPO):
 
     @classmethod
     def load(  # type: ignore[override]
-        cls: Type[SelfCMZDRIL],
+        cls: type[SelfCMZDRIL],
         path: Any,
-        env: Optional[GymEnv] = None,
-        device: Union[th.device, str] = "auto",
-        custom_objects: Optional[Dict[str, Any]] = None,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
         print_system_info: bool = False,
         force_reset: bool = True,
         demonstrations: DemosLike = None,
@@ -256,13 +284,18 @@ class CMZDRIL(PPO):
     ) -> SelfCMZDRIL:
         """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
         model = super().load(
-            path, env=env, device=device, custom_objects=custom_objects,
-            print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+            path,
+            env=env,
+            device=device,
+            custom_objects=custom_objects,
+            print_system_info=print_system_info,
+            force_reset=force_reset,
+            **kwargs,
         )
         model._restore_saved_state(None if demonstrations is None else as_demonstrations(demonstrations))
         return model
 
-    def _restore_saved_state(self, demonstrations: Optional[Demonstrations]) -> None:
+    def _restore_saved_state(self, demonstrations: Demonstrations | None) -> None:
         if demonstrations is not None:
             self.demonstrations = demonstrations
         elif self._saved_demo_obs.numel():
@@ -282,6 +315,7 @@ class CMZDRIL(PPO):
                     f"the saved reward state is for {state.size} envs but the model now has {self.n_envs}; "
                     "starting every env's EMA from the saved mean",
                     UserWarning,
+                    stacklevel=2,
                 )
                 state = np.full(self.n_envs, state.mean())
             self.reward_rule.set_state(state)
@@ -301,11 +335,11 @@ class CMZDRIL(PPO):
             return vec_normalize.normalize_obs
         return None
 
-    def _standardizer(self) -> Optional[DemoStandardizer]:
+    def _standardizer(self) -> DemoStandardizer | None:
         extractors = [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
         return extractors[0] if extractors else None
 
-    def pretrain(self, progress_bar: bool = False) -> Dict[str, float]:
+    def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the policy's input standardisation, pretrain the policy by NLL
         (early-stopped on held-out demo steps) and fit the ensemble (once; later calls only re-check
         the demos). Returns NLLs, epochs, the policy's log-std and timings; the per-epoch curve is
@@ -327,6 +361,7 @@ class CMZDRIL(PPO):
                     "VecNormalize normalises the observations already: the demo standardisation of the policy "
                     "is left as the identity (CMZDRIL(standardize_observations=False) silences this)",
                     UserWarning,
+                    stacklevel=2,
                 )
             else:
                 standardizer.set_statistics(*observation_statistics(self.demonstrations.observations))
@@ -342,7 +377,11 @@ class CMZDRIL(PPO):
         bc_seconds = time.perf_counter() - start
         start = time.perf_counter()
         self.ensemble.fit(
-            self.demonstrations, self.ensemble_epochs, self.ensemble_batch_size, self.ensemble_learning_rate, progress_bar
+            self.demonstrations,
+            self.ensemble_epochs,
+            self.ensemble_batch_size,
+            self.ensemble_learning_rate,
+            progress_bar,
         )
         if self.reward == "dril":
             self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
@@ -374,7 +413,7 @@ class CMZDRIL(PPO):
             )
         return self.pretrain_info
 
-    def reward_wrapper(self) -> Optional[DisagreementReward]:
+    def reward_wrapper(self) -> DisagreementReward | None:
         """The per-step DisagreementReward in the training env, or None (the default scores rollouts
         from the buffer and leaves the env stack alone)."""
         env = self.env

@@ -8,7 +8,7 @@ of two different losses.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Dict, Iterable, List, Optional
+from collections.abc import Callable, Iterable
 
 import numpy as np
 import torch as th
@@ -38,7 +38,7 @@ class BehaviourCloner:
         batch_size: int = 64,
         learning_rate: float = 1e-3,
         max_grad_norm: float = 0.5,
-        seed: Optional[int] = None,
+        seed: int | None = None,
     ) -> None:
         if batch_size < 1:
             raise ValueError(f"bc batch_size must be >= 1, got {batch_size}")
@@ -49,7 +49,7 @@ class BehaviourCloner:
         self.max_grad_norm = float(max_grad_norm)
         self.optimizer = th.optim.Adam(policy.parameters(), lr=learning_rate)
         self.rng = np.random.default_rng(seed)
-        self.demos: Optional[Demonstrations] = None
+        self.demos: Demonstrations | None = None
 
     def set_demonstrations(self, demos: Demonstrations) -> None:
         self.demos = demos
@@ -57,7 +57,7 @@ class BehaviourCloner:
         dtype = th.long if demos.actions.dtype.kind in "iu" else th.float32
         self._actions = th.as_tensor(demos.actions, dtype=dtype, device=self.policy.device)
 
-    def nll(self, obs_transform: Optional[ObsTransform] = None, indices: Optional[np.ndarray] = None) -> float:
+    def nll(self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None) -> float:
         """Mean NLL of the expert actions (of the steps ``indices``, default all) under the current
         policy (no update)."""
         obs = self._observations(obs_transform)
@@ -68,7 +68,7 @@ class BehaviourCloner:
         with th.no_grad():
             return float(-self.policy.get_distribution(obs).log_prob(actions).mean())
 
-    def epoch(self, obs_transform: Optional[ObsTransform] = None, indices: Optional[np.ndarray] = None) -> float:
+    def epoch(self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None) -> float:
         """One pass over the demos (or the steps ``indices``) in shuffled minibatches; returns the
         mean NLL over the pass."""
         obs = self._observations(obs_transform)
@@ -87,7 +87,9 @@ class BehaviourCloner:
         self.policy.set_training_mode(False)
         return total / len(order)
 
-    def train(self, n_epochs: int, obs_transform: Optional[ObsTransform] = None, progress_bar: bool = False) -> List[float]:
+    def train(
+        self, n_epochs: int, obs_transform: ObsTransform | None = None, progress_bar: bool = False
+    ) -> list[float]:
         """``n_epochs`` epochs on all demo steps; returns the mean NLL of each."""
         return [self.epoch(obs_transform) for _ in _epochs(int(n_epochs), progress_bar, "BC")]
 
@@ -96,10 +98,10 @@ class BehaviourCloner:
         max_epochs: int,
         validation_fraction: float = 0.2,
         patience: int = 20,
-        obs_transform: Optional[ObsTransform] = None,
+        obs_transform: ObsTransform | None = None,
         progress_bar: bool = False,
-        on_epoch: Optional[Callable[[int, float, float], None]] = None,
-    ) -> "EarlyStopping":
+        on_epoch: Callable[[int, float, float], None] | None = None,
+    ) -> EarlyStopping:
         """Train on a random ``1 - validation_fraction`` of the demo steps until the NLL of the
         held-out steps has not improved for ``patience`` epochs (or ``max_epochs``), then restore the
         weights of the best held-out epoch, as DRIL's code does with its train/test split.
@@ -140,7 +142,7 @@ class BehaviourCloner:
         self.optimizer.state.clear()
         return result
 
-    def _observations(self, obs_transform: Optional[ObsTransform]) -> th.Tensor:
+    def _observations(self, obs_transform: ObsTransform | None) -> th.Tensor:
         if self.demos is None:
             raise RuntimeError("BehaviourCloner has no demonstrations: call set_demonstrations() first")
         # VecNormalize statistics move during training, so demo observations are normalised afresh.
@@ -153,13 +155,13 @@ class EarlyStopping:
     """What :meth:`BehaviourCloner.train_early_stopping` did: per-epoch NLLs (``validation_nll[0]``
     is before the first epoch), the epoch whose weights were kept, and the epochs run."""
 
-    train_nll: List[float] = dataclasses.field(default_factory=list)
-    validation_nll: List[float] = dataclasses.field(default_factory=list)
+    train_nll: list[float] = dataclasses.field(default_factory=list)
+    validation_nll: list[float] = dataclasses.field(default_factory=list)
     best_epoch: int = 0
     epochs: int = 0
 
 
-def _snapshot(module: th.nn.Module) -> Dict[str, th.Tensor]:
+def _snapshot(module: th.nn.Module) -> dict[str, th.Tensor]:
     return {k: v.detach().clone() for k, v in module.state_dict().items()}
 
 

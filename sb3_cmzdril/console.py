@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from typing import Iterator
+from collections.abc import Iterator
 
 #: The logger above every module of the package.
 LIBRARY_LOGGER = "sb3_cmzdril"

@@ -12,7 +12,8 @@ stable-baselines3/gymnasium releases than this package needs. Minari is an optio
 from __future__ import annotations
 
 import warnings
-from typing import Any, Dict, Iterable, List, Mapping, Optional
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +43,7 @@ def _steps_array(value: Any, what: str) -> np.ndarray:
     return array
 
 
-def trajectory_episodes(trajectories: Iterable[Any]) -> List[Dict[str, Any]]:
+def trajectory_episodes(trajectories: Iterable[Any]) -> list[dict[str, Any]]:
     """Episode dicts from imitation-style trajectories.
 
     Each trajectory is an object or a mapping with ``obs`` (T + 1 observations), ``acts`` (T
@@ -78,7 +79,7 @@ def trajectory_episodes(trajectories: Iterable[Any]) -> List[Dict[str, Any]]:
     return episodes
 
 
-def _storable_seeds(seeds: List[Optional[int]], source: str) -> List[Optional[int]]:
+def _storable_seeds(seeds: list[int | None], source: str) -> list[int | None]:
     """Seeds that fit the int64 field; larger ones become unknown, with one warning."""
     too_big = {i for i, s in enumerate(seeds) if s is not None and not 0 <= s <= _MAX_SEED}
     if too_big:
@@ -92,7 +93,7 @@ def _storable_seeds(seeds: List[Optional[int]], source: str) -> List[Optional[in
     return [None if i in too_big else s for i, s in enumerate(seeds)]
 
 
-def minari_episodes(dataset_or_id: Any) -> List[Dict[str, Any]]:
+def minari_episodes(dataset_or_id: Any) -> list[dict[str, Any]]:
     """Episode dicts (with reset seeds where recorded) from a Minari dataset or a local dataset id.
 
     An id is loaded with ``minari.load_dataset(id, download=False)``: from ``MINARI_DATASETS_PATH``

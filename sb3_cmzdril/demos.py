@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import warnings
 import zipfile
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Union
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -48,8 +49,8 @@ class Demonstrations:
         observations: np.ndarray,
         actions: np.ndarray,
         episode_lengths: Sequence[int],
-        rewards: Optional[np.ndarray] = None,
-        seeds: Optional[Sequence[int]] = None,
+        rewards: np.ndarray | None = None,
+        seeds: Sequence[int] | None = None,
     ) -> None:
         obs = np.asarray(observations)
         act = np.asarray(actions)
@@ -78,7 +79,7 @@ class Demonstrations:
                 raise ValueError(f"rewards have {len(rew)} entries but there are {len(obs)} steps")
             _finite("rewards", rew)
             rewards = rew
-        self.rewards: Optional[np.ndarray] = rewards
+        self.rewards: np.ndarray | None = rewards
         self.episode_lengths = lengths
         if seeds is None:
             seeds = np.full(lengths.size, UNKNOWN_SEED, dtype=np.int64)
@@ -91,7 +92,7 @@ class Demonstrations:
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
-    def from_episodes(cls, episodes: Iterable[Mapping[str, Any]]) -> "Demonstrations":
+    def from_episodes(cls, episodes: Iterable[Mapping[str, Any]]) -> Demonstrations:
         """Build from dicts with ``observations`` and ``actions`` (and optional ``rewards``, ``seed``)."""
         episodes = list(episodes)
         if not episodes:
@@ -119,7 +120,7 @@ class Demonstrations:
         )
 
     @classmethod
-    def from_trajectories(cls, trajectories: Iterable[Any]) -> "Demonstrations":
+    def from_trajectories(cls, trajectories: Iterable[Any]) -> Demonstrations:
         """Build from imitation-style trajectories (``imitation.data.types.Trajectory`` or dicts).
 
         Each has ``obs`` (T + 1 observations, the final one is dropped), ``acts`` (T actions) and
@@ -131,7 +132,7 @@ class Demonstrations:
         return cls.from_episodes(trajectory_episodes(trajectories))
 
     @classmethod
-    def from_minari(cls, dataset_or_id: Any) -> "Demonstrations":
+    def from_minari(cls, dataset_or_id: Any) -> Demonstrations:
         """Build from a ``minari.MinariDataset`` or the id of a locally stored one (never downloads).
 
         Episodes keep the reset seeds their metadata records. Needs the ``minari`` extra. See
@@ -142,7 +143,7 @@ class Demonstrations:
         return cls.from_episodes(minari_episodes(dataset_or_id))
 
     @classmethod
-    def load(cls, path: PathLike) -> "Demonstrations":
+    def load(cls, path: PathLike) -> Demonstrations:
         """Load a file written by :meth:`save`; clear errors for a missing or corrupt file."""
         path = Path(path)
         if not path.is_file():
@@ -168,7 +169,7 @@ class Demonstrations:
 
     def save(self, path: PathLike) -> None:
         """Write a compressed npz atomically (temp file + rename)."""
-        arrays: Dict[str, np.ndarray] = {
+        arrays: dict[str, np.ndarray] = {
             "format_version": np.asarray(FORMAT_VERSION),
             "observations": self.observations,
             "actions": self.actions,
@@ -194,13 +195,13 @@ class Demonstrations:
         return np.concatenate([[0], np.cumsum(self.episode_lengths)[:-1]]).astype(np.int64)
 
     @property
-    def episode_returns(self) -> Optional[np.ndarray]:
+    def episode_returns(self) -> np.ndarray | None:
         """Sum of rewards of each episode, or None without rewards."""
         if self.rewards is None:
             return None
         return np.add.reduceat(self.rewards.astype(np.float64), self.episode_starts)
 
-    def episode(self, index: int) -> Dict[str, Any]:
+    def episode(self, index: int) -> dict[str, Any]:
         """One episode as a dict: observations, actions, rewards (or None), seed."""
         if not -self.n_episodes <= index < self.n_episodes:
             raise IndexError(f"episode {index} out of range for {self.n_episodes} episodes")
@@ -214,7 +215,7 @@ class Demonstrations:
             "seed": int(self.seeds[index]),
         }
 
-    def select(self, episode_indices: Iterable[int]) -> "Demonstrations":
+    def select(self, episode_indices: Iterable[int]) -> Demonstrations:
         """A new Demonstrations holding only those episodes, in the order given."""
         indices = [int(i) for i in episode_indices]
         if not indices:
@@ -231,7 +232,7 @@ class Demonstrations:
         )
 
     # -- validation ---------------------------------------------------------------------------
-    def check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> "Demonstrations":
+    def check_spaces(self, observation_space: spaces.Space, action_space: spaces.Space) -> Demonstrations:
         """Check the demos against an env's spaces; return the demos to train on.
 
         Raises ``ValueError`` naming the mismatch (unsupported space, observation or action shape,
@@ -286,7 +287,7 @@ class Demonstrations:
         return Demonstrations(self.observations, clipped, self.episode_lengths, self.rewards, self.seeds)
 
 
-def as_demonstrations(demos: Union[Demonstrations, PathLike, List[Mapping[str, Any]]]) -> Demonstrations:
+def as_demonstrations(demos: Demonstrations | PathLike | list[Mapping[str, Any]]) -> Demonstrations:
     """Accept a Demonstrations, a path to a saved file, or a list of episode dicts."""
     if isinstance(demos, Demonstrations):
         return demos

@@ -23,8 +23,9 @@ Disagreement forms (``disagreement=``):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Dict, Optional, Sequence
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -90,7 +91,7 @@ class BCEnsemble(nn.Module):
         sizes = [self.obs_dim, *hidden_sizes, self.out_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
-        for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
+        for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
             # nn.Linear's default initialisation, drawn independently for every member.
             bound = 1.0 / math.sqrt(fan_in)
             self.weights.append(nn.Parameter((th.rand(self.n_members, fan_out, fan_in, generator=gen) * 2 - 1) * bound))
@@ -105,8 +106,8 @@ class BCEnsemble(nn.Module):
         self.register_buffer("action_low", th.as_tensor(low))
         self.register_buffer("action_high", th.as_tensor(high))
         self.register_buffer("fitted", th.zeros((), dtype=th.bool))
-        self.train_loss_: Optional[np.ndarray] = None
-        self._np_cache: Optional[Dict[str, Any]] = None
+        self.train_loss_: np.ndarray | None = None
+        self._np_cache: dict[str, Any] | None = None
 
     # -- torch forward (fitting) -------------------------------------------------------------
     def forward(self, obs: th.Tensor) -> th.Tensor:
@@ -115,7 +116,7 @@ class BCEnsemble(nn.Module):
             obs = obs.unsqueeze(0).expand(self.n_members, -1, -1)
         h = (obs - self.obs_mean) / self.obs_std
         last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             h = th.baddbmm(b.unsqueeze(1), h, w.transpose(1, 2))
             if i < last:
                 h = th.relu(h)
@@ -128,13 +129,16 @@ class BCEnsemble(nn.Module):
         batch_size: int = 64,
         learning_rate: float = 1e-3,
         progress_bar: bool = False,
-    ) -> "BCEnsemble":
+    ) -> BCEnsemble:
         """Fit every member on its own bootstrap resample of the demo steps (MSE on clipped actions
         for Box, cross-entropy for Discrete). Returns ``self``; ``train_loss_`` holds each member's
         loss over the last epoch."""
         demos = demos.check_spaces(self.observation_space, self.action_space)
         if n_epochs < 1 or batch_size < 1 or learning_rate <= 0:
-            raise ValueError(f"need n_epochs >= 1, batch_size >= 1, learning_rate > 0; got {n_epochs}, {batch_size}, {learning_rate}")
+            raise ValueError(
+                "need n_epochs >= 1, batch_size >= 1, learning_rate > 0; "
+                f"got {n_epochs}, {batch_size}, {learning_rate}"
+            )
         device = self.obs_mean.device  # fit where the module lives (SB3's device="auto" may be CUDA)
         mean, std = observation_statistics(demos.observations)
         with th.no_grad():
@@ -157,7 +161,9 @@ class BCEnsemble(nn.Module):
         if progress_bar:
             from sb3_cmzdril.extras import require_extra
 
-            epochs = require_extra("tqdm.auto", "experiments", "progress_bar=True").tqdm(epochs, desc="fit ensemble", leave=False)
+            epochs = require_extra("tqdm.auto", "experiments", "progress_bar=True").tqdm(
+                epochs, desc="fit ensemble", leave=False
+            )
         self.train()
         epoch_loss = np.zeros(self.n_members)
         for _ in epochs:
@@ -167,9 +173,13 @@ class BCEnsemble(nn.Module):
                 idx = th.as_tensor(order[:, start : start + batch_size], device=device)
                 out = self(obs[idx])
                 if self.discrete:
-                    per_member = nn.functional.cross_entropy(
-                        out.reshape(-1, self.out_dim), targets[idx].reshape(-1), reduction="none"
-                    ).view(self.n_members, -1).mean(1)
+                    per_member = (
+                        nn.functional.cross_entropy(
+                            out.reshape(-1, self.out_dim), targets[idx].reshape(-1), reduction="none"
+                        )
+                        .view(self.n_members, -1)
+                        .mean(1)
+                    )
                 else:
                     per_member = ((out - targets[idx]) ** 2).mean(dim=(1, 2))
                 optimizer.zero_grad(set_to_none=True)
@@ -185,7 +195,7 @@ class BCEnsemble(nn.Module):
         return self
 
     # -- numpy inference (scoring) -----------------------------------------------------------
-    def _numpy_params(self) -> Dict[str, Any]:
+    def _numpy_params(self) -> dict[str, Any]:
         if self._np_cache is None:
             if not bool(self.fitted):
                 raise RuntimeError("BCEnsemble is not fitted: call fit(demonstrations) first")
@@ -228,7 +238,7 @@ class BCEnsemble(nn.Module):
         np.subtract(x, p["mean"], out=h)
         np.multiply(h, p["inv_std"], out=h)
         last = len(p["W"]) - 1
-        for i, (w, b) in enumerate(zip(p["W"], p["b"])):
+        for i, (w, b) in enumerate(zip(p["W"], p["b"], strict=True)):
             out = bufs[i]
             np.matmul(h, w, out=out)
             np.add(out, b, out=out)
@@ -265,7 +275,7 @@ class BCEnsemble(nn.Module):
         """Whether :meth:`disagreement` uses the agent's actions."""
         return self.discrete or self.disagreement_form == "quadratic"
 
-    def disagreement(self, obs: np.ndarray, actions: Optional[np.ndarray] = None) -> np.ndarray:
+    def disagreement(self, obs: np.ndarray, actions: np.ndarray | None = None) -> np.ndarray:
         """Disagreement ``u`` for each observation, (B,) float64 (see the module docstring)."""
         out = self.member_outputs(obs)
         batch = out.shape[1]
@@ -310,7 +320,7 @@ class BCEnsemble(nn.Module):
         self._np_cache = None
         return result
 
-    def _config(self) -> Dict[str, Any]:
+    def _config(self) -> dict[str, Any]:
         act = self.action_space
         return {
             "obs_shape": list(self.obs_shape),
@@ -332,7 +342,7 @@ class BCEnsemble(nn.Module):
             th.save({"config": self._config(), "state_dict": self.state_dict()}, tmp)
 
     @classmethod
-    def load(cls, path: PathLike) -> "BCEnsemble":
+    def load(cls, path: PathLike) -> BCEnsemble:
         """Load an ensemble written by :meth:`save`."""
         path = Path(path)
         if not path.is_file():
@@ -369,7 +379,9 @@ def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> 
     if not 0.0 < q <= 1.0:
         raise ValueError(f"quantile q must lie in (0, 1], got {q}")
     u = np.concatenate(
-        [ensemble.disagreement(demos.observations[i : i + 4096], demos.actions[i : i + 4096]) for i in range(0, len(demos), 4096)]
+        [
+            ensemble.disagreement(demos.observations[i : i + 4096], demos.actions[i : i + 4096])
+            for i in range(0, len(demos), 4096)
+        ]
     )
     return float(np.quantile(u, q))
-

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib
 from types import ModuleType
-from typing import Optional
 
 #: The extras pyproject.toml defines (``pip install 'sb3-cmzdril[<extra>]'``).
 EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "test", "all")
@@ -19,7 +18,7 @@ class MissingExtraError(ImportError):
     """An optional dependency is not installed; the message names the extra that provides it."""
 
 
-def require_extra(module: str, extra: str, feature: Optional[str] = None) -> ModuleType:
+def require_extra(module: str, extra: str, feature: str | None = None) -> ModuleType:
     """Import ``module`` and return it, or raise :class:`MissingExtraError` naming ``extra``.
 
     :param module: the importable name, e.g. ``"matplotlib.pyplot"`` or ``"ray"``.

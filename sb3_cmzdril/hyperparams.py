@@ -23,8 +23,9 @@ from __future__ import annotations
 import ast
 import copy
 import dataclasses
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Union
+from typing import Any
 
 import yaml
 
@@ -78,7 +79,9 @@ def parse_schedule(value: Any, key: str = "learning_rate") -> Any:
                 return LinearSchedule(float(number))
             except ValueError:
                 pass
-        raise ValueError(f"invalid schedule for {key}: {value!r} (expected a number or 'lin_<float>', e.g. 'lin_7.3e-4')")
+        raise ValueError(
+            f"invalid schedule for {key}: {value!r} (expected a number or 'lin_<float>', e.g. 'lin_7.3e-4')"
+        )
     if isinstance(value, bool) or not isinstance(value, (int, float)) and not callable(value):
         raise ValueError(f"invalid value for {key}: {value!r}")
     return value
@@ -95,7 +98,7 @@ _MODULE_ALIASES = {
 }
 
 
-def _attribute_chain(node: ast.AST) -> Optional[list]:
+def _attribute_chain(node: ast.AST) -> list | None:
     names = []
     while isinstance(node, ast.Attribute):
         names.append(node.attr)
@@ -137,7 +140,9 @@ def safe_eval(text: str) -> Any:
 
     def fail(node: ast.AST, why: str = "not allowed") -> ValueError:
         segment = ast.get_source_segment(source, node) or ast.dump(node)
-        return ValueError(f"{why}: {segment!r} in {text!r} (only literals, lists, dicts, dict(...) and nn.<Name> are accepted)")
+        return ValueError(
+            f"{why}: {segment!r} in {text!r} (only literals, lists, dicts, dict(...) and nn.<Name> are accepted)"
+        )
 
     def conv(node: ast.AST) -> Any:
         if isinstance(node, ast.Constant):
@@ -156,7 +161,7 @@ def safe_eval(text: str) -> Any:
         if isinstance(node, ast.Dict):
             if any(k is None for k in node.keys):
                 raise fail(node, "'**' unpacking is not allowed")
-            return {conv(k): conv(v) for k, v in zip(node.keys, node.values)}
+            return {conv(k): conv(v) for k, v in zip(node.keys, node.values, strict=True)}
         if isinstance(node, ast.Call):
             if isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
                 if any(kw.arg is None for kw in node.keywords):
@@ -186,21 +191,21 @@ class Hyperparams:
 
     env_id: str
     key: str
-    path: Optional[str]
-    raw: Dict[str, Any]
-    n_timesteps: Optional[int] = None
-    policy: Optional[str] = None
+    path: str | None
+    raw: dict[str, Any]
+    n_timesteps: int | None = None
+    policy: str | None = None
     n_envs: int = 1
-    policy_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
-    env_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    policy_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
     normalize: Any = None
     env_wrapper: Any = None
     vec_env_wrapper: Any = None
     callback: Any = None
     frame_stack: Any = None
-    algo_kwargs: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    algo_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
 
-    def model_kwargs(self) -> Dict[str, Any]:
+    def model_kwargs(self) -> dict[str, Any]:
         """Constructor kwargs: ``algo_kwargs`` plus ``policy_kwargs`` when there are any."""
         kwargs = dict(self.algo_kwargs)
         if self.policy_kwargs:
@@ -224,7 +229,7 @@ class Hyperparams:
 # -- constructor arguments ---------------------------------------------------------------------------
 #: Checks for the plain types that constructor annotations name; an annotation naming anything else
 #: (``torch.device``, ``ActionNoise``, a class) is not checked here but by the constructor itself.
-_TYPE_CHECKS: Dict[str, Callable[[Any], bool]] = {
+_TYPE_CHECKS: dict[str, Callable[[Any], bool]] = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
     "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
     "bool": lambda v: isinstance(v, bool),
@@ -241,11 +246,18 @@ _TYPE_CHECKS: Dict[str, Callable[[Any], bool]] = {
     "dict": lambda v: isinstance(v, dict),
     "Dict": lambda v: isinstance(v, dict),
 }
-_TYPE_NAMES = {"Callable": "a schedule", "Schedule": "a schedule", "NoneType": "None", "Tuple": "tuple", "Sequence": "list",
-               "List": "list", "Dict": "dict"}
+_TYPE_NAMES = {
+    "Callable": "a schedule",
+    "Schedule": "a schedule",
+    "NoneType": "None",
+    "Tuple": "tuple",
+    "Sequence": "list",
+    "List": "list",
+    "Dict": "dict",
+}
 
 
-def _split_top_level(text: str, sep: str) -> List[str]:
+def _split_top_level(text: str, sep: str) -> list[str]:
     """``text`` split at ``sep`` outside brackets: ``"a[b, c], d"`` -> ``["a[b, c]", "d"]``."""
     parts, depth, start = [], 0, 0
     for i, ch in enumerate(text):
@@ -257,7 +269,7 @@ def _split_top_level(text: str, sep: str) -> List[str]:
     return [part.strip() for part in parts if part.strip()]
 
 
-def annotation_alternatives(annotation: Any) -> List[str]:
+def annotation_alternatives(annotation: Any) -> list[str]:
     """The type names an annotation allows at its top level, for real and string annotations alike.
 
     ``int`` -> ``["int"]``; ``"Optional[Dict[str, Any]]"`` -> ``["Dict", "None"]``;
@@ -265,7 +277,7 @@ def annotation_alternatives(annotation: Any) -> List[str]:
     """
     if isinstance(annotation, type):
         return [annotation.__name__]
-    names: List[str] = []
+    names: list[str] = []
     for part in _split_top_level(annotation if isinstance(annotation, str) else str(annotation), "|"):
         head, _, inner = part.partition("[")
         head = head.strip().rsplit(".", 1)[-1]
@@ -280,7 +292,7 @@ def annotation_alternatives(annotation: Any) -> List[str]:
     return names
 
 
-def check_constructor_kwargs(hp: "Hyperparams", classes: Sequence[type]) -> None:
+def check_constructor_kwargs(hp: Hyperparams, classes: Sequence[type]) -> None:
     """ValueError, naming the file and the key, for an ``algo_kwargs`` entry that no class in
     ``classes`` accepts or whose value has a type its annotation rules out.
 
@@ -290,7 +302,7 @@ def check_constructor_kwargs(hp: "Hyperparams", classes: Sequence[type]) -> None
     """
     import inspect
 
-    parameters: Dict[str, inspect.Parameter] = {}
+    parameters: dict[str, inspect.Parameter] = {}
     for cls in classes:
         for name, parameter in inspect.signature(cls.__init__).parameters.items():
             if parameter.kind not in (parameter.VAR_KEYWORD, parameter.VAR_POSITIONAL):
@@ -310,10 +322,12 @@ def check_constructor_kwargs(hp: "Hyperparams", classes: Sequence[type]) -> None
             continue
         if not any(_TYPE_CHECKS[a](value) for a in allowed):
             expected = " or ".join(dict.fromkeys(_TYPE_NAMES.get(a, a) for a in allowed))
-            raise ValueError(f"{where}: {name} must be {expected}, got {hp.raw.get(name, value)!r} ({type(value).__name__})")
+            raise ValueError(
+                f"{where}: {name} must be {expected}, got {hp.raw.get(name, value)!r} ({type(value).__name__})"
+            )
 
 
-def _entry_key(available: Iterable[str], env_id: str) -> Optional[str]:
+def _entry_key(available: Iterable[str], env_id: str) -> str | None:
     keys = list(available)
     if env_id in keys:
         return env_id
@@ -326,7 +340,7 @@ def _entry_key(available: Iterable[str], env_id: str) -> Optional[str]:
     return None
 
 
-def split_hyperparams(entry: Dict[str, Any], env_id: str = "", key: str = "", path: Optional[str] = None) -> Hyperparams:
+def split_hyperparams(entry: dict[str, Any], env_id: str = "", key: str = "", path: str | None = None) -> Hyperparams:
     """Split one zoo entry (a dict) into special keys and algorithm kwargs, with pre-processing."""
     if not isinstance(entry, dict):
         raise ValueError(f"hyperparameters {key!r} in {path}: expected a mapping, got {type(entry).__name__}")
@@ -374,7 +388,7 @@ def split_hyperparams(entry: Dict[str, Any], env_id: str = "", key: str = "", pa
     return hp
 
 
-def read_hyperparams_file(path: Union[str, Path]) -> Dict[str, Any]:
+def read_hyperparams_file(path: str | Path) -> dict[str, Any]:
     """The whole YAML file as a dict; clear errors for a missing or malformed file."""
     path = Path(path)
     if not path.is_file():
@@ -390,7 +404,7 @@ def read_hyperparams_file(path: Union[str, Path]) -> Dict[str, Any]:
     return data
 
 
-def load_hyperparams(path: Union[str, Path], env_id: str) -> Hyperparams:
+def load_hyperparams(path: str | Path, env_id: str) -> Hyperparams:
     """Load the entry for ``env_id`` from a zoo YAML file (exact id, id without ``module:``, ``default``)."""
     data = read_hyperparams_file(path)
     key = _entry_key(data.keys(), env_id)

@@ -20,8 +20,9 @@ import platform
 import shlex
 import sys
 import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import IO, Any, Dict, Iterator, Optional, Sequence, Union
+from typing import IO, Any, Union
 
 import numpy as np
 
@@ -121,12 +122,12 @@ def jsonable(value: Any) -> Any:
     return repr(value)
 
 
-def write_json(path: PathLike, data: Dict[str, Any]) -> None:
+def write_json(path: PathLike, data: dict[str, Any]) -> None:
     """Write ``data`` (made :func:`jsonable`) to ``path`` atomically, indented, keys in order."""
     atomic_write_text(path, json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")
 
 
-def read_json(path: PathLike) -> Dict[str, Any]:
+def read_json(path: PathLike) -> dict[str, Any]:
     """The JSON content of ``path``; a ValueError naming the file when it is unreadable or corrupt."""
     path = Path(path)
     try:
@@ -135,7 +136,7 @@ def read_json(path: PathLike) -> Dict[str, Any]:
         raise ValueError(f"{path} is unreadable or corrupt: {e}") from e
 
 
-def read_json_or_empty(path: PathLike) -> Dict[str, Any]:
+def read_json_or_empty(path: PathLike) -> dict[str, Any]:
     """A JSON object file, or {} when it is missing, unreadable or not an object."""
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -145,7 +146,7 @@ def read_json_or_empty(path: PathLike) -> Dict[str, Any]:
 
 
 # -- locks -----------------------------------------------------------------------------------------
-def lock_output(folder: Path, message: Optional[str] = None) -> Optional[IO[str]]:
+def lock_output(folder: Path, message: str | None = None) -> IO[str] | None:
     """Hold an exclusive lock on ``folder`` (its :data:`LOCK_FILE`) until :func:`unlock_output`.
 
     The lock is the operating system's (``flock``), so it ends with the process, however it ends.
@@ -168,7 +169,7 @@ def lock_output(folder: Path, message: Optional[str] = None) -> Optional[IO[str]
     return handle
 
 
-def unlock_output(folder: Path, handle: Optional[IO[str]]) -> None:
+def unlock_output(folder: Path, handle: IO[str] | None) -> None:
     """Release a lock of :func:`lock_output` and remove its file."""
     if handle is None:
         return
@@ -178,7 +179,7 @@ def unlock_output(folder: Path, handle: Optional[IO[str]]) -> None:
 
 
 # -- provenance ------------------------------------------------------------------------------------
-def versions() -> Dict[str, str]:
+def versions() -> dict[str, str]:
     """Versions of Python and of the packages that decide a result, for metadata records."""
     import gymnasium as gym
     import stable_baselines3
@@ -203,6 +204,6 @@ def versions() -> Dict[str, str]:
     return found
 
 
-def command_line(argv: Optional[Sequence[str]] = None) -> str:
+def command_line(argv: Sequence[str] | None = None) -> str:
     """The command line as typed (``sys.argv`` by default), shell-quoted."""
     return shlex.join(list(sys.argv if argv is None else argv))

@@ -14,7 +14,7 @@ ones it was cloned on. They are buffers of the policy, so they travel with ``mod
 from __future__ import annotations
 
 import inspect
-from typing import Any, Dict, Optional, Tuple
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -26,7 +26,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, Flatten
 MIN_OBS_STD = 1e-2
 
 
-def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_STD) -> Tuple[np.ndarray, np.ndarray]:
+def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_STD) -> tuple[np.ndarray, np.ndarray]:
     """Per-dimension mean and std (population, floored at ``min_std``) of flattened observations.
 
     The one place the standardisation statistics are computed, so the policy and the ensemble agree.
@@ -60,7 +60,9 @@ class DemoStandardizer(BaseFeaturesExtractor):
         mean = np.asarray(mean, dtype=np.float32).reshape(-1)
         std = np.asarray(std, dtype=np.float32).reshape(-1)
         if mean.shape != self.obs_mean.shape or std.shape != self.obs_std.shape:
-            raise ValueError(f"statistics of shape {mean.shape}/{std.shape} for {self.obs_mean.shape[0]} observation dimensions")
+            raise ValueError(
+                f"statistics of shape {mean.shape}/{std.shape} for {self.obs_mean.shape[0]} observation dimensions"
+            )
         if not (np.isfinite(mean).all() and np.isfinite(std).all() and (std > 0).all()):
             raise ValueError("observation statistics must be finite with a positive std")
         with th.no_grad():
@@ -71,7 +73,7 @@ class DemoStandardizer(BaseFeaturesExtractor):
         return (self.flatten(observations) - self.obs_mean) / self.obs_std
 
 
-def standardizing_policy_kwargs(policy_class: type, policy_kwargs: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+def standardizing_policy_kwargs(policy_class: type, policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
     """``policy_kwargs`` with :class:`DemoStandardizer` as the features extractor.
 
     Refuses (ValueError) a features extractor of the user's, and a policy whose default extractor is
@@ -83,7 +85,8 @@ def standardizing_policy_kwargs(policy_class: type, policy_kwargs: Optional[Dict
     if current not in (None, DemoStandardizer):
         raise ValueError(
             f"standardize_observations=True puts DemoStandardizer in place of the features extractor, but "
-            f"policy_kwargs asks for {getattr(current, '__name__', current)}; pass standardize_observations=False to keep yours"
+            f"policy_kwargs asks for {getattr(current, '__name__', current)}; "
+            f"pass standardize_observations=False to keep yours"
         )
     default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
     if current is None and (default is None or default.default is not FlattenExtractor):
@@ -95,7 +98,7 @@ def standardizing_policy_kwargs(policy_class: type, policy_kwargs: Optional[Dict
     return kwargs
 
 
-def _gaussian_log_std(policy: Any) -> Optional[th.Tensor]:
+def _gaussian_log_std(policy: Any) -> th.Tensor | None:
     # A state-independent Gaussian has a log_std parameter; gSDE's log_std means something else.
     log_std = getattr(policy, "log_std", None)
     return log_std if isinstance(log_std, th.Tensor) and not getattr(policy, "use_sde", False) else None
@@ -115,4 +118,11 @@ def floor_log_std(policy: Any, floor: float) -> None:
             log_std.clamp_(min=float(floor))
 
 
-__all__ = ["DemoStandardizer", "mean_log_std", "floor_log_std", "observation_statistics", "standardizing_policy_kwargs", "MIN_OBS_STD"]
+__all__ = [
+    "DemoStandardizer",
+    "mean_log_std",
+    "floor_log_std",
+    "observation_statistics",
+    "standardizing_policy_kwargs",
+    "MIN_OBS_STD",
+]

@@ -16,7 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -28,7 +28,7 @@ from sb3_cmzdril.demos import Demonstrations
 class DisagreementModel(Protocol):
     """Anything that scores observations (and optionally actions) with a disagreement per row."""
 
-    def disagreement(self, obs: np.ndarray, actions: Optional[np.ndarray] = None) -> np.ndarray: ...
+    def disagreement(self, obs: np.ndarray, actions: np.ndarray | None = None) -> np.ndarray: ...
 
 
 class RewardRule:
@@ -43,7 +43,11 @@ class RewardRule:
     def sequence(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         """Rewards of T consecutive steps at once: ``u``, ``env_rewards`` and the result are
         (T, n_envs); the same as T calls of the rule, state included."""
-        return np.stack([self(u_t, r_t) for u_t, r_t in zip(u, env_rewards)]) if len(u) else np.zeros(u.shape, np.float32)
+        return (
+            np.stack([self(u_t, r_t) for u_t, r_t in zip(u, env_rewards, strict=True)])
+            if len(u)
+            else np.zeros(u.shape, np.float32)
+        )
 
     def get_state(self) -> np.ndarray:
         """Per-env state as an array (empty for stateless rules), for saving with a model."""
@@ -73,7 +77,7 @@ class CMZReward(RewardRule):
         self.alpha = float(alpha)
         self.ema = float(ema)
         self.u0 = float(u0)
-        self.ubar: Optional[np.ndarray] = None
+        self.ubar: np.ndarray | None = None
 
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         if self.ubar is None or self.ubar.shape != u.shape:
@@ -97,7 +101,9 @@ class CMZReward(RewardRule):
         if self.ubar is None:
             self.ubar = np.full(u.shape[1:], self.u0, dtype=np.float64)
         elif self.ubar.shape != u.shape[1:]:
-            raise ValueError(f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.shape[1:]} disagreements per step")
+            raise ValueError(
+                f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.shape[1:]} disagreements per step"
+            )
         ubar, final = lfilter([0.0, 1.0 - self.ema], [1.0, -self.ema], u, axis=0, zi=self.ubar[None])
         self.ubar = final[0]
         return (-self.alpha * (u - ubar)).astype(np.float32)
@@ -124,7 +130,7 @@ class DRILReward(RewardRule):
         self.threshold = float(threshold)
 
     @classmethod
-    def from_quantile(cls, ensemble: Any, demos: Demonstrations, q: float = 0.98) -> "DRILReward":
+    def from_quantile(cls, ensemble: Any, demos: Demonstrations, q: float = 0.98) -> DRILReward:
         """Threshold = the q-quantile of u over the demonstrations, with the expert's actions."""
         from sb3_cmzdril.ensemble import quantile_of_disagreement
 
@@ -187,8 +193,8 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
-        self._last_obs: Optional[np.ndarray] = None
-        self._actions: Optional[np.ndarray] = None
+        self._last_obs: np.ndarray | None = None
+        self._actions: np.ndarray | None = None
         self._sum_u = self._sum_reward = 0.0
         self._count = 0
 
@@ -207,7 +213,7 @@ class DisagreementReward(VecEnvWrapper):
         obs, env_rewards, dones, infos = self.venv.step_wait()
         u = self.ensemble.disagreement(self._last_obs, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
-        for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist()):
+        for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist(), strict=True):
             info["env_reward"] = r_env
             info["disagreement"] = u_i
         # After an auto-reset, obs holds the new episode's first observation: the next one acted on.
@@ -217,7 +223,7 @@ class DisagreementReward(VecEnvWrapper):
         self._count += u.size
         return obs, rewards, dones, infos
 
-    def pop_stats(self) -> Dict[str, float]:
+    def pop_stats(self) -> dict[str, float]:
         """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""
         count, self._count = self._count, 0
         total_u, total_r = self._sum_u, self._sum_reward
@@ -229,13 +235,13 @@ class DisagreementReward(VecEnvWrapper):
 
 def make_rule(name: str, **kwargs: Any) -> RewardRule:
     """Build a rule from its name: ``cmz`` (alpha, ema, u0), ``dril`` (threshold), ``zero``, ``env``."""
-    rules: Dict[str, Any] = {r.name: r for r in (CMZReward, DRILReward, ZeroReward, EnvReward)}
+    rules: dict[str, Any] = {r.name: r for r in (CMZReward, DRILReward, ZeroReward, EnvReward)}
     if name not in rules:
         raise ValueError(f"unknown reward {name!r}; choose one of {sorted(rules)}")
     return rules[name](**kwargs)
 
 
-__all__: List[str] = [
+__all__: list[str] = [
     "RewardRule",
     "CMZReward",
     "DRILReward",

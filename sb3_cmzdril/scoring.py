@@ -18,7 +18,7 @@ env stack: a reward-normalising VecNormalize (it must see the shaped reward as i
 """
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -34,8 +34,8 @@ class RolloutScorer(BaseCallback):
     def __init__(self, rescore: bool) -> None:
         super().__init__()
         self.rescore = bool(rescore)
-        self._env_rewards: Optional[np.ndarray] = None
-        self._raw_obs: Optional[np.ndarray] = None
+        self._env_rewards: np.ndarray | None = None
+        self._raw_obs: np.ndarray | None = None
         self._vec_normalize: Any = None
         self._t = 0
 

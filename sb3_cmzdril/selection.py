@@ -11,7 +11,7 @@ evaluation calls epoch ``k``; epoch 0 is the behaviour-cloned start.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -31,8 +31,8 @@ class LowestDisagreementPolicy(BaseCallback):
     def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.best_u = float("inf")
-        self.best_epoch: Optional[int] = None
-        self.best_state: Optional[Dict[str, th.Tensor]] = None
+        self.best_epoch: int | None = None
+        self.best_state: dict[str, th.Tensor] | None = None
         self._epoch = 0
 
     def _on_rollout_start(self) -> None:

@@ -17,8 +17,9 @@ import argparse
 import importlib
 import numbers
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, List, Optional, Sequence, Type
+from typing import Any
 
 from sb3_cmzdril.algorithm import CMZDRIL, DemosLike
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
@@ -61,7 +62,7 @@ def default_demos_path(env: Any) -> Path:
     )
 
 
-def first_episodes(demos: Demonstrations, n_demos: Optional[int]) -> Demonstrations:
+def first_episodes(demos: Demonstrations, n_demos: int | None) -> Demonstrations:
     """The first ``n_demos`` episodes (all of them for None)."""
     if n_demos is None:
         return demos
@@ -84,7 +85,7 @@ class ZooCMZDRIL(CMZDRIL):
         policy: Any,
         env: Any,
         demonstrations: DemosLike = None,
-        n_demos: Optional[int] = None,
+        n_demos: int | None = None,
         **kwargs: Any,
     ) -> None:
         # load() builds the object with _init_setup_model=False and then restores the saved demos.
@@ -101,13 +102,13 @@ class ZooCMZDRIL(CMZDRIL):
         path: Any,
         env: Any = None,
         device: Any = "auto",
-        custom_objects: Optional[dict] = None,
+        custom_objects: dict | None = None,
         print_system_info: bool = False,
         force_reset: bool = True,
         demonstrations: DemosLike = None,
-        n_demos: Optional[int] = None,
+        n_demos: int | None = None,
         **kwargs: Any,
-    ) -> "ZooCMZDRIL":
+    ) -> ZooCMZDRIL:
         """CMZDRIL's load; the zoo's ``-i agent.zip`` passes the YAML's keys, so ``n_demos`` applies to
         ``demonstrations`` when those are given (otherwise the saved demos are kept)."""
         if demonstrations is not None:
@@ -118,7 +119,7 @@ class ZooCMZDRIL(CMZDRIL):
         )
 
 
-def register(name: str = ALGO) -> Type[ZooCMZDRIL]:
+def register(name: str = ALGO) -> type[ZooCMZDRIL]:
     """Add :class:`ZooCMZDRIL` to rl-zoo3's algorithm table(s) under ``name``; idempotent."""
     require_extra("rl_zoo3", "zoo", feature="sb3_cmzdril.zoo")
     for module_name in _ZOO_MODULES:
@@ -134,7 +135,7 @@ def register(name: str = ALGO) -> Type[ZooCMZDRIL]:
     return ZooCMZDRIL
 
 
-def zoo_argv(argv: Sequence[str]) -> List[str]:
+def zoo_argv(argv: Sequence[str]) -> list[str]:
     """The zoo's arguments with ``--algo cmzdril`` and our ``--conf-file`` added when absent."""
     argv = list(argv)
     # The zoo's own spellings (argparse also accepts unambiguous prefixes and --flag=value).
@@ -158,7 +159,7 @@ def zoo_argv(argv: Sequence[str]) -> List[str]:
     return argv
 
 
-def main(argv: Optional[Sequence[str]] = None) -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     """Run rl-zoo3's ``train`` with cmzdril registered (``argv`` defaults to ``sys.argv[1:]``)."""
     register()
     from rl_zoo3.train import train

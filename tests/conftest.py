@@ -1,7 +1,8 @@
 """Shared fixtures: small scripted-expert demonstrations and tiny model settings."""
 from __future__ import annotations
 
-from typing import Any, Callable, Dict
+from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -26,7 +27,9 @@ def cartpole_expert(obs: np.ndarray) -> np.ndarray:
     return (obs[:, 2] + 0.5 * obs[:, 3] > 0).astype(np.int64)
 
 
-def record(env_id: str, policy: Callable[[np.ndarray], np.ndarray], n_episodes: int, max_steps: int, seed: int = 0) -> Demonstrations:
+def record(
+    env_id: str, policy: Callable[[np.ndarray], np.ndarray], n_episodes: int, max_steps: int, seed: int = 0
+) -> Demonstrations:
     env = gym.make(env_id)
     episodes = []
     for i in range(n_episodes):
@@ -56,7 +59,7 @@ def cartpole_demos() -> Demonstrations:
 
 
 #: settings that keep a CMZDRIL model tiny and its learn() calls to a fraction of a second
-TINY: Dict[str, Any] = dict(
+TINY: dict[str, Any] = dict(
     n_steps=64,
     batch_size=32,
     n_epochs=2,

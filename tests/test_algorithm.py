@@ -52,7 +52,9 @@ def test_bc_epoch_after_each_update_and_disabled(pendulum_demos):
     before = [p.detach().clone() for p in off.policy.parameters()]
     off.bc.epoch = lambda *a, **k: pytest.fail("no BC epoch expected")
     off.learn(64)
-    assert any(not np.allclose(b, p.detach()) for b, p in zip(before, off.policy.parameters()))  # PPO still updated
+    assert any(
+        not np.allclose(b, p.detach()) for b, p in zip(before, off.policy.parameters(), strict=True)
+    )  # PPO still updated
 
 
 def test_wrapper_reports_true_return_to_monitor_and_callbacks(pendulum_demos):
@@ -104,21 +106,27 @@ def test_load_with_other_demonstrations_and_other_n_envs(pendulum_demos, tmp_pat
     model.save(tmp_path / "a.zip")
     one = pendulum_demos.select([0])
     with pytest.warns(UserWarning, match="reward state is for 1 envs but the model now has 3"):
-        loaded = CMZDRIL.load(tmp_path / "a.zip", env=DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 3), demonstrations=one)
+        loaded = CMZDRIL.load(
+            tmp_path / "a.zip", env=DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 3), demonstrations=one
+        )
     assert loaded.demonstrations.n_episodes == 1
     assert np.allclose(loaded.reward_rule.get_state(), model.reward_rule.get_state()[0])
     loaded.learn(192, reset_num_timesteps=False)
 
 
 def _rollout_of(env_fn, pendulum_demos, **kwargs) -> CMZDRIL:
-    model = CMZDRIL("MlpPolicy", env_fn(), demonstrations=pendulum_demos, **{**TINY, "n_steps": 160, "batch_size": 80, **kwargs})
+    model = CMZDRIL(
+        "MlpPolicy", env_fn(), demonstrations=pendulum_demos, **{**TINY, "n_steps": 160, "batch_size": 80, **kwargs}
+    )
     model.learn(2 * 160 * model.n_envs)
     return model
 
 
 def _assert_same_rollouts(a: CMZDRIL, b: CMZDRIL) -> None:
     for name in ("rewards", "returns", "advantages", "values"):
-        np.testing.assert_allclose(getattr(a.rollout_buffer, name), getattr(b.rollout_buffer, name), rtol=1e-5, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(
+            getattr(a.rollout_buffer, name), getattr(b.rollout_buffer, name), rtol=1e-5, atol=1e-5, err_msg=name
+        )
     # u differs in the last float32 bits between the batched (torch) and per-step (numpy) forward
     np.testing.assert_allclose(a.reward_rule.get_state(), b.reward_rule.get_state(), rtol=1e-6)
 
@@ -206,7 +214,9 @@ def test_batch_scoring_gives_the_same_rollout_as_per_step_scoring(reward, pendul
     assert batch.reward_wrapper() is None and step.reward_wrapper() is not None
     _assert_same_rollouts(batch, step)
     obs = pendulum_demos.observations[:20]
-    np.testing.assert_allclose(batch.predict(obs, deterministic=True)[0], step.predict(obs, deterministic=True)[0], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        batch.predict(obs, deterministic=True)[0], step.predict(obs, deterministic=True)[0], rtol=1e-5, atol=1e-6
+    )
 
 
 def test_reward_normalising_vecnormalize_scores_per_step(pendulum_demos):

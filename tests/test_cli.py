@@ -14,7 +14,6 @@ import sys
 import time
 import zipfile
 from pathlib import Path
-from typing import Dict, List, Tuple
 
 import pytest
 from test_experiments import ENV, POOL_EPISODES, _fake_run  # the same tiny runs
@@ -39,7 +38,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory) -> Dict[str, Path]:
+def setup(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("cli")
     pool = root / "experts" / ENV / "demos.npz"
     pool.parent.mkdir(parents=True)
@@ -50,7 +49,7 @@ def setup(tmp_path_factory) -> Dict[str, Path]:
     return {"root": root, "pool": pool, "ppo": ppo, "sac": sac}
 
 
-def snapshot(folder: Path) -> Dict[str, Tuple[int, int]]:
+def snapshot(folder: Path) -> dict[str, tuple[int, int]]:
     """Every path below ``folder`` with its size and modification time: 'nothing written or replaced'."""
     return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(folder.rglob("*"))}
 
@@ -64,14 +63,42 @@ def error_line(capsys, command: str) -> str:
     return lines[0]
 
 
-def train_args(setup, *extra: str, reward: str = "bc") -> List[str]:
-    return ["train", "--env", ENV, "--reward", reward, "--demos", str(setup["pool"]), "--hyperparams", str(setup["ppo"]),
-            "--eval-episodes", "1", "--no-progress", *extra]
+def train_args(setup, *extra: str, reward: str = "bc") -> list[str]:
+    return [
+        "train",
+        "--env",
+        ENV,
+        "--reward",
+        reward,
+        "--demos",
+        str(setup["pool"]),
+        "--hyperparams",
+        str(setup["ppo"]),
+        "--eval-episodes",
+        "1",
+        "--no-progress",
+        *extra,
+    ]
 
 
-def sac_args(setup, *extra: str) -> List[str]:
-    return ["train-expert", "--env", ENV, "--hyperparams", str(setup["sac"]), "--eval-freq", "100", "--eval-episodes", "1",
-            "--checkpoint-freq", "100", "--final-eval-episodes", "1", "--no-progress", *extra]
+def sac_args(setup, *extra: str) -> list[str]:
+    return [
+        "train-expert",
+        "--env",
+        ENV,
+        "--hyperparams",
+        str(setup["sac"]),
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--checkpoint-freq",
+        "100",
+        "--final-eval-episodes",
+        "1",
+        "--no-progress",
+        *extra,
+    ]
 
 
 # -- mistakes: exit 2, one line, nothing written ------------------------------------------------------------
@@ -91,7 +118,17 @@ def test_negative_seed(setup, tmp_path, capsys, command):
     if command == "train-expert":
         args = sac_args(setup, "--seed", "-1", "-o", str(tmp_path / "expert"))
     else:
-        args = ["collect-demos", "--expert", str(tmp_path / "x.zip"), "--env", ENV, "--seed", "-1", "-o", str(tmp_path / "d.npz")]
+        args = [
+            "collect-demos",
+            "--expert",
+            str(tmp_path / "x.zip"),
+            "--env",
+            ENV,
+            "--seed",
+            "-1",
+            "-o",
+            str(tmp_path / "d.npz"),
+        ]
     assert main(args) == 2
     assert "seed must be an integer in [0, 2**32), got -1" in error_line(capsys, command)
     assert list(tmp_path.iterdir()) == []
@@ -179,7 +216,9 @@ def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun
     out = tmp_path / "run"
     spec = runs.plan_run(ENV, "bc", 0, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
     # What an attempt with another split leaves when it dies before its first checkpoint: config.json alone.
-    stale = runs.plan_run(ENV, "bc", 1, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
+    stale = runs.plan_run(
+        ENV, "bc", 1, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out
+    )
     train_idx, eval_idx = runs.split_episodes(POOL_EPISODES, 1, 1, 1)
     hp, _ = runs.load_run_hyperparams(setup["ppo"], ENV)
     write_json(out / "config.json", runs._config(stale, hp, train_idx, eval_idx, Demonstrations.load(setup["pool"])))
@@ -223,8 +262,20 @@ def test_evaluate_episode_out_of_range(normalized_run, capsys):
 
 
 def test_evaluate_refuses_to_run_without_the_statistics(normalized_run, setup, tmp_path, capsys):
-    assert main(["evaluate", "--model", str(normalized_run / "model.zip"), "--env", ENV,
-                 "--vecnormalize", str(tmp_path / "typo.pkl")]) == 2
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(normalized_run / "model.zip"),
+                "--env",
+                ENV,
+                "--vecnormalize",
+                str(tmp_path / "typo.pkl"),
+            ]
+        )
+        == 2
+    )
     assert f"VecNormalize statistics not found: {tmp_path / 'typo.pkl'}" in error_line(capsys, "evaluate")
     # The model and its config copied without vecnormalize.pkl.
     copy = tmp_path / "copy"
@@ -233,16 +284,42 @@ def test_evaluate_refuses_to_run_without_the_statistics(normalized_run, setup, t
         shutil.copy(normalized_run / name, copy / name)
     assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV]) == 2
     assert "trained on VecNormalize'd observations" in error_line(capsys, "evaluate")
-    assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV,
-                 "--vecnormalize", str(normalized_run / "vecnormalize.pkl")]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(copy / "model.zip"),
+                "--env",
+                ENV,
+                "--vecnormalize",
+                str(normalized_run / "vecnormalize.pkl"),
+            ]
+        )
+        == 0
+    )
     # The model alone, without its config.json: the zip itself says it needs the statistics.
     (copy / "config.json").unlink()
     assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV, "--demos", str(setup["pool"])]) == 2
     assert "was trained on VecNormalize'd observations" in error_line(capsys, "evaluate")
     damaged = tmp_path / "damaged.pkl"
     damaged.write_bytes(b"not a pickle")
-    assert main(["evaluate", "--model", str(copy / "model.zip"), "--env", ENV, "--demos", str(setup["pool"]),
-                 "--vecnormalize", str(damaged)]) == 2
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(copy / "model.zip"),
+                "--env",
+                ENV,
+                "--demos",
+                str(setup["pool"]),
+                "--vecnormalize",
+                str(damaged),
+            ]
+        )
+        == 2
+    )
     assert "are damaged or not VecNormalize's" in error_line(capsys, "evaluate")
 
 
@@ -294,8 +371,29 @@ def test_benchmark_refuses_a_finished_run_of_other_settings(setup, tmp_path, cap
     assert main(train_args(setup, "-o", str(runs_dir / ENV / "bc" / "trial0"))) == 0
     before = snapshot(runs_dir)
     capsys.readouterr()
-    assert main(["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "2", "--no-progress",
-                 "--demos-dir", str(setup["pool"].parent.parent), "--hyperparams", str(setup["ppo"]), "-o", str(runs_dir)]) == 2
+    assert (
+        main(
+            [
+                "benchmark",
+                "--env",
+                ENV,
+                "--methods",
+                "bc",
+                "--trials",
+                "1",
+                "--eval-episodes",
+                "2",
+                "--no-progress",
+                "--demos-dir",
+                str(setup["pool"].parent.parent),
+                "--hyperparams",
+                str(setup["ppo"]),
+                "-o",
+                str(runs_dir),
+            ]
+        )
+        == 2
+    )
     assert "holds a different, finished run (eval_episodes:" in error_line(capsys, "benchmark")
     assert snapshot(runs_dir) == before
 
@@ -348,7 +446,9 @@ def test_train_expert_keeps_an_expert_it_cannot_resume(setup, tmp_path, capsys):
     (expert / "model.zip").write_bytes(b"a shipped expert, no checkpoints")
     before = snapshot(expert)
     assert main(sac_args(setup, "--timesteps", "100", "-o", str(expert))) == 2
-    assert "already holds model.zip but no checkpoint to resume from; pass --force" in error_line(capsys, "train-expert")
+    assert "already holds model.zip but no checkpoint to resume from; pass --force" in error_line(
+        capsys, "train-expert"
+    )
     assert snapshot(expert) == before
 
 
@@ -367,8 +467,12 @@ def test_keyboard_interrupt_is_one_line_and_130(setup, tmp_path, capsys, monkeyp
 def test_sigint_during_training_is_one_line_and_leaves_a_checkpoint(setup, tmp_path):
     """A real Ctrl-C (SIGINT) in the middle of PPO training, in a child process."""
     out = tmp_path / "run"
-    command = [sys.executable, "-m", "sb3_cmzdril", *train_args(setup, "--timesteps", "100000", "--checkpoint-every", "1",
-                                                               "-o", str(out), reward="zero")]
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_cmzdril",
+        *train_args(setup, "--timesteps", "100000", "--checkpoint-every", "1", "-o", str(out), reward="zero"),
+    ]
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     deadline = time.time() + 120
     while not (out / "state.json").is_file() and child.poll() is None and time.time() < deadline:
@@ -388,12 +492,33 @@ def test_halfcheetah_settotalmass_warning_and_log_file_are_gone(tmp_path):
     cli.mkdir()
     env = dict(os.environ, PYTHONPATH=str(REPO))
     # Without the CLI's handler MuJoCo writes the file (so the check below can fail).
-    subprocess.run([sys.executable, "-c", "import gymnasium as gym; gym.make('HalfCheetah-v5').reset(seed=0)"],
-                   cwd=plain, env=env, capture_output=True, check=True)
+    subprocess.run(
+        [sys.executable, "-c", "import gymnasium as gym; gym.make('HalfCheetah-v5').reset(seed=0)"],
+        cwd=plain,
+        env=env,
+        capture_output=True,
+        check=True,
+    )
     assert (plain / "MUJOCO_LOG.TXT").is_file()
     # The command makes the env, then fails on the expert name: the env was built, nothing else ran.
-    result = subprocess.run([sys.executable, "-m", "sb3_cmzdril", "collect-demos", "--expert", "no-such-expert",
-                             "--env", "HalfCheetah-v5", "-o", "d.npz"], cwd=cli, env=env, capture_output=True, text=True)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sb3_cmzdril",
+            "collect-demos",
+            "--expert",
+            "no-such-expert",
+            "--env",
+            "HalfCheetah-v5",
+            "-o",
+            "d.npz",
+        ],
+        cwd=cli,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 2 and "unknown expert 'no-such-expert'" in result.stderr
     assert "settotalmass" not in result.stderr
     assert list(cli.iterdir()) == []
@@ -404,7 +529,9 @@ def test_train_shows_progress_unless_told_not_to(setup, tmp_path, monkeypatch):
     from sb3_cmzdril.experiments import runs
 
     seen = []
-    monkeypatch.setattr(runs, "run_experiment", lambda spec, **kwargs: seen.append(kwargs["progress_bar"]) or {"status": "stopped"})
+    monkeypatch.setattr(
+        runs, "run_experiment", lambda spec, **kwargs: seen.append(kwargs["progress_bar"]) or {"status": "stopped"}
+    )
     args = [a for a in train_args(setup, "-o", str(tmp_path / "run")) if a != "--no-progress"]
     main(args)
     main(args + ["--no-progress"])

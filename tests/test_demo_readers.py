@@ -4,7 +4,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import warnings
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -23,12 +23,12 @@ class Trajectory:
 
     obs: np.ndarray
     acts: np.ndarray
-    infos: Optional[np.ndarray]
+    infos: np.ndarray | None
     terminal: bool
     rews: np.ndarray
 
 
-def play(env: gym.Env, policy, seeds: List[Optional[int]], max_steps: int = 60) -> List[Dict[str, Any]]:
+def play(env: gym.Env, policy, seeds: list[int | None], max_steps: int = 60) -> list[dict[str, Any]]:
     """Roll the scripted expert; each episode with T + 1 observations, as imitation and Minari store them."""
     episodes = []
     for seed in seeds:
@@ -48,7 +48,7 @@ def play(env: gym.Env, policy, seeds: List[Optional[int]], max_steps: int = 60) 
     return episodes
 
 
-def npz_reference(episodes: List[Dict[str, Any]], tmp_path, with_seeds: bool) -> Demonstrations:
+def npz_reference(episodes: list[dict[str, Any]], tmp_path, with_seeds: bool) -> Demonstrations:
     """The same episodes through our own format: from_episodes, save, load."""
     ours = Demonstrations.from_episodes(
         [{"observations": ep["obs"][:-1], "actions": ep["acts"], "rewards": ep["rews"],
@@ -121,7 +121,7 @@ def minari_home(tmp_path, monkeypatch):
     return minari
 
 
-def collect(minari, env_id: str, policy, seeds: List[Optional[int]], dataset_id: str, max_steps: int = 60):
+def collect(minari, env_id: str, policy, seeds: list[int | None], dataset_id: str, max_steps: int = 60):
     """Record episodes with minari's DataCollector; return the dataset and what was played."""
     env = minari.DataCollector(gym.make(env_id))
     played = play(env, policy, seeds, max_steps)

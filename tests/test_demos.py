@@ -74,10 +74,22 @@ def test_from_episodes_and_as_demonstrations(tmp_path):
         (dict(observations=np.zeros((3, 3)), actions=np.zeros((2, 2)), episode_lengths=[3]), "differ in length"),
         (dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[2]), "sum to 2"),
         (dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[3, 0]), "at least one step"),
-        (dict(observations=np.array([[0, np.nan, 0]] * 3), actions=np.zeros((3, 2)), episode_lengths=[3]), "observations contains NaN"),
-        (dict(observations=np.zeros((3, 3)), actions=np.array([[0, np.inf]] * 3), episode_lengths=[3]), "actions contains NaN or inf"),
-        (dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[3], rewards=np.zeros(2)), "rewards have 2"),
-        (dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[3], seeds=[1, 2]), "2 seeds given for 1"),
+        (
+            dict(observations=np.array([[0, np.nan, 0]] * 3), actions=np.zeros((3, 2)), episode_lengths=[3]),
+            "observations contains NaN",
+        ),
+        (
+            dict(observations=np.zeros((3, 3)), actions=np.array([[0, np.inf]] * 3), episode_lengths=[3]),
+            "actions contains NaN or inf",
+        ),
+        (
+            dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[3], rewards=np.zeros(2)),
+            "rewards have 2",
+        ),
+        (
+            dict(observations=np.zeros((3, 3)), actions=np.zeros((3, 2)), episode_lengths=[3], seeds=[1, 2]),
+            "2 seeds given for 1",
+        ),
         (dict(observations=np.zeros(3), actions=np.zeros(3), episode_lengths=[3]), "n_steps, \\*obs_shape"),
     ],
 )

@@ -15,14 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
+from test_report import write_run as _fake_run  # noqa: F401  (test_cli.py imports it from here)
 
 from conftest import pendulum_expert, record
-from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.cli import main
+from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments import grid, report, runs
 from sb3_cmzdril.experiments.grid import plan_grid, run_grid
 from sb3_cmzdril.experiments.runs import plan_run, run_experiment, split_episodes
-from test_report import write_run as _fake_run  # noqa: F401  (test_cli.py imports it from here)
 
 ENV = "Pendulum-v1"
 POOL_EPISODES = 6
@@ -133,7 +133,8 @@ def test_grid_runs_every_spec_and_reports_the_failure(grid_runs):
     for spec in grid_runs["specs"]:
         out = Path(spec.output_dir)
         assert out == grid_runs["runs_dir"] / ENV / spec.method / f"trial{spec.seed}"
-        assert {"config.json", "eval.csv", "done.json", "model.zip", "state.json", "log.txt"} <= {p.name for p in out.iterdir()}
+        expected = {"config.json", "eval.csv", "done.json", "model.zip", "state.json", "log.txt"}
+        assert expected <= {p.name for p in out.iterdir()}
         epochs = [int(r["epoch"]) for r in _rows(out / "eval.csv")]
         assert epochs == ([0] if spec.method == "bc" else [0, 1, 2, 3, 4])
 
@@ -147,7 +148,9 @@ def test_every_method_of_a_trial_uses_the_same_data(grid_runs):
         assert len(config["train_episodes"]) == 1 and len(config["eval_episodes"]) == 2
         assert (config["train_episodes"], config["eval_episodes"]) == split_episodes(POOL_EPISODES, 1, 2, spec.seed)
         first_row = _rows(Path(spec.output_dir) / "eval.csv")[0]
-        by_trial.setdefault(spec.seed, []).append((config["train_episodes"], config["eval_episodes"], config["demos_sha256"], first_row))
+        by_trial.setdefault(spec.seed, []).append(
+            (config["train_episodes"], config["eval_episodes"], config["demos_sha256"], first_row)
+        )
     for entries in by_trial.values():
         assert len(entries) == 2
         (train_a, eval_a, sha_a, row_a), (train_b, eval_b, sha_b, row_b) = entries
@@ -193,8 +196,11 @@ def test_final_evaluation_on_every_held_out_episode_and_lowest_u_choice(grid_run
         assert (out / "model_lowest_u.zip").is_file() and (out / "lowest_u.pt").is_file()
         if spec.seed == 0:  # one segment: the choice is the argmin of the logged rollout disagreement
             log = _rows(out / "logs" / "progress_0.csv")
-            u = {int(r["time/total_timesteps"]) // 64 - 1: float(r["rollout/disagreement_mean"]) for r in log
-                 if r.get("rollout/disagreement_mean")}
+            u = {
+                int(r["time/total_timesteps"]) // 64 - 1: float(r["rollout/disagreement_mean"])
+                for r in log
+                if r.get("rollout/disagreement_mean")
+            }
             assert final["lowest_u"]["epoch"] == min(u, key=u.get)
             assert final["lowest_u"]["rollout_u"] == pytest.approx(min(u.values()), rel=1e-5)
 
@@ -214,8 +220,10 @@ def _by_hand(run_dir: Path, window: int) -> dict:
     rows = _rows(run_dir / "eval.csv")
     last = int(rows[-1]["epoch"])
     kept = [r for r in rows if int(r["epoch"]) > last - window]
-    return {k: sum(float(r[c]) for r in kept) / len(kept)
-            for k, c in (("return", "return_mean"), ("frechet", "frechet_mean"), ("action_mse", "action_mse"))}
+    return {
+        k: sum(float(r[c]) for r in kept) / len(kept)
+        for k, c in (("return", "return_mean"), ("frechet", "frechet_mean"), ("action_mse", "action_mse"))
+    }
 
 
 @pytest.mark.parametrize("window", [100, 2])
@@ -250,8 +258,16 @@ def test_report_numbers_equal_hand_computed_means(grid_runs, tmp_path, window):
     final = {(r["method"], r["policy"]): r for r in _rows(tmp_path / "final_table.csv")}
     assert set(final) == {("bc", "final"), ("cmz", "final"), ("cmz", "lowest_u")}
     for (method, policy), row in final.items():
-        per_run = [np.mean([float(r["return"]) for r in _rows(runs_dir / ENV / method / f"trial{t}" / "final_eval.csv")
-                            if r["policy"] == policy]) for t in (0, 1)]
+        per_run = [
+            np.mean(
+                [
+                    float(r["return"])
+                    for r in _rows(runs_dir / ENV / method / f"trial{t}" / "final_eval.csv")
+                    if r["policy"] == policy
+                ]
+            )
+            for t in (0, 1)
+        ]
         assert float(row["return_mean"]) == pytest.approx(np.mean(per_run), rel=1e-5)
         assert math.isnan(float(row["return_ci_low"])) and row["n_trials"] == "2"
     assert (tmp_path / "fig3_final_eval.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -280,8 +296,15 @@ def test_report_expert_scale_skips_a_pool_that_changed(grid_runs, tmp_path):
 # -- Ray backend ------------------------------------------------------------------------------------------
 def test_ray_backend_runs_the_grid(setup, tmp_path):
     ray = pytest.importorskip("ray")
-    specs = plan_grid(ENV, "bc,cmz", 2, tmp_path / "runs", demos_dir=setup["demos_dir"], hyperparams=setup["hp"],
-                      **{**GRID, "timesteps": 128})
+    specs = plan_grid(
+        ENV,
+        "bc,cmz",
+        2,
+        tmp_path / "runs",
+        demos_dir=setup["demos_dir"],
+        hyperparams=setup["hp"],
+        **{**GRID, "timesteps": 128},
+    )
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         outcomes = run_grid(specs, workers=2, backend="ray", progress=False)
@@ -289,15 +312,36 @@ def test_ray_backend_runs_the_grid(setup, tmp_path):
         ray.shutdown()
     assert [o["status"] for o in outcomes] == ["done"] * 4
     for spec in specs:
-        assert json.loads((Path(spec.output_dir) / "done.json").read_text())["num_timesteps"] == (0 if spec.method == "bc" else 128)
+        assert json.loads((Path(spec.output_dir) / "done.json").read_text())["num_timesteps"] == (
+            0 if spec.method == "bc" else 128
+        )
 
 
 # -- the train / evaluate CLI ---------------------------------------------------------------------------------
 def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
     out = tmp_path / "cmz"
-    args = ["train", "--env", ENV, "--reward", "cmz", "--demos", str(setup["pool"]), "--n-demos", "2",
-            "--eval-episodes", "1", "--seed", "3", "--timesteps", "128", "--hyperparams", str(setup["hp"]),
-            "-o", str(out), "--no-progress"]
+    args = [
+        "train",
+        "--env",
+        ENV,
+        "--reward",
+        "cmz",
+        "--demos",
+        str(setup["pool"]),
+        "--n-demos",
+        "2",
+        "--eval-episodes",
+        "1",
+        "--seed",
+        "3",
+        "--timesteps",
+        "128",
+        "--hyperparams",
+        str(setup["hp"]),
+        "-o",
+        str(out),
+        "--no-progress",
+    ]
     assert main(args) == 0
     config = _config(out)
     assert config["method"] == "cmz" and config["seed"] == 3 and config["timesteps"] == 128
@@ -309,8 +353,22 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
     assert main(args) == 0 and "already finished" in capsys.readouterr().out
 
     episodes = ",".join(map(str, config["eval_episodes"]))
-    assert main(["evaluate", "--model", str(out / "model.zip"), "--env", ENV, "--demos", str(setup["pool"]),
-                 "--episodes", episodes]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(out / "model.zip"),
+                "--env",
+                ENV,
+                "--demos",
+                str(setup["pool"]),
+                "--episodes",
+                episodes,
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "mean" in printed and "Fréchet" in printed
     # The evaluate command and the run's last evaluation agree (same episodes, same env_kwargs).
@@ -320,28 +378,73 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
 
 def test_train_cli_bc_and_normalize(setup, tmp_path):
     bc = tmp_path / "bc"
-    assert main(["train", "--env", ENV, "--reward", "bc", "--demos", str(setup["pool"]), "--eval-episodes", "1",
-                 "--hyperparams", str(setup["hp"]), "-o", str(bc), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--env",
+                ENV,
+                "--reward",
+                "bc",
+                "--demos",
+                str(setup["pool"]),
+                "--eval-episodes",
+                "1",
+                "--hyperparams",
+                str(setup["hp"]),
+                "-o",
+                str(bc),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert [int(r["epoch"]) for r in _rows(bc / "eval.csv")] == [0]
     assert _config(bc)["timesteps"] == 0
 
     hp = tmp_path / "norm.yml"
     hp.write_text(TINY_YAML + '  normalize: "dict(norm_obs=True, norm_reward=False)"\n')
-    spec = plan_run(ENV, "env", 0, demos=setup["pool"], n_eval_episodes=1, timesteps=192, hyperparams=hp,
-                    output_dir=tmp_path / "norm", checkpoint_every=1)
+    spec = plan_run(
+        ENV,
+        "env",
+        0,
+        demos=setup["pool"],
+        n_eval_episodes=1,
+        timesteps=192,
+        hyperparams=hp,
+        output_dir=tmp_path / "norm",
+        checkpoint_every=1,
+    )
     with pytest.raises(KeyboardInterrupt):
         run_experiment(spec, callbacks=[Interrupt(at=128)])
     assert (tmp_path / "norm" / "vecnormalize.pkl").is_file()
     longer = dataclasses.replace(spec, timesteps=256)  # a resume may also extend the run
     assert run_experiment(longer)["num_timesteps"] == 256
-    assert _config(tmp_path / "norm")["timesteps"] == 256 and "--timesteps 256" in _config(tmp_path / "norm")["train_command"]
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+    assert (
+        _config(tmp_path / "norm")["timesteps"] == 256
+        and "--timesteps 256" in _config(tmp_path / "norm")["train_command"]
+    )
     import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     stats = VecNormalize.load(str(tmp_path / "norm" / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(ENV)]))
     assert stats.obs_rms.count > 250  # statistics carried across the resume (128 fresh steps would not)
-    assert main(["evaluate", "--model", str(tmp_path / "norm" / "model.zip"), "--env", ENV,
-                 "--demos", str(setup["pool"]), "--episodes", "0"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(tmp_path / "norm" / "model.zip"),
+                "--env",
+                ENV,
+                "--demos",
+                str(setup["pool"]),
+                "--episodes",
+                "0",
+            ]
+        )
+        == 0
+    )
 
 
 # -- clear errors -------------------------------------------------------------------------------------------
@@ -357,8 +460,23 @@ def test_train_cli_bc_and_normalize(setup, tmp_path):
     ],
 )
 def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
-    args = ["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "2",
-            "--demos-dir", str(setup["demos_dir"]), "--hyperparams", str(setup["hp"]), "-o", str(tmp_path / "r")]
+    args = [
+        "benchmark",
+        "--env",
+        ENV,
+        "--methods",
+        "bc",
+        "--trials",
+        "1",
+        "--eval-episodes",
+        "2",
+        "--demos-dir",
+        str(setup["demos_dir"]),
+        "--hyperparams",
+        str(setup["hp"]),
+        "-o",
+        str(tmp_path / "r"),
+    ]
     if extra == ["--hyperparams", "TYPO"]:
         typo = tmp_path / "typo.yml"
         typo.write_text(TINY_YAML + "  n_step: 32\n")
@@ -373,12 +491,43 @@ def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
 
 def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
-    assert main(["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "2",
-                 "--demos-dir", str(setup["demos_dir"]), "--hyperparams", str(setup["hp"]),
-                 "-o", str(tmp_path / "r"), "--backend", "ray"]) == 2
+    assert (
+        main(
+            [
+                "benchmark",
+                "--env",
+                ENV,
+                "--methods",
+                "bc",
+                "--trials",
+                "1",
+                "--eval-episodes",
+                "2",
+                "--demos-dir",
+                str(setup["demos_dir"]),
+                "--hyperparams",
+                str(setup["hp"]),
+                "-o",
+                str(tmp_path / "r"),
+                "--backend",
+                "ray",
+            ]
+        )
+        == 2
+    )
     assert "pip install 'sb3-cmzdril[ray]'" in capsys.readouterr().err
 
-    base = ["train", "--env", ENV, "--demos", str(setup["pool"]), "--hyperparams", str(setup["hp"]), "--eval-episodes", "1"]
+    base = [
+        "train",
+        "--env",
+        ENV,
+        "--demos",
+        str(setup["pool"]),
+        "--hyperparams",
+        str(setup["hp"]),
+        "--eval-episodes",
+        "1",
+    ]
     assert main([*base, "--reward", "gail", "-o", str(tmp_path / "x")]) == 2
     assert "unknown method 'gail'" in capsys.readouterr().err
     assert main(["train", "--env", "sb3_cmzdril:Nope-v0", "--reward", "cmz", "--demos", str(setup["pool"])]) == 2

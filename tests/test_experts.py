@@ -96,7 +96,9 @@ def test_resume_continues_to_total(tiny_yaml, tmp_path):
 
     # A finished expert is trained further only when asked to (--force): it may replace model.zip.
     before = {p.name: p.stat().st_mtime_ns for p in out.rglob("*")}
-    with pytest.raises(FileExistsError, match="finished expert trained for 200 steps, fewer than the 300 asked; pass --force"):
+    with pytest.raises(
+        FileExistsError, match="finished expert trained for 200 steps, fewer than the 300 asked; pass --force"
+    ):
         train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
     assert {p.name: p.stat().st_mtime_ns for p in out.rglob("*")} == before
     train_expert(ENV, timesteps=300, seed=0, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
@@ -111,7 +113,11 @@ def test_resume_continues_to_total(tiny_yaml, tmp_path):
     assert [e["timesteps"] for e in meta["evaluations"]] == [100, 200, 300]
     # only the latest checkpoint is kept
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
-        "best.json", "model_300_steps.zip", "replay_buffer_300_steps.pkl", "state.json"]
+        "best.json",
+        "model_300_steps.zip",
+        "replay_buffer_300_steps.pkl",
+        "state.json",
+    ]
 
     # asking for fewer steps than done trains nothing more and rewrites nothing
     before = {p.name: p.stat().st_mtime_ns for p in out.rglob("*")}
@@ -134,7 +140,9 @@ class _Crash(BaseCallback):
 def test_interruption_leaves_resumable_checkpoint_and_keeps_best(tiny_yaml, tmp_path):
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        train_expert(ENV, timesteps=400, seed=1, hyperparams_path=tiny_yaml, output_dir=out, _callback=_Crash(250), **FAST)
+        train_expert(
+            ENV, timesteps=400, seed=1, hyperparams_path=tiny_yaml, output_dir=out, _callback=_Crash(250), **FAST
+        )
     assert not (out / "metadata.json").exists()
     assert _state(out)["num_timesteps"] == 200
     SAC.load(out / "model.zip", device="cpu")  # the best-so-far model is complete and loadable
@@ -185,7 +193,9 @@ def test_second_process_on_same_folder_is_refused(tmp_path, tiny_yaml):
 # -- collect-demos -------------------------------------------------------------------------------
 def test_collect_demos_round_trip_and_seeds(trained, tmp_path, capsys):
     path = tmp_path / "demos.npz"
-    rc = main(["collect-demos", "--expert", str(trained), "--env", ENV, "--episodes", "2", "--seed", "7", "-o", str(path)])
+    rc = main(
+        ["collect-demos", "--expert", str(trained), "--env", ENV, "--episodes", "2", "--seed", "7", "-o", str(path)]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "mean" in printed and "200" in printed
@@ -243,8 +253,24 @@ def test_scripted_expert_via_cli(tmp_path):
     register_scripted_expert("test-pendulum-pd", _PendulumPD)
     assert "test-pendulum-pd" in SCRIPTED_EXPERTS
     path = tmp_path / "pd.npz"
-    assert main(["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV, "--episodes", "2", "--seed", "0",
-                 "-o", str(path)]) == 0
+    assert (
+        main(
+            [
+                "collect-demos",
+                "--expert",
+                "test-pendulum-pd",
+                "--env",
+                ENV,
+                "--episodes",
+                "2",
+                "--seed",
+                "0",
+                "-o",
+                str(path),
+            ]
+        )
+        == 0
+    )
     demos = Demonstrations.load(path)
     assert demos.n_episodes == 2 and list(demos.seeds) == [0, 1]
     again = collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=0, verbose=False)
@@ -267,7 +293,9 @@ def test_library_logs_its_notes_and_the_cli_prints_them(tmp_path, capsys, caplog
     library_logger = logging.getLogger("sb3_cmzdril")
     handlers, level = list(library_logger.handlers), library_logger.level
     path = tmp_path / "cli" / "pd.npz"
-    assert main(["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV, "--episodes", "2", "-o", str(path)]) == 0
+    assert (
+        main(["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV, "--episodes", "2", "-o", str(path)]) == 0
+    )
     printed = capsys.readouterr().out
     assert "┃ episode ┃" in printed and "+/-" in printed
     assert printed.endswith(f"saved {path} (provenance in {path.parent / 'metadata.json'})\n")
@@ -276,8 +304,23 @@ def test_library_logs_its_notes_and_the_cli_prints_them(tmp_path, capsys, caplog
 
 def test_cli_says_a_finished_expert_needs_nothing(trained, tiny_yaml, capsys):
     capsys.readouterr()
-    assert main(["train-expert", "--env", ENV, "--timesteps", "200", "--hyperparams", str(tiny_yaml),
-                 "-o", str(trained), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train-expert",
+                "--env",
+                ENV,
+                "--timesteps",
+                "200",
+                "--hyperparams",
+                str(tiny_yaml),
+                "-o",
+                str(trained),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert capsys.readouterr().out.splitlines() == [
         f"{trained} holds a finished sac expert on {ENV} (200 >= 200 steps, metadata.json); nothing to do",
         str(trained / "model.zip"),
@@ -316,7 +359,9 @@ def test_corrupt_checkpoint_is_reported(trained, tmp_path, tiny_yaml):
 
 def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     out = tmp_path / "pool" / "demos.npz"
-    demos = collect_demos("waypoint-reactive", "sb3_cmzdril:WaypointNav-v0", n_episodes=2, seed=5, output=out, verbose=False)
+    demos = collect_demos(
+        "waypoint-reactive", "sb3_cmzdril:WaypointNav-v0", n_episodes=2, seed=5, output=out, verbose=False
+    )
     meta = json.loads((out.parent / "metadata.json").read_text())
     assert meta["expert"] == "scripted:waypoint-reactive"
     rec = meta["demos"]

@@ -221,7 +221,13 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     for key in read_hyperparams_file(cmzdril):
         check_constructor_kwargs(load_run_hyperparams(cmzdril, key)[0], [CMZDRIL, PPO])
     # schedules, [n, "episode"] train_freq, ent_coef as a number or "auto", an int where a float is due
-    zoo = {"learning_rate": "lin_7.3e-4", "train_freq": [1, "episode"], "ent_coef": 0.1, "target_entropy": "auto", "tau": 1}
+    zoo = {
+        "learning_rate": "lin_7.3e-4",
+        "train_freq": [1, "episode"],
+        "ent_coef": 0.1,
+        "target_entropy": "auto",
+        "tau": 1,
+    }
     check_constructor_kwargs(split_hyperparams(zoo, "Pendulum-v1", "Pendulum-v1"), [SAC])
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import csv
 import math
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -32,7 +32,7 @@ PENDULUM_KWARGS = {"max_episode_steps": EPISODE_STEPS}
 # ---------------------------------------------------------------------------------------------
 # Fréchet distance
 # ---------------------------------------------------------------------------------------------
-def reference_frechet(P: np.ndarray, Q: np.ndarray, dist: Optional[np.ndarray] = None) -> float:
+def reference_frechet(P: np.ndarray, Q: np.ndarray, dist: np.ndarray | None = None) -> float:
     """Textbook O(n*m) double loop (Eiter & Mannila); distances pair by pair unless ``dist`` is given."""
     P = np.asarray(P, dtype=float).reshape(len(P), -1)
     Q = np.asarray(Q, dtype=float).reshape(len(Q), -1)
@@ -40,7 +40,7 @@ def reference_frechet(P: np.ndarray, Q: np.ndarray, dist: Optional[np.ndarray] =
     ca = np.full((n, m), np.inf)
     for i in range(n):
         for j in range(m):
-            d = math.sqrt(sum((a - b) ** 2 for a, b in zip(P[i], Q[j]))) if dist is None else dist[i, j]
+            d = math.sqrt(sum((a - b) ** 2 for a, b in zip(P[i], Q[j], strict=True))) if dist is None else dist[i, j]
             if i == 0 and j == 0:
                 ca[i, j] = d
             elif i == 0:
@@ -68,10 +68,13 @@ def test_frechet_matches_reference_dp(seed: int, dim: int) -> None:
 
 def test_frechet_low_memory_path_matches(monkeypatch: pytest.MonkeyPatch) -> None:
     rng = np.random.default_rng(7)
-    cases = [(rng.normal(size=(n, d)), rng.normal(size=(m, d))) for n, m, d in [(1, 1, 2), (1, 9, 3), (13, 5, 2), (30, 31, 4)]]
+    cases = [
+        (rng.normal(size=(n, d)), rng.normal(size=(m, d)))
+        for n, m, d in [(1, 1, 2), (1, 9, 3), (13, 5, 2), (30, 31, 4)]
+    ]
     expected = [frechet_distance(P, Q) for P, Q in cases]
     monkeypatch.setattr(frechet_module, "_MAX_MATRIX_ELEMENTS", 0)
-    for (P, Q), want in zip(cases, expected):
+    for (P, Q), want in zip(cases, expected, strict=True):
         assert frechet_distance(P, Q) == pytest.approx(want, rel=1e-12, abs=1e-12)
         assert frechet_distance(P, Q) == pytest.approx(reference_frechet(P, Q), rel=1e-12, abs=1e-12)
 
@@ -142,7 +145,9 @@ class PendulumRule:
         theta = np.arctan2(obs[:, 1], obs[:, 0])
         return (-(1.0 * theta + 0.3 * obs[:, 2]))[:, None]
 
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+    def predict(
+        self, observation: np.ndarray, state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ):
         observation = np.asarray(observation)
         actions = self(observation)
         return (actions if observation.ndim == 2 else actions[0]), state
@@ -154,7 +159,7 @@ class NoSpaceRule(PendulumRule):
     action_space = None
 
 
-def record_demos(rule: PendulumRule, seeds: List[int], env_kwargs: Dict[str, Any] = PENDULUM_KWARGS) -> Demonstrations:
+def record_demos(rule: PendulumRule, seeds: list[int], env_kwargs: dict[str, Any] = PENDULUM_KWARGS) -> Demonstrations:
     env = gym.make("Pendulum-v1", **env_kwargs)
     episodes = []
     for seed in seeds:
@@ -168,7 +173,14 @@ def record_demos(rule: PendulumRule, seeds: List[int], env_kwargs: Dict[str, Any
             obs, reward, terminated, truncated, _ = env.step(np.clip(action, -2.0, 2.0).astype(np.float32))
             rewards.append(reward)
             done = terminated or truncated
-        episodes.append({"observations": np.array(observations), "actions": np.array(actions), "rewards": np.array(rewards), "seed": seed})
+        episodes.append(
+            {
+                "observations": np.array(observations),
+                "actions": np.array(actions),
+                "rewards": np.array(rewards),
+                "seed": seed,
+            }
+        )
     env.close()
     return Demonstrations.from_episodes(episodes)
 
@@ -271,7 +283,9 @@ def test_action_mse_uses_vec_normalize_and_obs_transform() -> None:
 
 
 def test_action_mse_sb3_model_and_policy(demos: Demonstrations) -> None:
-    model = PPO("MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=64, policy_kwargs={"net_arch": [8]}, seed=0, device="cpu")
+    model = PPO(
+        "MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=64, policy_kwargs={"net_arch": [8]}, seed=0, device="cpu"
+    )
     predicted, _ = model.predict(demos.observations, deterministic=True)
     expected = np.mean((np.clip(predicted, -2, 2) - np.clip(demos.actions, -2, 2)) ** 2)
     assert action_mse(model, demos) == pytest.approx(expected, rel=1e-6)
@@ -346,7 +360,9 @@ def test_evaluate_discrete_expert_replays_itself() -> None:
 
 
 def test_evaluate_requires_known_seeds(expert: PendulumRule, demos: Demonstrations) -> None:
-    unknown = Demonstrations(demos.observations, demos.actions, demos.episode_lengths, demos.rewards, seeds=[11, -1, 13])
+    unknown = Demonstrations(
+        demos.observations, demos.actions, demos.episode_lengths, demos.rewards, seeds=[11, -1, 13]
+    )
     with pytest.raises(ValueError, match=r"episodes \[1\].*seed"):
         evaluate_against_expert(expert, "Pendulum-v1", unknown, env_kwargs=PENDULUM_KWARGS)
     with pytest.raises(ValueError, match="seed"):
@@ -381,9 +397,9 @@ def test_trajectory_features() -> None:
 # ---------------------------------------------------------------------------------------------
 class RecordingWriter(KVWriter):
     def __init__(self) -> None:
-        self.dumps: List[Dict[str, Any]] = []
+        self.dumps: list[dict[str, Any]] = []
 
-    def write(self, key_values: Dict[str, Any], key_excluded: Dict[str, Any], step: int = 0) -> None:
+    def write(self, key_values: dict[str, Any], key_excluded: dict[str, Any], step: int = 0) -> None:
         self.dumps.append(dict(key_values))
 
     def close(self) -> None:
@@ -392,10 +408,19 @@ class RecordingWriter(KVWriter):
 
 def tiny_ppo(seed: int = 0) -> PPO:
     env = gym.make("Pendulum-v1", **PENDULUM_KWARGS)
-    return PPO("MlpPolicy", env, n_steps=64, batch_size=64, n_epochs=1, policy_kwargs={"net_arch": [8]}, seed=seed, device="cpu")
+    return PPO(
+        "MlpPolicy",
+        env,
+        n_steps=64,
+        batch_size=64,
+        n_epochs=1,
+        policy_kwargs={"net_arch": [8]},
+        seed=seed,
+        device="cpu",
+    )
 
 
-def read_csv(path: Any) -> List[Dict[str, str]]:
+def read_csv(path: Any) -> list[dict[str, str]]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
 
@@ -442,17 +467,19 @@ def test_callback_eval_every_and_vec_normalize(tmp_path: Any, demos: Demonstrati
     from stable_baselines3.common.vec_env import VecNormalize
 
     venv = VecNormalize(make_vec_env("Pendulum-v1", n_envs=2, seed=0, env_kwargs=PENDULUM_KWARGS))
-    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, policy_kwargs={"net_arch": [8]}, seed=0, device="cpu")
+    model = PPO(
+        "MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, policy_kwargs={"net_arch": [8]}, seed=0, device="cpu"
+    )
     path = tmp_path / "eval.csv"
-    callback = ExpertEvalCallback("Pendulum-v1", demos.select([2]), eval_every=2, csv_path=path, env_kwargs=PENDULUM_KWARGS)
+    callback = ExpertEvalCallback(
+        "Pendulum-v1", demos.select([2]), eval_every=2, csv_path=path, env_kwargs=PENDULUM_KWARGS
+    )
     model.learn(64 * 3, callback=callback)
     rows = read_csv(path)
     assert [int(r["epoch"]) for r in rows] == [0, 2, 3]  # n_steps * n_envs = 64 steps per update
     # The policy saw normalised observations, so the metric must normalise the demos the same way.
     vn = model.get_vec_normalize_env()
-    assert float(rows[-1]["action_mse"]) == pytest.approx(
-        action_mse(model, demos.select([2]))
-    )
+    assert float(rows[-1]["action_mse"]) == pytest.approx(action_mse(model, demos.select([2])))
     assert action_mse(model, demos.select([2])) == pytest.approx(
         action_mse(model, demos.select([2]), obs_transform=vn.normalize_obs)
     )

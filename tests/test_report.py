@@ -10,8 +10,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 import pytest
@@ -27,9 +27,9 @@ EVAL_HEADER = "epoch,timesteps,return_mean,return_std,frechet_mean,frechet_std,a
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
-def write_run(root: Path, method: str, trial: int, returns: Sequence[float], frechet: Optional[Sequence[float]] = None,
-              mse: Optional[Sequence[float]] = None, *, env: str = ENV, final: Optional[Dict[str, List[float]]] = None,
-              done: bool = True, lowest_epoch: Optional[int] = None, hyperparams: Optional[dict] = None) -> Path:
+def write_run(root: Path, method: str, trial: int, returns: Sequence[float], frechet: Sequence[float] | None = None,
+              mse: Sequence[float] | None = None, *, env: str = ENV, final: dict[str, list[float]] | None = None,
+              done: bool = True, lowest_epoch: int | None = None, hyperparams: dict | None = None) -> Path:
     """A run folder with hand-written records (the report must not care who wrote them).
 
     ``returns`` etc. are eval.csv's per-epoch values; ``final`` maps a policy to the returns of its

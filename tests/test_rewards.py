@@ -1,8 +1,6 @@
 """Reward rules against hand-computed values, and the DisagreementReward wrapper."""
 from __future__ import annotations
 
-from typing import List, Optional
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -22,7 +20,7 @@ class ScriptedEnv(gym.Env):
     observation_space = spaces.Box(-np.inf, np.inf, (1,), np.float32)
     action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
 
-    def __init__(self, script: List[float], episode_len: int) -> None:
+    def __init__(self, script: list[float], episode_len: int) -> None:
         self.script = list(script)
         self.episode_len = episode_len
         self.t = 0
@@ -30,7 +28,7 @@ class ScriptedEnv(gym.Env):
     def _next(self) -> np.ndarray:
         return np.array([self.script.pop(0)], dtype=np.float32)
 
-    def reset(self, *, seed: Optional[int] = None, options=None):
+    def reset(self, *, seed: int | None = None, options=None):
         super().reset(seed=seed)
         self.t = 0
         return self._next(), {}
@@ -144,7 +142,7 @@ def _pendulum_rollout(venv_cls, n_envs: int, steps: int = 30):
         acts = rng.uniform(-2, 2, size=(n_envs, 1)).astype(np.float32)
         acted_on = obs.copy()
         obs, rewards, dones, infos = env.step(acts)
-        ref_rewards = [ref.step(a)[1] for ref, a in zip(reference, acts)]
+        ref_rewards = [ref.step(a)[1] for ref, a in zip(reference, acts, strict=True)]
         np.testing.assert_allclose([i["env_reward"] for i in infos], ref_rewards, rtol=1e-6)
         np.testing.assert_allclose([i["disagreement"] for i in infos], ens.disagreement(acted_on), rtol=1e-9)
         assert rewards.shape == (n_envs,) and rewards.dtype == np.float32

@@ -53,7 +53,7 @@ def lidar_reference(env: WaypointNavEnv) -> np.ndarray:
         for wall_t in ((env.half - x) / ux if ux > 0 else (-env.half - x) / ux if ux < 0 else math.inf,
                        (env.half - y) / uy if uy > 0 else (-env.half - y) / uy if uy < 0 else math.inf):
             best = min(best, wall_t)
-        for (cx, cy), r in zip(f.centres, f.radii):
+        for (cx, cy), r in zip(f.centres, f.radii, strict=True):
             b = ux * (cx - x) + uy * (cy - y)
             disc = b * b - ((cx - x) ** 2 + (cy - y) ** 2 - r * r)
             if disc >= 0 and b - math.sqrt(disc) > 0:
@@ -193,11 +193,11 @@ def test_collision_goal_and_wall_termination():
     # Obstacle edge 1 m ahead, full speed 0.25 m/step: after 3 steps the vehicle disc (radius 0.25)
     # touches it, after 4 it overlaps (contact is overlap, strictly).
     scene(env, centres=[(2.0, 0.0)], radii=[1.0], start=(0.0, 0.0), goal=(6.0, 0.0), heading=0.0)
-    for t in range(10):
+    steps, terminated = 0, False
+    while not terminated and steps < 10:
         _, reward, terminated, truncated, info = env.step(full)
-        if terminated:
-            break
-    assert t == 3 and info["collision"] and not info["is_success"] and not info["out_of_bounds"]
+        steps += 1
+    assert steps == 4 and info["collision"] and not info["is_success"] and not info["out_of_bounds"]
     assert reward == pytest.approx(0.25 - env.time_penalty - env.crash_penalty)
     with pytest.raises(RuntimeError, match="ended"):
         env.step(full)
@@ -209,11 +209,11 @@ def test_collision_goal_and_wall_termination():
     assert reward == pytest.approx(0.25 - env.time_penalty + env.goal_bonus)
     # Wall: 1 m from the east wall heading east; the vehicle disc crosses it on step 4.
     scene(env, start=(9.0, 0.0), goal=(0.0, 0.0), heading=0.0)
-    for t in range(10):
+    steps, terminated = 0, False
+    while not terminated and steps < 10:
         obs, _, terminated, _, info = env.step(full)
-        if terminated:
-            break
-    assert t == 3 and info["out_of_bounds"] and info["collision"]
+        steps += 1
+    assert steps == 4 and info["out_of_bounds"] and info["collision"]
     assert env.observation_space.contains(obs)
     # A fast vehicle ends a step beyond the wall or inside an obstacle: the terminal observation
     # still lies in the observation space (ranges clipped at 0, position at +-1).
@@ -280,7 +280,8 @@ def test_expert_reaches_goal_and_return_telescopes():
         assert info["is_success"] and not info["collision"]
         assert 30 <= len(rewards) <= 150
         d0 = np.linalg.norm(base.field.goal - base.field.start)
-        expected = base.progress_weight * (d0 - info["goal_distance"]) - base.time_penalty * len(rewards) + base.goal_bonus
+        progress = base.progress_weight * (d0 - info["goal_distance"])
+        expected = progress - base.time_penalty * len(rewards) + base.goal_bonus
         assert rewards.sum() == pytest.approx(expected, abs=1e-6)
         np.testing.assert_allclose(obs[:, POSITION_SLICE] * base.half, base.trajectory, atol=1e-5)
 
@@ -311,8 +312,9 @@ def test_expert_turns_towards_clear_goal_and_around_blocker():
     action, _ = expert.predict(scene(env, start=(-5.0, 0.0), goal=(5.0, 0.0), heading=0.0))
     assert action[0] == pytest.approx(0.0, abs=1e-6) and action[1] == pytest.approx(1.0)
     # An obstacle on the line to the goal: it steers off the line, keeping speed.
-    action, _ = expert.predict(scene(env, centres=[(-2.0, 0.0)], radii=[1.0], start=(-5.0, 0.0),
-                                     goal=(5.0, 0.0), heading=0.0))
+    action, _ = expert.predict(
+        scene(env, centres=[(-2.0, 0.0)], radii=[1.0], start=(-5.0, 0.0), goal=(5.0, 0.0), heading=0.0)
+    )
     assert abs(action[0]) > 0.5 and action[1] > 0.0
 
 
@@ -358,6 +360,6 @@ def test_expert_drives_a_vec_env():
         actions, _ = expert.predict(obs)
         assert actions.shape == (3, 2)
         obs, _, dones, infos = venv.step(actions)
-        successes += sum(bool(info["is_success"]) for info, done in zip(infos, dones) if done)
+        successes += sum(bool(info["is_success"]) for info, done in zip(infos, dones, strict=True) if done)
     assert successes >= 3
     venv.close()

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import List, Optional
 
 from sb3_cmzdril.cli.evaluate import add_evaluate
 from sb3_cmzdril.cli.experiment import add_benchmark, add_train
@@ -52,7 +51,7 @@ def _one_line(error: BaseException) -> str:
     return "; ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run one command; every user error ends here as one line on stderr and exit code 2, an
     interruption (Ctrl-C) as one line and exit code 130."""
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings

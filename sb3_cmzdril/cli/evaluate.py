@@ -2,8 +2,6 @@
 VecNormalize statistics of the model's run folder where it has them."""
 from __future__ import annotations
 
-from typing import Optional
-
 
 def add_evaluate(sub) -> None:
     p = sub.add_parser(
@@ -19,16 +17,29 @@ def add_evaluate(sub) -> None:
     )
     p.add_argument("--model", required=True, help="model zip")
     p.add_argument("--env", required=True, help="environment id")
-    p.add_argument("--demos", default=None,
-                   help="demonstrations npz (default: the demo pool in config.json beside the model, else experts/<EnvName>/demos.npz)")
-    p.add_argument("--episodes", default=None,
-                   help="comma-separated episode indices of the demos file (default: for a run's model, the run's "
-                        "held-out eval_episodes of its config.json; otherwise all)")
-    p.add_argument("--env-kwargs", default=None,
-                   help='e.g. "dict(max_steps=200)" (default: env_kwargs of config.json beside the model, if any)')
-    p.add_argument("--vecnormalize", default=None,
-                   help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any; required for a run "
-                        "that normalised)")
+    p.add_argument(
+        "--demos",
+        default=None,
+        help="demonstrations npz (default: the demo pool in config.json beside the model, "
+        "else experts/<EnvName>/demos.npz)",
+    )
+    p.add_argument(
+        "--episodes",
+        default=None,
+        help="comma-separated episode indices of the demos file (default: for a run's model, the run's "
+        "held-out eval_episodes of its config.json; otherwise all)",
+    )
+    p.add_argument(
+        "--env-kwargs",
+        default=None,
+        help='e.g. "dict(max_steps=200)" (default: env_kwargs of config.json beside the model, if any)',
+    )
+    p.add_argument(
+        "--vecnormalize",
+        default=None,
+        help="VecNormalize statistics (default: vecnormalize.pkl beside the model, if any; required for a run "
+        "that normalised)",
+    )
     p.set_defaults(func=_run_evaluate)
 
 
@@ -75,19 +86,29 @@ def _run_evaluate(args) -> int:
         table.add_column(column, justify="right")
     for row, index in enumerate(indices):
         table.add_row(
-            str(index), str(int(result.seeds[row])), f"{result.returns[row]:.2f}", f"{result.expert_returns[row]:.2f}",
-            f"{result.frechet[row]:.4g}", f"{result.episode_action_mse[row]:.4g}", str(int(result.lengths[row])),
+            str(index),
+            str(int(result.seeds[row])),
+            f"{result.returns[row]:.2f}",
+            f"{result.expert_returns[row]:.2f}",
+            f"{result.frechet[row]:.4g}",
+            f"{result.episode_action_mse[row]:.4g}",
+            str(int(result.lengths[row])),
         )
     table.add_section()
     table.add_row(
-        "mean", "", f"{result.mean_return:.2f} ± {result.std_return:.2f}", f"{float(result.expert_returns.mean()):.2f}",
-        f"{result.mean_frechet:.4g}", f"{result.action_mse:.4g}", f"{result.mean_length:.1f}",
+        "mean",
+        "",
+        f"{result.mean_return:.2f} ± {result.std_return:.2f}",
+        f"{float(result.expert_returns.mean()):.2f}",
+        f"{result.mean_frechet:.4g}",
+        f"{result.action_mse:.4g}",
+        f"{result.mean_length:.1f}",
     )
     Console().print(table)
     return 0
 
 
-def _evaluation_episodes(text: Optional[str], n_pool: int, demos_path, run_config: dict):
+def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: dict):
     """``(episode indices, how they were chosen)`` for ``evaluate``.
 
     Without ``--episodes``, a run's model is evaluated on the run's held-out episodes only: its
@@ -119,7 +140,7 @@ def _evaluation_episodes(text: Optional[str], n_pool: int, demos_path, run_confi
     return list(range(n_pool)), f"all {n_pool} episodes{note}"
 
 
-def _evaluation_statistics(path: Optional[str], model_path, run_config: dict):
+def _evaluation_statistics(path: str | None, model_path, run_config: dict):
     """``(VecNormalize statistics file or None, a line saying which)`` for ``evaluate``.
 
     A policy trained on normalised observations and fed raw ones acts nonsensically, and its

@@ -2,7 +2,7 @@
 options of a run (:func:`_add_run_options`)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Dict, List, Optional
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
     from sb3_cmzdril.io import PathLike
@@ -14,15 +14,31 @@ def _add_run_options(p, what: str) -> None:
     """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
     from sb3_cmzdril.experiments.spec import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
 
-    p.add_argument("--n-demos", type=int, default=None,
-                   help="training episodes per trial (default: n_demos of the YAML entry: 1 for MuJoCo, 5 for WaypointNav)")
-    p.add_argument("--eval-episodes", type=int, default=DEFAULT_EVAL_EPISODES,
-                   help=f"held-out expert episodes per evaluation (default {DEFAULT_EVAL_EPISODES})")
-    p.add_argument("--timesteps", type=int, default=None, help="total PPO steps per run (default: n_timesteps of the YAML)")
+    p.add_argument(
+        "--n-demos",
+        type=int,
+        default=None,
+        help="training episodes per trial (default: n_demos of the YAML entry: 1 for MuJoCo, 5 for WaypointNav)",
+    )
+    p.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=DEFAULT_EVAL_EPISODES,
+        help=f"held-out expert episodes per evaluation (default {DEFAULT_EVAL_EPISODES})",
+    )
+    p.add_argument(
+        "--timesteps", type=int, default=None, help="total PPO steps per run (default: n_timesteps of the YAML)"
+    )
     p.add_argument("--eval-every", type=int, default=1, help="evaluate every k PPO updates (default 1: every epoch)")
-    p.add_argument("--checkpoint-every", type=int, default=DEFAULT_CHECKPOINT_EVERY,
-                   help=f"checkpoint model.zip every k PPO updates (default {DEFAULT_CHECKPOINT_EVERY})")
-    p.add_argument("--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/cmzdril.yml)")
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=DEFAULT_CHECKPOINT_EVERY,
+        help=f"checkpoint model.zip every k PPO updates (default {DEFAULT_CHECKPOINT_EVERY})",
+    )
+    p.add_argument(
+        "--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/cmzdril.yml)"
+    )
     p.add_argument("--no-progress", action="store_true", help=f"no {what}")
 
 
@@ -60,9 +76,18 @@ def _run_train(args) -> int:
 
     torch.set_num_threads(check_threads(args.threads))
     spec = plan_run(
-        args.env, args.reward, args.seed, demos=args.demos, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
-        timesteps=args.timesteps, output_dir=args.output, hyperparams=args.hyperparams, eval_every=args.eval_every,
-        checkpoint_every=args.checkpoint_every, command=command_line(),
+        args.env,
+        args.reward,
+        args.seed,
+        demos=args.demos,
+        n_demos=args.n_demos,
+        n_eval_episodes=args.eval_episodes,
+        timesteps=args.timesteps,
+        output_dir=args.output,
+        hyperparams=args.hyperparams,
+        eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every,
+        command=command_line(),
     )
     result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
@@ -70,7 +95,8 @@ def _run_train(args) -> int:
     window = result.get("final_window")
     if window:
         print(
-            f"{result['status']}: {spec.label} -> {spec.output_dir}; epochs {window['first_epoch']}-{window['last_epoch']}: "
+            f"{result['status']}: {spec.label} -> {spec.output_dir}; "
+            f"epochs {window['first_epoch']}-{window['last_epoch']}: "
             f"return {window['return']:.2f}, Fréchet {window['frechet']:.4g}, action MSE {window['action_mse']:.4g}"
         )
     else:
@@ -80,7 +106,7 @@ def _run_train(args) -> int:
     return 0 if result["status"] in ("done", "skipped") else 1
 
 
-def final_evaluation_lines(final: Optional[Dict[str, Any]], output_dir: PathLike) -> List[str]:
+def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike) -> list[str]:
     """One line per finally-evaluated policy: its held-out return and the file that holds it, so a user
     sees that the lowest-disagreement policy (chosen without the env reward) may be the better one."""
     from pathlib import Path
@@ -94,8 +120,11 @@ def final_evaluation_lines(final: Optional[Dict[str, Any]], output_dir: PathLike
             continue
         label, name = files[policy]
         epoch = f" (epoch {ev['epoch']})" if "epoch" in ev else ""
-        lines.append(f"final evaluation, {label}{epoch}: return {ev['return_mean']:.2f} (std {ev.get('return_std', float('nan')):.2f}) "
-                     f"over {ev.get('n_episodes', '?')} held-out episodes: {Path(output_dir) / name}")
+        lines.append(
+            f"final evaluation, {label}{epoch}: return {ev['return_mean']:.2f} "
+            f"(std {ev.get('return_std', float('nan')):.2f}) "
+            f"over {ev.get('n_episodes', '?')} held-out episodes: {Path(output_dir) / name}"
+        )
     return lines
 
 
@@ -115,7 +144,9 @@ def add_benchmark(sub) -> None:
     p.add_argument("--env", required=True, help="environment id(s), comma-separated")
     from sb3_cmzdril.experiments.spec import METHODS
 
-    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)")
+    p.add_argument(
+        "--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)"
+    )
     p.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5, as the paper)")
     p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
     _add_run_options(p, "progress display")
@@ -131,10 +162,21 @@ def _run_benchmark(args) -> int:
     from sb3_cmzdril.experts import command_line
 
     outcomes = benchmark(
-        args.env, args.methods, args.trials, args.output, workers=args.workers, backend=args.backend,
-        ray_address=args.ray_address, progress=not args.no_progress, command=command_line(),
-        timesteps=args.timesteps, n_demos=args.n_demos, n_eval_episodes=args.eval_episodes,
-        eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, demos_dir=args.demos_dir,
+        args.env,
+        args.methods,
+        args.trials,
+        args.output,
+        workers=args.workers,
+        backend=args.backend,
+        ray_address=args.ray_address,
+        progress=not args.no_progress,
+        command=command_line(),
+        timesteps=args.timesteps,
+        n_demos=args.n_demos,
+        n_eval_episodes=args.eval_episodes,
+        eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every,
+        demos_dir=args.demos_dir,
         hyperparams=args.hyperparams,
     )
     print(summarize_outcomes(outcomes))

@@ -16,9 +16,13 @@ def add_train_expert(sub) -> None:
     )
     p.add_argument("--env", required=True, help="environment id (anything gym.make accepts)")
     p.add_argument("--algo", default="sac", help="sac (default), td3, ddpg, ppo, a2c or dqn")
-    p.add_argument("--timesteps", type=int, default=None, help="total training steps (default: n_timesteps from the YAML)")
+    p.add_argument(
+        "--timesteps", type=int, default=None, help="total training steps (default: n_timesteps from the YAML)"
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/<algo>.yml)")
+    p.add_argument(
+        "--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/<algo>.yml)"
+    )
     p.add_argument("-o", "--output", default=None, help="output folder (default: experts/<EnvId>)")
     p.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N steps (default 10000)")
     p.add_argument("--eval-episodes", type=int, default=5, help="episodes per periodic evaluation (default 5)")
@@ -27,9 +31,12 @@ def add_train_expert(sub) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar / progress lines")
     p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
-    p.add_argument("--force", action="store_true",
-                   help="train even where OUTPUT holds an expert without checkpoints (replacing it), or a finished "
-                        "one with fewer steps than --timesteps (continuing it)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="train even where OUTPUT holds an expert without checkpoints (replacing it), or a finished "
+        "one with fewer steps than --timesteps (continuing it)",
+    )
     p.set_defaults(func=_run_train_expert)
 
 
@@ -72,8 +79,12 @@ def add_collect_demos(sub) -> None:
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (default 0)")
     p.add_argument("-o", "--output", required=True, help="output .npz file")
-    p.add_argument("--force", action="store_true",
-                   help="replace an existing OUTPUT, and the demos record of a metadata.json beside it that is not the expert's own")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing OUTPUT, "
+        "and the demos record of a metadata.json beside it that is not the expert's own",
+    )
     p.set_defaults(func=_run_collect_demos)
 
 

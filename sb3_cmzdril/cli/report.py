@@ -5,7 +5,8 @@ from __future__ import annotations
 def add_report(sub) -> None:
     p = sub.add_parser(
         "report",
-        help="results.md (final evaluation, Table I), its CSVs and figures from a runs folder, optionally beside another",
+        help="results.md (final evaluation, Table I), its CSVs and figures "
+        "from a runs folder, optionally beside another",
         description=(
             "Read RUNS_DIR/<EnvName>/<method>/trial<t>/ (eval.csv, final_eval.csv, done.json, logs) and write "
             "OUTPUT/results.md: a headline (the final evaluation on every held-out pool episode, mean over trials "
@@ -18,22 +19,37 @@ def add_report(sub) -> None:
         ),
     )
     p.add_argument("runs_dir", metavar="RUNS_DIR", help="the benchmark's output folder")
-    p.add_argument("-o", "--output", default="docs", help="output folder (default: docs; its files are replaced only with --force)")
-    p.add_argument("--reference-runs", metavar="DIR",
-                   help="a second runs folder (e.g. docs/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
-                        "(and final evaluation, where its runs have one) in the headline and its own sections")
+    p.add_argument(
+        "-o", "--output", default="docs", help="output folder (default: docs; its files are replaced only with --force)"
+    )
+    p.add_argument(
+        "--reference-runs",
+        metavar="DIR",
+        help="a second runs folder (e.g. docs/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
+        "(and final evaluation, where its runs have one) in the headline and its own sections",
+    )
     p.add_argument("--label", help="how the report names RUNS_DIR's grid (default: the path as given)")
     p.add_argument("--reference-label", help="how the report names the --reference-runs grid (default: its path)")
     from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW
 
-    p.add_argument("--window", type=int, default=TABLE_WINDOW,
-                   help=f"epochs averaged at the end of each run (default {TABLE_WINDOW}, as the paper)")
+    p.add_argument(
+        "--window",
+        type=int,
+        default=TABLE_WINDOW,
+        help=f"epochs averaged at the end of each run (default {TABLE_WINDOW}, as the paper)",
+    )
     p.add_argument("--no-paper", action="store_true", help="leave out the paper's Table I reference numbers")
-    p.add_argument("--discussion", metavar="MARKDOWN",
-                   help="a hand-written markdown file (what the numbers mean), included as the Discussion section")
-    p.add_argument("--readme", metavar="README",
-                   help="also replace the results block of this README with the headline table")
-    p.add_argument("--no-figures", action="store_true", help="write the tables only (each figure takes a second or two)")
+    p.add_argument(
+        "--discussion",
+        metavar="MARKDOWN",
+        help="a hand-written markdown file (what the numbers mean), included as the Discussion section",
+    )
+    p.add_argument(
+        "--readme", metavar="README", help="also replace the results block of this README with the headline table"
+    )
+    p.add_argument(
+        "--no-figures", action="store_true", help="write the tables only (each figure takes a second or two)"
+    )
     p.add_argument("--force", action="store_true", help="replace the report files already in OUTPUT")
     p.set_defaults(func=_run_report)
 
@@ -47,11 +63,20 @@ def _run_report(args) -> int:
     out = Path(args.output)
     existing = [name for name in report_outputs() if (out / name).exists()]
     if existing and not args.force:
-        raise FileExistsError(f"{out} already holds {', '.join(existing)}; pass --force to replace them, or choose another -o")
+        raise FileExistsError(
+            f"{out} already holds {', '.join(existing)}; pass --force to replace them, or choose another -o"
+        )
     path = write_report(
-        args.runs_dir, args.output, window=args.window, references=() if args.no_paper else (PAPER_TABLE_I,),
-        command=command_line(), discussion=args.discussion, readme=args.readme,
-        reference_runs=args.reference_runs, label=args.label, reference_label=args.reference_label,
+        args.runs_dir,
+        args.output,
+        window=args.window,
+        references=() if args.no_paper else (PAPER_TABLE_I,),
+        command=command_line(),
+        discussion=args.discussion,
+        readme=args.readme,
+        reference_runs=args.reference_runs,
+        label=args.label,
+        reference_label=args.reference_label,
         figures=not args.no_figures,
     )
     print(path)

@@ -1,7 +1,8 @@
 """Matplotlib pictures of WaypointNav fields and paths (for docs and reports)."""
 from __future__ import annotations
 
-from typing import Any, Mapping, Optional, Sequence, Union
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -18,12 +19,12 @@ def _field_of(env_or_field: Any) -> WaypointField:
 
 
 def plot_trajectories(
-    env_or_field: Union[WaypointNavEnv, WaypointField, Any],
-    trajectories: Optional[Mapping[str, np.ndarray]] = None,
-    ax: Optional[Any] = None,
-    title: Optional[str] = None,
+    env_or_field: WaypointNavEnv | WaypointField | Any,
+    trajectories: Mapping[str, np.ndarray] | None = None,
+    ax: Any | None = None,
+    title: str | None = None,
     normalised: bool = False,
-    colors: Optional[Sequence[str]] = None,
+    colors: Sequence[str] | None = None,
     legend: bool = True,
 ) -> Any:
     """Draw the obstacle field, start, goal and paths; returns the matplotlib Axes.
@@ -47,7 +48,7 @@ def plot_trajectories(
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 5))
     ax.add_patch(Rectangle((-half, -half), 2 * half, 2 * half, fill=False, lw=1.5, color="black"))
-    for (cx, cy), r in zip(np.asarray(f.centres).reshape(-1, 2), np.asarray(f.radii)):
+    for (cx, cy), r in zip(np.asarray(f.centres).reshape(-1, 2), np.asarray(f.radii), strict=True):
         ax.add_patch(Circle((cx, cy), r, color="0.45", zorder=1))
     ax.add_patch(Circle(tuple(f.goal), WaypointNavEnv.goal_radius, color="tab:green", alpha=0.8, zorder=2))
     ax.plot(*f.start, marker="o", ms=7, mfc="white", mec="tab:blue", mew=2, zorder=4, ls="none", label="start")

@@ -38,7 +38,7 @@ ray casting in :mod:`.waypoint_lidar`, ``rgb_array`` drawing in :mod:`.waypoint_
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, Optional, Tuple, Union
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -68,9 +68,9 @@ def obs_dim(n_beams: int) -> int:
     return int(n_beams) + len(OBS_TAIL)
 
 
-def obs_index(n_beams: int) -> Dict[str, Union[int, slice]]:
+def obs_index(n_beams: int) -> dict[str, int | slice]:
     """Named positions in the observation: ``{"lidar": slice, "goal_distance": int, ..., "y": int}``."""
-    index: Dict[str, Union[int, slice]] = {"lidar": slice(0, int(n_beams))}
+    index: dict[str, int | slice] = {"lidar": slice(0, int(n_beams))}
     for i, name in enumerate(OBS_TAIL):
         index[name] = int(n_beams) + i
     return index
@@ -134,7 +134,7 @@ class WaypointNavEnv(gym.Env):
         max_speed: float = 2.5,
         max_turn_rate: float = math.pi / 2,
         dt: float = 0.1,
-        render_mode: Optional[str] = None,
+        render_mode: str | None = None,
     ) -> None:
         super().__init__()
         self.n_obstacles = _check_int("n_obstacles", n_obstacles, 0)
@@ -168,10 +168,10 @@ class WaypointNavEnv(gym.Env):
         # The lidar's own arrays, written in place by every sense(): aliases, not copies.
         self._ranges = self._lidar.ranges
 
-        self._field: Optional[WaypointField] = None
+        self._field: WaypointField | None = None
         self._state_ready = False
         self._done = False
-        self._background: Optional[np.ndarray] = None
+        self._background: np.ndarray | None = None
         self._set_field(self._demo_field())
 
     # -- scene ------------------------------------------------------------------------------------
@@ -205,8 +205,8 @@ class WaypointNavEnv(gym.Env):
                             self.endpoint_clearance, self.obstacle_radius)
 
     # -- gym API ----------------------------------------------------------------------------------
-    def reset(self, *, seed: Optional[int] = None, options: Optional[Dict[str, Any]] = None
-              ) -> Tuple[np.ndarray, Dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode on a new random field, or on ``options["field"]`` (a :class:`WaypointField`)."""
         super().reset(seed=seed)
         options = dict(options or {})
@@ -230,7 +230,7 @@ class WaypointNavEnv(gym.Env):
         obs = self._observation()
         return obs, self._info(False, collided, False)
 
-    def step(self, action: Any) -> Tuple[np.ndarray, float, bool, bool, Dict[str, Any]]:
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._state_ready:
             raise RuntimeError("call reset() before step()")
         if self._done:
@@ -299,12 +299,12 @@ class WaypointNavEnv(gym.Env):
         obs[n + 7] = -1.0 if y < -1.0 else (1.0 if y > 1.0 else y)
         return obs
 
-    def _info(self, success: bool, collision: bool, out: bool) -> Dict[str, Any]:
+    def _info(self, success: bool, collision: bool, out: bool) -> dict[str, Any]:
         return {"is_success": success, "collision": collision, "out_of_bounds": out,
                 "position": np.array((self._x, self._y)), "goal_distance": self._dist}
 
     # -- rendering --------------------------------------------------------------------------------
-    def render(self) -> Optional[np.ndarray]:
+    def render(self) -> np.ndarray | None:
         """``rgb_array``: an (H, W, 3) uint8 top view (obstacles grey, goal green, path blue,
         vehicle red with its heading, lidar hits orange)."""
         if self.render_mode is None:

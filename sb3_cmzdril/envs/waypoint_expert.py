@@ -25,7 +25,7 @@ If every candidate is blocked it turns toward the longest lidar return at low sp
 from __future__ import annotations
 
 import math
-from typing import Any, Optional, Tuple
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -64,8 +64,8 @@ class WaypointReactiveExpert:
         lookahead: float = 2.5,
         n_headings: int = 72,
         turn_weight: float = 0.5,
-        observation_space: Optional[gym.spaces.Space] = None,
-        action_space: Optional[gym.spaces.Space] = None,
+        observation_space: gym.spaces.Space | None = None,
+        action_space: gym.spaces.Space | None = None,
     ) -> None:
         if int(n_beams) < 1:
             raise ValueError(f"n_beams must be >= 1, got {n_beams}")
@@ -99,7 +99,7 @@ class WaypointReactiveExpert:
         self.offsets = self.offsets[np.abs(self.offsets) <= np.pi + 1e-9]
 
     @classmethod
-    def from_env(cls, env: gym.Env, **kwargs: Any) -> "WaypointReactiveExpert":
+    def from_env(cls, env: gym.Env, **kwargs: Any) -> WaypointReactiveExpert:
         """An expert configured from ``env``'s options (wrappers are looked through)."""
         base = env.unwrapped
         if not isinstance(base, WaypointNavEnv):
@@ -113,10 +113,10 @@ class WaypointReactiveExpert:
     def predict(
         self,
         observation: np.ndarray,
-        state: Optional[Any] = None,
-        episode_start: Optional[np.ndarray] = None,
+        state: Any | None = None,
+        episode_start: np.ndarray | None = None,
         deterministic: bool = True,
-    ) -> Tuple[np.ndarray, None]:
+    ) -> tuple[np.ndarray, None]:
         """Actions (2,) for one observation, (n, 2) for a batch; float32 in [-1, 1]."""
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1

@@ -9,8 +9,9 @@ from the same random generator state (:meth:`WaypointNavEnv.reset` calls :func:`
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping, Optional, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +40,7 @@ class WaypointField:
     start: np.ndarray
     goal: np.ndarray
     start_heading: float = 0.0
-    arena_size: Optional[float] = None
+    arena_size: float | None = None
 
     @property
     def n_obstacles(self) -> int:
@@ -113,7 +114,7 @@ def random_field(
     wall_margin: float,
     min_gap: float,
     endpoint_clearance: float,
-    obstacle_radius: Tuple[float, float],
+    obstacle_radius: tuple[float, float],
 ) -> WaypointField:
     """A random scene drawn from ``rng`` (the rules are in :class:`WaypointNavEnv`'s docstring).
 
@@ -153,8 +154,8 @@ def place_obstacles(
     half: float,
     gap: float,
     clear: float,
-    obstacle_radius: Tuple[float, float],
-) -> Optional[np.ndarray]:
+    obstacle_radius: tuple[float, float],
+) -> np.ndarray | None:
     """(n, 3) rows (x, y, r), or ``None`` when this start/goal left too little room.
 
     Every obstacle keeps ``gap`` between its surface and the walls (at ``+-half``) and the other

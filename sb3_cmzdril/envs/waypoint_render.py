@@ -8,7 +8,6 @@ and :func:`draw_frame` copies it and adds the path, lidar hits and vehicle.
 from __future__ import annotations
 
 import math
-from typing import Tuple
 
 import numpy as np
 
@@ -25,7 +24,7 @@ _VEHICLE = (220, 30, 30)
 _HEADING = (120, 0, 0)
 
 
-def _grid(arena_size: float) -> Tuple[float, float, np.ndarray, np.ndarray]:
+def _grid(arena_size: float) -> tuple[float, float, np.ndarray, np.ndarray]:
     """(pixels per metre, half side, xs (1, W), ys (H, 1)): the world coordinates of pixel centres."""
     size = RENDER_SIZE
     half = 0.5 * arena_size
@@ -55,7 +54,7 @@ def draw_frame(
     background: np.ndarray,
     arena_size: float,
     trail: np.ndarray,
-    pose: Tuple[float, float, float],
+    pose: tuple[float, float, float],
     vehicle_radius: float,
     hit_points: np.ndarray,
 ) -> np.ndarray:
@@ -66,7 +65,7 @@ def draw_frame(
     scale, half, xs, ys = _grid(arena_size)
     img = background.copy()
 
-    def pixel(px: np.ndarray, py: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    def pixel(px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         col = np.clip(((px + half) * scale).astype(int), 0, size - 1)
         row = np.clip(((half - py) * scale).astype(int), 0, size - 1)
         return row, col

@@ -10,8 +10,8 @@
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from sb3_cmzdril.experiments.tables import METRICS
 from sb3_cmzdril.io import PathLike, atomic_path
 
 #: The paper's figures: which methods each compares.
-FIGURES: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (
+FIGURES: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("fig1_bc_dril_cmz.png", "Fig. 1: CMZ-DRIL, BC and DRIL", ("bc", "dril", "cmz")),
     ("fig2_cmz_env_zero.png", "Fig. 2: CMZ-DRIL, env. reward and no reward", ("cmz", "env", "zero")),
 )
@@ -56,7 +56,7 @@ def _save(fig, path: PathLike) -> Path:
     return path
 
 
-def _smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(epochs, mean, std) over trials of each trial's smoothed curve; epochs not reached by every
     trial use the trials that reached them (an unfinished trial shortens nothing)."""
     from scipy.ndimage import gaussian_filter1d
@@ -76,7 +76,7 @@ def plot_figure(
     path: PathLike,
     title: str = "",
     sigma: float = SMOOTHING_SIGMA,
-) -> Optional[Path]:
+) -> Path | None:
     """The paper's Fig. 1/2 layout for ``methods``; None (nothing written) when none of them ran."""
     groups = group(r for r in records if r.method in methods)
     if not groups:
@@ -162,7 +162,7 @@ def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
     ax.grid(axis="y", alpha=0.3)
 
 
-def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Optional[Path]:
+def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Path | None:
     """The final evaluation's returns, one panel per env; None (nothing written) without rows."""
     if not rows:
         return None

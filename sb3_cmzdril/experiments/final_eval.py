@@ -19,8 +19,9 @@ import csv
 import dataclasses
 import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from sb3_cmzdril.experiments.formatting import fmt_ci, md_table
 from sb3_cmzdril.experiments.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
 
 #: Final-evaluation metrics: (final_eval.csv column, table header).
-FINAL_METRICS: Tuple[Tuple[str, str], ...] = (
+FINAL_METRICS: tuple[tuple[str, str], ...] = (
     ("return", "Return"),
     ("frechet", "Fréchet distance"),
     ("action_mse", "Action MSE"),
@@ -49,7 +50,7 @@ BOOTSTRAP_METHOD = "percentile"
 MIN_TRIALS_FOR_CI = 3
 
 
-def mean_ci(values: Sequence[float]) -> Tuple[float, float, float]:
+def mean_ci(values: Sequence[float]) -> tuple[float, float, float]:
     """(mean, low, high): the mean of ``values`` and its :data:`CONFIDENCE` bootstrap interval
     (``scipy.stats.bootstrap``, :data:`BOOTSTRAP_METHOD`, seeded with :data:`BOOTSTRAP_SEED`);
     low and high are nan with fewer than :data:`MIN_TRIALS_FOR_CI` values or a non-finite one."""
@@ -71,7 +72,7 @@ class FinalRow:
     env: str
     method: str
     policy: str  #: "final" or "lowest_u"
-    runs: List[RunRecord]  #: the runs whose final_eval.csv has this policy
+    runs: list[RunRecord]  #: the runs whose final_eval.csv has this policy
 
     @property
     def n_trials(self) -> int:
@@ -81,31 +82,31 @@ class FinalRow:
     def label(self) -> str:
         return label(self.method, self.policy)
 
-    def per_run(self, column: str) -> List[float]:
+    def per_run(self, column: str) -> list[float]:
         """Each run's mean of ``column`` over its held-out episodes, in run order; ``expert_level``:
         each run's share of episodes at expert level (:func:`expert_level_share`)."""
         if column == "expert_level":
             return [expert_level_share(r.final[self.policy]) for r in self.runs]
         return [float(np.mean(r.final[self.policy][column])) for r in self.runs]
 
-    def per_trial(self, column: str = "return") -> Dict[int, float]:
+    def per_trial(self, column: str = "return") -> dict[int, float]:
         return dict(zip([r.trial for r in self.runs], self.per_run(column), strict=True))
 
-    def episodes(self) -> List[int]:
+    def episodes(self) -> list[int]:
         """Each run's number of held-out episodes."""
         return [int(r.final[self.policy]["episode"].size) for r in self.runs]
 
-    def stat(self, column: str = "return") -> Tuple[float, float, float]:
+    def stat(self, column: str = "return") -> tuple[float, float, float]:
         """(mean over trials, CI low, CI high) of :meth:`per_run`."""
         return mean_ci(self.per_run(column))
 
-    def selected_epochs(self) -> List[Optional[int]]:
+    def selected_epochs(self) -> list[int | None]:
         """The epoch of each run's lowest-u policy (done.json), None where it is not recorded."""
         chosen = [r.summary.get("final_evaluation", {}).get(self.policy, {}).get("epoch") for r in self.runs]
         return [None if e is None else int(e) for e in chosen]
 
 
-def expert_level_share(columns: Dict[str, np.ndarray]) -> float:
+def expert_level_share(columns: dict[str, np.ndarray]) -> float:
     """The share of a run's held-out episodes whose return is at least :data:`EXPERT_LEVEL` times the
     expert's on the same episode; nan unless every expert return is positive."""
     expert = np.asarray(columns["expert_return"], dtype=np.float64)
@@ -114,7 +115,7 @@ def expert_level_share(columns: Dict[str, np.ndarray]) -> float:
     return float(np.mean(np.asarray(columns["return"], dtype=np.float64) >= EXPERT_LEVEL * expert))
 
 
-def final_table(records: Sequence[RunRecord]) -> List[FinalRow]:
+def final_table(records: Sequence[RunRecord]) -> list[FinalRow]:
     """The rows, env by env: every method's final policy, then the lowest-u policies."""
     groups = group(r for r in records if r.final)
     rows = []
@@ -127,7 +128,7 @@ def final_table(records: Sequence[RunRecord]) -> List[FinalRow]:
     return rows
 
 
-def find(rows: Sequence[FinalRow], env: str, method: str, policy: str = "final") -> Optional[FinalRow]:
+def find(rows: Sequence[FinalRow], env: str, method: str, policy: str = "final") -> FinalRow | None:
     return next((r for r in rows if (r.env, r.method, r.policy) == (env, method, policy)), None)
 
 
@@ -135,8 +136,8 @@ def find(rows: Sequence[FinalRow], env: str, method: str, policy: str = "final")
 class Paired:
     """``row`` against ``baseline`` on the trials both have: return differences, row minus baseline."""
 
-    trials: List[int]
-    diffs: List[float]
+    trials: list[int]
+    diffs: list[float]
 
     @property
     def wins(self) -> int:
@@ -146,7 +147,7 @@ class Paired:
         return f"{self.wins} of {len(self.trials)}" if self.trials else "n/a"
 
 
-def paired(row: FinalRow, baseline: Optional[FinalRow]) -> Optional[Paired]:
+def paired(row: FinalRow, baseline: FinalRow | None) -> Paired | None:
     """None without a baseline; else the differences of mean return on the trials both ran."""
     if baseline is None:
         return None
@@ -155,7 +156,7 @@ def paired(row: FinalRow, baseline: Optional[FinalRow]) -> Optional[Paired]:
     return Paired(trials, [mine[t] - theirs[t] for t in trials])
 
 
-def baselines(rows: Sequence[FinalRow], row: FinalRow) -> Tuple[Optional[FinalRow], Optional[FinalRow]]:
+def baselines(rows: Sequence[FinalRow], row: FinalRow) -> tuple[FinalRow | None, FinalRow | None]:
     """(BC, no reward) to compare ``row`` with: BC's policy for every RL row; no reward (the same
     policy choice, so the selection is compared like with like) for CMZ-DRIL only."""
     bc = find(rows, row.env, "bc") if row.method != "bc" else None
@@ -163,7 +164,7 @@ def baselines(rows: Sequence[FinalRow], row: FinalRow) -> Tuple[Optional[FinalRo
     return bc, zero
 
 
-def _diff_cell(p: Optional[Paired]) -> Tuple[str, str]:
+def _diff_cell(p: Paired | None) -> tuple[str, str]:
     if p is None:
         return "—", "—"
     return p.wins_text(), fmt_ci(*mean_ci(p.diffs))
@@ -203,7 +204,7 @@ def final_csv(rows: Sequence[FinalRow], runs_dir: Path) -> str:
         header += [f"{c}_mean", f"{c}_ci_low", f"{c}_ci_high"]
     writer.writerow(header + ["return_per_run", "run_dirs"])
     for r in rows:
-        values: List[Any] = [r.env, r.method, r.policy, r.n_trials, ";".join(map(str, r.episodes()))]
+        values: list[Any] = [r.env, r.method, r.policy, r.n_trials, ";".join(map(str, r.episodes()))]
         for c in columns:
             values += [repr(v) for v in r.stat(c)]
         writer.writerow(values + [";".join(map(repr, r.per_run("return"))),
@@ -231,17 +232,17 @@ def trials_text(rows: Sequence[FinalRow]) -> str:
     return str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
 
 
-def expert_by_env(rows: Sequence[FinalRow]) -> Dict[str, Tuple[float, float, float, int]]:
+def expert_by_env(rows: Sequence[FinalRow]) -> dict[str, tuple[float, float, float, int]]:
     """env -> (mean, CI low, CI high, trials) of each trial's mean expert return on its held-out
     episodes (final_eval.csv's expert_return; the same for every method of a trial: same split)."""
-    per_env: Dict[str, Dict[int, float]] = {}
+    per_env: dict[str, dict[int, float]] = {}
     for r in rows:
         if r.policy == "final":
             per_env.setdefault(r.env, {}).update(r.per_trial("expert_return"))
     return {env: (*mean_ci(list(v.values())), len(v)) for env, v in per_env.items()}
 
 
-def fmt_cell(row: Optional[FinalRow]) -> str:
+def fmt_cell(row: FinalRow | None) -> str:
     """``mean [low, high], n=trials`` for a side-by-side table; ``—`` without the row."""
     return "—" if row is None else f"{fmt_ci(*row.stat())}, n={row.n_trials}"
 

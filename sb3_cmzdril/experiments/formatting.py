@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import math
-from typing import Iterable, Optional, Sequence
+from collections.abc import Iterable, Sequence
 
 
-def fmt(value: Optional[float]) -> str:
+def fmt(value: float | None) -> str:
     """About three significant digits, as the paper prints (1690, 60.9, -52.6, 0.0123)."""
     if value is None or not math.isfinite(value):
         return "n/a"

@@ -26,8 +26,9 @@ import json
 import multiprocessing
 import time
 import traceback
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
+from typing import Any
 
 from sb3_cmzdril.experiments.progress import GridProgress
 from sb3_cmzdril.experiments.run_folder import ERROR_FILE, LOG_FILE, check_finished
@@ -51,27 +52,27 @@ BACKENDS = ("local", "ray")
 BENCHMARK_LOG = "benchmark.jsonl"
 
 
-def parse_list(text: Union[str, Sequence[str]]) -> List[str]:
+def parse_list(text: str | Sequence[str]) -> list[str]:
     """``"a,b, c"`` (or a list) -> ``["a", "b", "c"]``, duplicates removed, order kept."""
     items = text.split(",") if isinstance(text, str) else list(text)
     return list(dict.fromkeys(i.strip() for i in items if i.strip()))
 
 
 def plan_grid(
-    env_ids: Union[str, Sequence[str]],
-    methods: Union[str, Sequence[str]] = METHODS,
-    trials: Union[int, Sequence[int]] = 5,
+    env_ids: str | Sequence[str],
+    methods: str | Sequence[str] = METHODS,
+    trials: int | Sequence[int] = 5,
     runs_dir: PathLike = "runs",
     *,
-    timesteps: Optional[int] = None,
-    n_demos: Optional[int] = None,
+    timesteps: int | None = None,
+    n_demos: int | None = None,
     n_eval_episodes: int = DEFAULT_EVAL_EPISODES,
     eval_every: int = 1,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     demos_dir: PathLike = "experts",
-    hyperparams: Optional[PathLike] = None,
-    command: Optional[str] = None,
-) -> List[RunSpec]:
+    hyperparams: PathLike | None = None,
+    command: str | None = None,
+) -> list[RunSpec]:
     """Every run of the grid, validated before anything starts (unknown env or method, missing or
     too small demo pool, bad counts raise here).
 
@@ -93,16 +94,26 @@ def plan_grid(
         check_env_id(env_id)
         pool = default_demos_path(env_id, demos_dir)
         if not pool.is_file():
-            raise missing_pool_error(env_id, pool, f"pass --demos-dir DIR, a folder holding {env_name(env_id)}/demos.npz")
+            raise missing_pool_error(
+                env_id, pool, f"pass --demos-dir DIR, a folder holding {env_name(env_id)}/demos.npz"
+            )
     indices = list(range(int(trials))) if isinstance(trials, int) else [int(t) for t in trials]
     if not indices:
         raise ValueError(f"need at least one trial, got {trials!r}")
     return [
         plan_run(
-            env_id, method, trial,
-            demos=default_demos_path(env_id, demos_dir), n_demos=n_demos, n_eval_episodes=n_eval_episodes,
-            timesteps=timesteps, output_dir=default_output_dir(env_id, method, trial, runs_dir),
-            hyperparams=hyperparams, eval_every=eval_every, checkpoint_every=checkpoint_every, command=command,
+            env_id,
+            method,
+            trial,
+            demos=default_demos_path(env_id, demos_dir),
+            n_demos=n_demos,
+            n_eval_episodes=n_eval_episodes,
+            timesteps=timesteps,
+            output_dir=default_output_dir(env_id, method, trial, runs_dir),
+            hyperparams=hyperparams,
+            eval_every=eval_every,
+            checkpoint_every=checkpoint_every,
+            command=command,
         )
         for trial in indices
         for env_id in envs
@@ -131,11 +142,17 @@ def _write_error(spec: RunSpec, text: str) -> None:
     atomic_write_text(out / ERROR_FILE, header + text)
 
 
-def _outcome(spec: RunSpec, status: str, seconds: float, error: Optional[str] = None) -> Dict[str, Any]:
-    return {"label": spec.label, "run_dir": spec.output_dir, "status": status, "seconds": round(seconds, 1), "error": error}
+def _outcome(spec: RunSpec, status: str, seconds: float, error: str | None = None) -> dict[str, Any]:
+    return {
+        "label": spec.label,
+        "run_dir": spec.output_dir,
+        "status": status,
+        "seconds": round(seconds, 1),
+        "error": error,
+    }
 
 
-def execute_run(spec: RunSpec) -> Dict[str, Any]:
+def execute_run(spec: RunSpec) -> dict[str, Any]:
     """Worker entry point of both backends: one run, its output in ``<run>/log.txt``, never raising
     for a failed run (the traceback goes to ``<run>/error.txt``; the outcome says ``failed``)."""
     _init_worker()
@@ -143,7 +160,11 @@ def execute_run(spec: RunSpec) -> Dict[str, Any]:
     out = Path(spec.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     try:
-        with open(out / LOG_FILE, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        with (
+            open(out / LOG_FILE, "a", encoding="utf-8") as log,
+            contextlib.redirect_stdout(log),
+            contextlib.redirect_stderr(log),
+        ):
             print(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} {spec.label}", flush=True)
             result = run_experiment(spec)
             print(f"=== {result['status']} after {time.time() - t0:.0f} s", flush=True)
@@ -163,7 +184,9 @@ class _LocalBackend:
         self.pool = self._new_pool()
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, mp_context=self.context, initializer=_init_worker)
+        return concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=self.context, initializer=_init_worker
+        )
 
     def submit(self, spec: RunSpec) -> concurrent.futures.Future:
         try:
@@ -173,11 +196,11 @@ class _LocalBackend:
             self.pool = self._new_pool()
             return self.pool.submit(execute_run, spec)
 
-    def wait(self, handles: List[Any], timeout: float) -> List[Any]:
+    def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         done, _ = concurrent.futures.wait(handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
         return list(done)
 
-    def result(self, handle: concurrent.futures.Future) -> Dict[str, Any]:
+    def result(self, handle: concurrent.futures.Future) -> dict[str, Any]:
         return handle.result()
 
     def close(self, interrupted: bool = False) -> None:
@@ -187,12 +210,13 @@ class _LocalBackend:
 class _RayBackend:
     """``execute_run`` as Ray tasks with one CPU each; starts (and stops) a local Ray if none is up."""
 
-    def __init__(self, workers: int, address: Optional[str]) -> None:
+    def __init__(self, workers: int, address: str | None) -> None:
         try:
             import ray
         except ImportError as e:
             raise ImportError(
-                "the Ray backend needs the optional 'ray' package: pip install 'sb3-cmzdril[ray]' (or use --backend local)"
+                "the Ray backend needs the optional 'ray' package: pip install 'sb3-cmzdril[ray]' "
+                "(or use --backend local)"
             ) from e
         self.ray = ray
         self.owned = not ray.is_initialized()
@@ -207,11 +231,11 @@ class _RayBackend:
     def submit(self, spec: RunSpec) -> Any:
         return self.task.remote(spec)
 
-    def wait(self, handles: List[Any], timeout: float) -> List[Any]:
+    def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
         return ready
 
-    def result(self, handle: Any) -> Dict[str, Any]:
+    def result(self, handle: Any) -> dict[str, Any]:
         return self.ray.get(handle)
 
     def close(self, interrupted: bool = False) -> None:
@@ -219,7 +243,7 @@ class _RayBackend:
             self.ray.shutdown()
 
 
-def _backend(name: str, workers: int, ray_address: Optional[str]):
+def _backend(name: str, workers: int, ray_address: str | None):
     if name == "local":
         if ray_address:
             raise ValueError("--ray-address needs --backend ray")
@@ -234,9 +258,9 @@ def run_grid(
     specs: Sequence[RunSpec],
     workers: int = 1,
     backend: str = "local",
-    ray_address: Optional[str] = None,
+    ray_address: str | None = None,
     progress: bool = True,
-) -> List[Dict[str, Any]]:
+) -> list[dict[str, Any]]:
     """Execute the runs, ``workers`` at a time; returns one outcome per spec, in spec order.
 
     Outcome: ``{"label", "run_dir", "status", "seconds", "error"}`` with status ``skipped`` (done
@@ -250,7 +274,7 @@ def run_grid(
     labels = [s.output_dir for s in specs]
     if len(set(labels)) != len(labels):
         raise ValueError("two runs of the grid share an output folder")
-    outcomes: Dict[str, Dict[str, Any]] = {}
+    outcomes: dict[str, dict[str, Any]] = {}
     todo: collections.deque = collections.deque()
     skipped = []
     for spec in specs:
@@ -266,7 +290,7 @@ def run_grid(
     runner = _backend(backend, workers, ray_address) if todo else None
     interrupted = True
     try:
-        running: Dict[Any, RunSpec] = {}
+        running: dict[Any, RunSpec] = {}
         while todo or running:
             while todo and len(running) < workers:
                 spec = todo.popleft()
@@ -291,18 +315,18 @@ def run_grid(
 
 
 def benchmark(
-    env_ids: Union[str, Sequence[str]],
-    methods: Union[str, Sequence[str]] = METHODS,
-    trials: Union[int, Sequence[int]] = 5,
+    env_ids: str | Sequence[str],
+    methods: str | Sequence[str] = METHODS,
+    trials: int | Sequence[int] = 5,
     runs_dir: PathLike = "runs",
     *,
     workers: int = 1,
     backend: str = "local",
-    ray_address: Optional[str] = None,
+    ray_address: str | None = None,
     progress: bool = True,
-    command: Optional[str] = None,
+    command: str | None = None,
     **plan_kwargs: Any,
-) -> List[Dict[str, Any]]:
+) -> list[dict[str, Any]]:
     """:func:`plan_grid` + :func:`run_grid`, and a line in ``RUNS_DIR/benchmark.jsonl`` recording
     the command, the grid and the outcome of this invocation. ``plan_kwargs`` go to :func:`plan_grid`."""
     if backend not in BACKENDS:  # before planning: a typo should not wait for the pool checks
@@ -331,15 +355,26 @@ def benchmark(
     return outcomes
 
 
-def summarize_outcomes(outcomes: Iterable[Dict[str, Any]]) -> str:
+def summarize_outcomes(outcomes: Iterable[dict[str, Any]]) -> str:
     """One line: how many runs ended how, and which failed (with their error files)."""
     outcomes = list(outcomes)
     counts = collections.Counter(o["status"] for o in outcomes)
     text = f"{len(outcomes)} runs: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
     failed = [o for o in outcomes if o["status"] == "failed"]
     if failed:
-        text += "\nfailed:\n" + "\n".join(f"  {o['label']}: {o['error']} ({Path(o['run_dir']) / ERROR_FILE})" for o in failed)
+        text += "\nfailed:\n" + "\n".join(
+            f"  {o['label']}: {o['error']} ({Path(o['run_dir']) / ERROR_FILE})" for o in failed
+        )
     return text
 
 
-__all__ = ["BACKENDS", "plan_grid", "run_grid", "benchmark", "execute_run", "parse_list", "summarize_outcomes", "GridProgress"]
+__all__ = [
+    "BACKENDS",
+    "plan_grid",
+    "run_grid",
+    "benchmark",
+    "execute_run",
+    "parse_list",
+    "summarize_outcomes",
+    "GridProgress",
+]

@@ -5,7 +5,7 @@ labelled tables or columns: never mixed with measured numbers.
 from __future__ import annotations
 
 import dataclasses
-from typing import Dict, Mapping, Tuple
+from collections.abc import Mapping
 
 from sb3_cmzdril.experiments.formatting import fmt_mean_std, md_table
 from sb3_cmzdril.experiments.records import METHOD_LABELS, METHOD_ORDER, env_key
@@ -17,7 +17,7 @@ class ReferenceTable:
 
     title: str
     note: str
-    values: Mapping[str, Mapping[str, Tuple[float, float]]]
+    values: Mapping[str, Mapping[str, tuple[float, float]]]
 
     @property
     def name(self) -> str:
@@ -42,7 +42,7 @@ PAPER_TABLE_I = ReferenceTable(
 )
 
 #: What the paper calls the envs we stand in for.
-PAPER_ENV_NAMES: Dict[str, str] = {
+PAPER_ENV_NAMES: dict[str, str] = {
     "WaypointNav-v0": "PyUXV",
     "HalfCheetah-v5": "Half Cheetah v1",
     "Hopper-v5": "Hopper v1",

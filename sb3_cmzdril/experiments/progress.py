@@ -9,8 +9,9 @@ from __future__ import annotations
 import collections
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Dict, List, Sequence
+from typing import Any
 
 from sb3_cmzdril.experiments.run_folder import ERROR_FILE, latest_epoch
 from sb3_cmzdril.experiments.spec import RunSpec
@@ -28,7 +29,7 @@ class GridProgress:
         self.enabled = enabled
         self.heartbeat_s = heartbeat_s
         self.counts: collections.Counter = collections.Counter()
-        self.running: Dict[str, RunSpec] = {}
+        self.running: dict[str, RunSpec] = {}
         self._progress = None
         self._task = None
         self._last_line = time.time()
@@ -57,7 +58,7 @@ class GridProgress:
     def finished_count(self) -> int:
         return sum(self.counts.values())
 
-    def _running_lines(self) -> List[str]:
+    def _running_lines(self) -> list[str]:
         lines = []
         for label, spec in self.running.items():
             epoch = latest_epoch(spec.output_dir)
@@ -69,7 +70,8 @@ class GridProgress:
 
     def _status_text(self) -> str:
         counts = self._counts_text()
-        return f"{self.finished_count}/{self.total} finished{', ' + counts if counts else ''}; running: {', '.join(self._running_lines()) or '-'}"
+        running = ", ".join(self._running_lines()) or "-"
+        return f"{self.finished_count}/{self.total} finished{', ' + counts if counts else ''}; running: {running}"
 
     def _line(self, event: str) -> None:
         self._last_line = time.time()
@@ -89,7 +91,7 @@ class GridProgress:
             self.counts["skipped"] += len(specs)
             self._line(f"{len(specs)} runs already finished (done.json), skipped")
 
-    def finished(self, spec: RunSpec, result: Dict[str, Any]) -> None:
+    def finished(self, spec: RunSpec, result: dict[str, Any]) -> None:
         self.running.pop(spec.label, None)
         self.counts[result["status"]] += 1
         detail = f": {result['error']} (see {Path(spec.output_dir) / ERROR_FILE})" if result.get("error") else ""

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Optional, Tuple
 
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
@@ -16,7 +15,7 @@ README_BEGIN = "<!-- results table: written by `sb3-cmzdril report --readme`, do
 README_END = "<!-- end of results table -->"
 
 
-def readme_block(path: PathLike) -> Tuple[str, int, int]:
+def readme_block(path: PathLike) -> tuple[str, int, int]:
     """(README text, end of the begin marker, start of the end marker); errors name what is missing.
 
     Called before a report writes anything, so a README without the block fails early.
@@ -43,7 +42,7 @@ def link(target: PathLike, start: PathLike) -> str:
     return Path(os.path.relpath(Path(target).resolve(), Path(start).resolve())).as_posix()
 
 
-def short_command(command: Optional[str]) -> str:
+def short_command(command: str | None) -> str:
     """The command with its program's folder dropped (a README should not show this machine's paths)."""
     if not command:
         return "sb3-cmzdril report"

@@ -13,8 +13,9 @@ import csv
 import dataclasses
 import json
 import re
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from sb3_cmzdril.experiments.spec import METHODS
 from sb3_cmzdril.io import PathLike, read_json_or_empty
 
 #: How methods are named in tables and legends (the paper's names).
-METHOD_LABELS: Dict[str, str] = {
+METHOD_LABELS: dict[str, str] = {
     "bc": "BC",
     "dril": "DRIL",
     "cmz": "CMZ-DRIL",
@@ -39,14 +40,14 @@ METHOD_LABELS: Dict[str, str] = {
     "env": "Env. reward",
 }
 #: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods.
-METHOD_ORDER: Tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env")
+METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env")
 #: Column order of envs: the paper's (PyUXV, Half Cheetah, Hopper); others follow alphabetically.
-ENV_ORDER: Tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
+ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: The policies of a final evaluation: the one at the end of training, and the one whose own training
 #: rollout had the lowest ensemble disagreement (reward-free selection; RL methods only).
-POLICIES: Tuple[str, ...] = ("final", "lowest_u")
+POLICIES: tuple[str, ...] = ("final", "lowest_u")
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
-FINAL_VALUES: Tuple[str, ...] = ("return", "frechet", "action_mse", "expert_return")
+FINAL_VALUES: tuple[str, ...] = ("return", "frechet", "action_mse", "expert_return")
 
 
 @dataclasses.dataclass
@@ -57,12 +58,12 @@ class RunRecord:
     method: str
     trial: int
     path: Path  #: the run folder
-    columns: Dict[str, np.ndarray]  #: eval.csv as columns, sorted by epoch
+    columns: dict[str, np.ndarray]  #: eval.csv as columns, sorted by epoch
     status: str  #: done / partial / failed / new (see runs.run_status)
-    config: Dict[str, Any]
+    config: dict[str, Any]
     #: final_eval.csv: policy -> column -> one value per held-out episode ({} without the file)
-    final: Dict[str, Dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
-    summary: Dict[str, Any] = dataclasses.field(default_factory=dict)  #: done.json ({} if unfinished)
+    final: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
+    summary: dict[str, Any] = dataclasses.field(default_factory=dict)  #: done.json ({} if unfinished)
 
     def relative(self, root: Path) -> str:
         return relative(self.path, root)
@@ -84,7 +85,7 @@ def relative(path: Path, root: Path) -> str:
 _TRIAL = re.compile(r"^trial(\d+)$")
 
 
-def read_final_eval(path: PathLike) -> Dict[str, Dict[str, np.ndarray]]:
+def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     """final_eval.csv as ``policy -> column -> values`` (episode order kept); {} when there is none.
 
     The file is written atomically at the end of a run, so a malformed one is an error, not a run in
@@ -99,7 +100,7 @@ def read_final_eval(path: PathLike) -> Dict[str, Dict[str, np.ndarray]]:
         if missing:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
         rows = list(reader)
-    result: Dict[str, Dict[str, np.ndarray]] = {}
+    result: dict[str, dict[str, np.ndarray]] = {}
     try:
         for policy in dict.fromkeys(row["policy"] for row in rows):
             mine = [row for row in rows if row["policy"] == policy]
@@ -111,7 +112,7 @@ def read_final_eval(path: PathLike) -> Dict[str, Dict[str, np.ndarray]]:
     return result
 
 
-def load_runs(runs_dir: PathLike) -> List[RunRecord]:
+def load_runs(runs_dir: PathLike) -> list[RunRecord]:
     """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial."""
     root = Path(runs_dir)
     if not root.is_dir():
@@ -134,14 +135,14 @@ def load_runs(runs_dir: PathLike) -> List[RunRecord]:
     return sorted(records, key=lambda r: (env_key(r.env), METHOD_ORDER.index(r.method), r.trial))
 
 
-def env_key(env: str) -> Tuple[int, str]:
+def env_key(env: str) -> tuple[int, str]:
     """Sort key: the paper's envs in its order, then the others alphabetically."""
     return (ENV_ORDER.index(env), env) if env in ENV_ORDER else (len(ENV_ORDER), env)
 
 
-def group(records: Iterable[RunRecord]) -> Dict[Tuple[str, str], List[RunRecord]]:
+def group(records: Iterable[RunRecord]) -> dict[tuple[str, str], list[RunRecord]]:
     """(env, method) -> its runs, in the order given."""
-    groups: Dict[Tuple[str, str], List[RunRecord]] = {}
+    groups: dict[tuple[str, str], list[RunRecord]] = {}
     for r in records:
         groups.setdefault((r.env, r.method), []).append(r)
     return groups
@@ -153,14 +154,14 @@ class Grid:
 
     label: str  #: how tables and headings name it
     root: Path
-    records: List[RunRecord]
+    records: list[RunRecord]
 
     @property
     def has_final(self) -> bool:
         return any(r.final for r in self.records)
 
 
-def load_grid(runs_dir: PathLike, label: Optional[str] = None) -> Grid:
+def load_grid(runs_dir: PathLike, label: str | None = None) -> Grid:
     """The runs of ``runs_dir`` (ValueError when it has none), labelled by ``label`` or its path."""
     root = Path(runs_dir)
     records = load_runs(root)
@@ -170,11 +171,11 @@ def load_grid(runs_dir: PathLike, label: Optional[str] = None) -> Grid:
 
 
 #: Top-level config.json settings compared by :func:`setting_differences` (beside hyperparams_values).
-COMPARED_SETTINGS: Tuple[str, ...] = ("timesteps", "n_demos", "n_eval_episodes", "eval_every")
+COMPARED_SETTINGS: tuple[str, ...] = ("timesteps", "n_demos", "n_eval_episodes", "eval_every")
 NOT_SET = "not set"
 
 
-def _settings(records: Sequence[RunRecord], env: str) -> Dict[str, set]:
+def _settings(records: Sequence[RunRecord], env: str) -> dict[str, set]:
     """key -> the set of values (as JSON text) the env's runs recorded; NOT_SET where a run lacks it."""
     configs = [r.config for r in records if r.env == env and r.config]
     merged = [{**{k: c[k] for k in COMPARED_SETTINGS if k in c}, **c.get("hyperparams_values", {})} for c in configs]
@@ -182,11 +183,11 @@ def _settings(records: Sequence[RunRecord], env: str) -> Dict[str, set]:
     return {k: {json.dumps(m[k], sort_keys=True) if k in m else NOT_SET for m in merged} for k in keys}
 
 
-def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> Dict[str, List[Tuple[str, str, str]]]:
+def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> dict[str, list[tuple[str, str, str]]]:
     """env -> [(setting, a's value(s), b's value(s))] for the settings whose values differ between the
     two grids' runs of that env (config.json: :data:`COMPARED_SETTINGS` and hyperparams_values).
     Only envs both grids ran are compared."""
-    result: Dict[str, List[Tuple[str, str, str]]] = {}
+    result: dict[str, list[tuple[str, str, str]]] = {}
     envs_b = {r.env for r in b}
     for env in sorted({r.env for r in a} & envs_b, key=env_key):
         sa, sb = _settings(a, env), _settings(b, env)

@@ -21,8 +21,8 @@ With ``readme`` the README's results block is replaced by the headline
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
 
 from sb3_cmzdril.experiments.figures import (
     FIGURES,
@@ -53,10 +53,10 @@ from sb3_cmzdril.experiments.tables import expert_returns, gap_closed, gap_trial
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
-SUFFIXES: Tuple[str, str] = ("", "_reference")
+SUFFIXES: tuple[str, str] = ("", "_reference")
 
 
-def report_outputs() -> List[str]:
+def report_outputs() -> list[str]:
     """Every file name a report may write into its output folder (the CLI's --force check)."""
     names = ["results.md"]
     for suffix in SUFFIXES:
@@ -68,36 +68,48 @@ def _source_line(rep: GridReport) -> str:
     records = rep.grid.records
     n_final = sum(bool(r.final) for r in records)
     curves = "Table I and Fig. 1/2" if rep.suffix == SUFFIXES[0] else "Table I"  # the curves: main grid only
-    return (f"- **{rep.label}**: `{rep.root}`, {len(records)} runs: their `eval.csv` ({curves}), "
-            f"`final_eval.csv` (the final evaluation; {n_final} of the {len(records)} runs have one), `done.json` (the epoch of each "
-            "lowest-u policy), `logs/progress_*.csv` (the reward signal) and the demo pools their `config.json` "
-            "names (the expert's return in Table I).")
+    return (
+        f"- **{rep.label}**: `{rep.root}`, {len(records)} runs: their `eval.csv` ({curves}), "
+        f"`final_eval.csv` (the final evaluation; {n_final} of the {len(records)} runs have one), "
+        f"`done.json` (the epoch of each "
+        "lowest-u policy), `logs/progress_*.csv` (the reward signal) and the demo pools their `config.json` "
+        "names (the expert's return in Table I)."
+    )
 
 
 def render_markdown(
     reports: Sequence[GridReport],
-    figures: Sequence[Tuple[str, Path]],
-    final_figures: Dict[str, Path],
+    figures: Sequence[tuple[str, Path]],
+    final_figures: dict[str, Path],
     references: Sequence[ReferenceTable],
-    report_command: Optional[str],
+    report_command: str | None,
     window: int,
-    discussion: Optional[str] = None,
+    discussion: str | None = None,
 ) -> str:
     """results.md: the headline, each grid's sections, the figures, the references, the sources."""
     two = len(reports) > 1
     h = "###" if two else "##"
     reference = references[0] if references else None
     parts = [
-        "# Results", "",
+        "# Results",
+        "",
         f"Computed by `sb3_cmzdril.experiments.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from these files. "
         "Every number in the tables is computed from them, none is typed in, except the paper's numbers, which "
-        "are copied from the paper and labelled as such. The Discussion, if any, is written by hand.", "",
+        "are copied from the paper and labelled as such. The Discussion, if any, is written by hand.",
+        "",
         *(_source_line(rep) for rep in reports),
     ]
     for rep in reports:
         parts += status_lines(rep)
-    parts += ["", "## Headline", "", headline_text(reports, reference, window), "",
-              headline_markdown(reports, reference), ""]
+    parts += [
+        "",
+        "## Headline",
+        "",
+        headline_text(reports, reference, window),
+        "",
+        headline_markdown(reports, reference),
+        "",
+    ]
     if two:
         parts += [differences_markdown(reports[0], reports[1]), ""]
     for i, rep in enumerate(reports):
@@ -108,10 +120,15 @@ def render_markdown(
         if i == 0 and figures:
             parts += [f"{h} Figures", ""]
             for title, path in figures:
-                parts += [f"**{title}.** One row per env, one column per metric against the epoch; each trial's "
-                          f"curve is smoothed with a Gaussian filter (sigma {SMOOTHING_SIGMA:g} evaluations), then "
-                          "the line is the mean over trials and the band ±1 std. BC (evaluated once) is the dashed "
-                          "horizontal line with its ±1 std band.", "", f"![{title}]({path.name})", ""]
+                parts += [
+                    f"**{title}.** One row per env, one column per metric against the epoch; each trial's "
+                    f"curve is smoothed with a Gaussian filter (sigma {SMOOTHING_SIGMA:g} evaluations), then "
+                    "the line is the mean over trials and the band ±1 std. BC (evaluated once) is the dashed "
+                    "horizontal line with its ±1 std band.",
+                    "",
+                    f"![{title}]({path.name})",
+                    "",
+                ]
     if references:
         parts += ["## Reference numbers", "", *(reference_markdown(ref) for ref in references)]
     if discussion:
@@ -119,12 +136,16 @@ def render_markdown(
     parts += ["## Where each number comes from", ""]
     for rep in reports:
         parts += sources_sections(rep, f"### {rep.label}" if two else "")
-    parts += ["This report:", "", f"    {short_command(report_command or 'sb3-cmzdril report ' + str(reports[0].root))}",
-              ""]
+    parts += [
+        "This report:",
+        "",
+        f"    {short_command(report_command or 'sb3-cmzdril report ' + str(reports[0].root))}",
+        "",
+    ]
     return "\n".join(parts)
 
 
-def _check_inputs(window: int, discussion: Optional[PathLike], readme: Optional[PathLike]) -> None:
+def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | None) -> None:
     """Fail on a bad input before anything is written."""
     if int(window) < 1:
         raise ValueError(f"window must be >= 1, got {window}")
@@ -134,15 +155,27 @@ def _check_inputs(window: int, discussion: Optional[PathLike], readme: Optional[
         readme_block(readme)
 
 
-def _readme_text(reports: Sequence[GridReport], reference: Optional[ReferenceTable], window: int,
-                 command: Optional[str], results: Path, readme: PathLike) -> str:
+def _readme_text(
+    reports: Sequence[GridReport],
+    reference: ReferenceTable | None,
+    window: int,
+    command: str | None,
+    results: Path,
+    readme: PathLike,
+) -> str:
     sources = []
     for rep in reports:
         unfinished = sum(r.status != "done" for r in rep.grid.records)
-        sources.append(f"{len(rep.grid.records)} runs in `{rep.root}`" + (f" ({unfinished} not finished)" if unfinished else ""))
-    return (headline_markdown(reports, reference) + "\n\n" + headline_text(reports, reference, window)
-            + f" From {' and '.join(sources)}; written by `{short_command(command)}`; details in "
-            f"[results.md]({link(results, Path(readme).parent)}).")
+        sources.append(
+            f"{len(rep.grid.records)} runs in `{rep.root}`" + (f" ({unfinished} not finished)" if unfinished else "")
+        )
+    return (
+        headline_markdown(reports, reference)
+        + "\n\n"
+        + headline_text(reports, reference, window)
+        + f" From {' and '.join(sources)}; written by `{short_command(command)}`; details in "
+        f"[results.md]({link(results, Path(readme).parent)})."
+    )
 
 
 def write_report(
@@ -151,13 +184,13 @@ def write_report(
     *,
     window: int = TABLE_WINDOW,
     references: Sequence[ReferenceTable] = (PAPER_TABLE_I,),
-    command: Optional[str] = None,
+    command: str | None = None,
     sigma: float = SMOOTHING_SIGMA,
-    discussion: Optional[PathLike] = None,
-    readme: Optional[PathLike] = None,
-    reference_runs: Optional[PathLike] = None,
-    label: Optional[str] = None,
-    reference_label: Optional[str] = None,
+    discussion: PathLike | None = None,
+    readme: PathLike | None = None,
+    reference_runs: PathLike | None = None,
+    label: str | None = None,
+    reference_label: str | None = None,
     figures: bool = True,
 ) -> Path:
     """Write results.md, the tables' CSVs and the figures into ``output_dir``; returns results.md's path.
@@ -180,12 +213,12 @@ def write_report(
         grids.append(load_grid(reference_runs, reference_label))
         if grids[0].label == grids[1].label:
             raise ValueError(f"both grids are labelled {grids[0].label!r}: give them different labels")
-    reports = [analyse(grid, int(window), suffix) for grid, suffix in zip(grids, SUFFIXES)]
+    reports = [analyse(grid, int(window), suffix) for grid, suffix in zip(grids, SUFFIXES[: len(grids)], strict=True)]
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = {"results.md"}
-    final_figures: Dict[str, Path] = {}
-    for rep, figure_name in zip(reports, (FINAL_FIGURE, FINAL_FIGURE_REFERENCE)):
+    final_figures: dict[str, Path] = {}
+    for rep, figure_name in zip(reports, (FINAL_FIGURE, FINAL_FIGURE_REFERENCE)[: len(reports)], strict=True):
         atomic_write_text(out / f"table1{rep.suffix}.csv", table_csv(rep.rows, rep.root))
         written.add(f"table1{rep.suffix}.csv")
         if rep.final:
@@ -206,8 +239,12 @@ def write_report(
     for name in set(report_outputs()) - written:
         (out / name).unlink(missing_ok=True)  # an earlier report's file this one would contradict
     if readme is not None:
-        update_readme(readme, _readme_text(reports, references[0] if references else None, int(window), command,
-                                           out / "results.md", readme))
+        update_readme(
+            readme,
+            _readme_text(
+                reports, references[0] if references else None, int(window), command, out / "results.md", readme
+            ),
+        )
     return out / "results.md"
 
 

@@ -35,8 +35,9 @@ import csv
 import hashlib
 import os
 import time
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +87,7 @@ _SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command")
 
 
 # -- eval.csv ------------------------------------------------------------------------------------
-def read_eval_csv(path: PathLike) -> Dict[str, np.ndarray]:
+def read_eval_csv(path: PathLike) -> dict[str, np.ndarray]:
     """eval.csv as columns (float arrays, rows sorted by epoch; first row per epoch kept).
 
     Rows cut short by a killed process (wrong field count, unparsable numbers) are skipped.
@@ -94,7 +95,7 @@ def read_eval_csv(path: PathLike) -> Dict[str, np.ndarray]:
     from sb3_cmzdril.metrics import ExpertEvalCallback
 
     columns = ExpertEvalCallback.CSV_COLUMNS
-    rows: Dict[int, List[float]] = {}
+    rows: dict[int, list[float]] = {}
     path = Path(path)
     if path.is_file():
         with open(path, newline="") as f:
@@ -109,7 +110,7 @@ def read_eval_csv(path: PathLike) -> Dict[str, np.ndarray]:
     return {c: table[:, i] for i, c in enumerate(columns)}
 
 
-def window_means(columns: Mapping[str, np.ndarray], window: int = TABLE_WINDOW) -> Dict[str, float]:
+def window_means(columns: Mapping[str, np.ndarray], window: int = TABLE_WINDOW) -> dict[str, float]:
     """Each metric averaged over the evaluations of the last ``window`` epochs (all, if fewer).
 
     "Last 100 epochs" counts epochs, not rows: rows with ``epoch > last_epoch - window``.
@@ -194,7 +195,7 @@ class RunState:
 
     def __init__(self, out: Path, spec: RunSpec, start_steps: int) -> None:
         self.path = out / STATE_FILE
-        self.data: Dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "segments": []}
+        self.data: dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "segments": []}
         if self.path.is_file() and start_steps > 0:
             self.data.update(read_json(self.path))
         self._base_wall = float(self.data.get("wall_time_s", 0.0))
@@ -213,7 +214,7 @@ class RunState:
         write_json(self.path, self.data)
 
 
-def run_config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], pool) -> Dict[str, Any]:
+def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], pool) -> dict[str, Any]:
     """config.json's content for ``spec`` with its hyperparameters ``hp``, split and demo ``pool``."""
     return {
         "env_id": spec.env_id,
@@ -226,7 +227,8 @@ def run_config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], poo
         "demos": spec.demos,
         "demos_sha256": file_sha256(spec.demos),
         "pool_episodes": int(pool.n_episodes),
-        "split": "numpy.random.default_rng(seed).permutation(pool_episodes): first n_demos train, next n_eval_episodes evaluate",
+        "split": "numpy.random.default_rng(seed).permutation(pool_episodes): first n_demos train, "
+        "next n_eval_episodes evaluate",
         "n_demos": spec.n_demos,
         "n_eval_episodes": spec.n_eval_episodes,
         "train_episodes": train_idx,
@@ -249,24 +251,27 @@ def run_config(spec: RunSpec, hp, train_idx: List[int], eval_idx: List[int], poo
     }
 
 
-def as_stored(config: Mapping[str, Any]) -> Dict[str, Any]:
+def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
     """``config`` as config.json stores it, to compare like with like."""
     import json
 
     return json.loads(json.dumps(jsonable(dict(config))))
 
 
-def check_same_run(out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run") -> None:
+def check_same_run(
+    out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run"
+) -> None:
     """ValueError naming each identity entry in which the folder's run and the asked one differ."""
     differing = [k for k in _IDENTITY_KEYS if k in saved and saved.get(k) != fresh.get(k)]
     if differing:
+        diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
         raise ValueError(
-            f"{out} holds {what} ({', '.join(f'{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now' for k in differing)}); "
+            f"{out} holds {what} ({diffs}); "
             "use another output folder or delete that one"
         )
 
 
-def check_or_write_config(out: Path, config: Dict[str, Any]) -> Dict[str, Any]:
+def check_or_write_config(out: Path, config: dict[str, Any]) -> dict[str, Any]:
     """Write config.json for a new run; for an existing one, refuse to mix two different runs.
 
     A config.json with nothing trained beside it (an attempt that failed or was stopped before its
@@ -302,7 +307,7 @@ def locked(out: Path) -> Iterator[None]:
         unlock_output(out, lock)
 
 
-def check_finished(spec: RunSpec) -> Optional[Dict[str, Any]]:
+def check_finished(spec: RunSpec) -> dict[str, Any] | None:
     """done.json's summary when ``spec.output_dir`` holds this run finished, None when it is not finished.
 
     :raises ValueError: the folder holds a finished run of something else (another method, seed,
@@ -343,7 +348,7 @@ def run_status(output_dir: PathLike) -> str:
     return "new"
 
 
-def latest_epoch(output_dir: PathLike) -> Optional[int]:
+def latest_epoch(output_dir: PathLike) -> int | None:
     """The epoch of the last row of a run's eval.csv (cheap: reads the file's tail), or None."""
     path = Path(output_dir) / EVAL_CSV
     try:

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any
 
 from sb3_cmzdril.experiments.run_folder import (
     CONFIG_FILE,
@@ -82,7 +83,7 @@ def run_experiment(
     progress_bar: bool = False,
     callbacks: Sequence[Any] = (),
     verbose: int = 0,
-) -> Dict[str, Any]:
+) -> dict[str, Any]:
     """Execute (or resume, or skip) one run; returns its summary with a ``status`` entry.
 
     ``status`` is ``"skipped"`` (done.json was there: its content is returned), ``"done"`` (the
@@ -101,7 +102,7 @@ def run_experiment(
         return _run_locked(spec, out, progress_bar, list(callbacks), verbose)
 
 
-def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[Any], verbose: int) -> Dict[str, Any]:
+def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: list[Any], verbose: int) -> dict[str, Any]:
     from sb3_cmzdril.algorithm import CMZDRIL
     from sb3_cmzdril.demos import Demonstrations
     from sb3_cmzdril.metrics import ExpertEvalCallback
@@ -199,7 +200,7 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: List[An
     return summary
 
 
-def _final_evaluation(spec: RunSpec, model, pool, train_idx: List[int], hp, selector, out: Path) -> Dict[str, Any]:
+def _final_evaluation(spec: RunSpec, model, pool, train_idx: list[int], hp, selector, out: Path) -> dict[str, Any]:
     """Replay every pool episode not used for training with the final policy and, for the RL
     methods, the lowest-u one; write final_eval.csv (one row per policy and episode) and
     model_lowest_u.zip; return the summaries for done.json.
@@ -214,7 +215,7 @@ def _final_evaluation(spec: RunSpec, model, pool, train_idx: List[int], hp, sele
     policies = {"final": None}
     if spec.method != "bc" and selector.best_state is not None:
         policies["lowest_u"] = selector
-    results: Dict[str, Any] = {"episodes": episodes}
+    results: dict[str, Any] = {"episodes": episodes}
     rows = [",".join(FINAL_EVAL_COLUMNS)]
     final_state = {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
     try:
@@ -223,16 +224,29 @@ def _final_evaluation(spec: RunSpec, model, pool, train_idx: List[int], hp, sele
                 source.apply(model)
                 with atomic_path(out / LOWEST_U_MODEL, suffix=".zip") as tmp:
                     model.save(tmp)
-            ev = evaluate_against_expert(model, spec.env_id, held_out, env_kwargs=hp.env_kwargs, start_mismatch="ignore")
+            ev = evaluate_against_expert(
+                model, spec.env_id, held_out, env_kwargs=hp.env_kwargs, start_mismatch="ignore"
+            )
             summary = ev.summary()
             if source is not None:
                 summary.update(epoch=int(source.best_epoch), rollout_u=float(source.best_u))
             results[name] = summary
             for j, episode in enumerate(episodes):
-                rows.append(",".join(str(v) for v in (
-                    name, episode, int(ev.seeds[j]), f"{ev.returns[j]:.6g}", int(ev.lengths[j]), f"{ev.frechet[j]:.6g}",
-                    f"{ev.episode_action_mse[j]:.6g}", f"{ev.expert_returns[j]:.6g}",
-                )))
+                rows.append(
+                    ",".join(
+                        str(v)
+                        for v in (
+                            name,
+                            episode,
+                            int(ev.seeds[j]),
+                            f"{ev.returns[j]:.6g}",
+                            int(ev.lengths[j]),
+                            f"{ev.frechet[j]:.6g}",
+                            f"{ev.episode_action_mse[j]:.6g}",
+                            f"{ev.expert_returns[j]:.6g}",
+                        )
+                    )
+                )
     finally:
         model.policy.load_state_dict(final_state)
     with atomic_path(out / FINAL_EVAL_CSV) as tmp:
@@ -240,10 +254,14 @@ def _final_evaluation(spec: RunSpec, model, pool, train_idx: List[int], hp, sele
     return results
 
 
-def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: RunState, csv_path: Path) -> Dict[str, Any]:
+def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: RunState, csv_path: Path) -> dict[str, Any]:
     columns = read_eval_csv(csv_path)
     integral = ("epoch", "timesteps", "n_episodes")
-    last = {c: (int(v[-1]) if c in integral else float(v[-1])) for c, v in columns.items()} if columns["epoch"].size else {}
+    last = (
+        {c: (int(v[-1]) if c in integral else float(v[-1])) for c, v in columns.items()}
+        if columns["epoch"].size
+        else {}
+    )
     return {
         "status": "done",
         "env_id": spec.env_id,
@@ -270,9 +288,9 @@ def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: RunState, c
 def load_evaluation_model(
     path: PathLike,
     env_id: str,
-    env_kwargs: Optional[Mapping[str, Any]] = None,
-    vecnormalize: Optional[PathLike] = None,
-) -> Tuple[Any, Optional[Any]]:
+    env_kwargs: Mapping[str, Any] | None = None,
+    vecnormalize: PathLike | None = None,
+) -> tuple[Any, Any | None]:
     """``(model, observation transform or None)`` for :func:`~sb3_cmzdril.metrics.evaluate_against_expert`.
 
     A CMZDRIL zip, else any SB3 model (an expert, a plain PPO). With ``vecnormalize`` (statistics
@@ -303,7 +321,9 @@ def load_evaluation_model(
         stats = VecNormalize.load(str(vecnormalize), venv)
     except Exception as e:  # pickle raises many types for a damaged or foreign file
         venv.close()
-        raise ValueError(f"VecNormalize statistics {vecnormalize} are damaged or not VecNormalize's: {type(e).__name__}: {e}") from None
+        raise ValueError(
+            f"VecNormalize statistics {vecnormalize} are damaged or not VecNormalize's: {type(e).__name__}: {e}"
+        ) from None
     stats.training = False
     return model, stats.normalize_obs
 
@@ -362,12 +382,43 @@ _config = run_config
 _discard_rows_after = discard_rows_after
 
 __all__ = [
-    "METHODS", "RunSpec", "plan_run", "run_experiment", "split_episodes", "read_eval_csv", "window_means",
-    "train_command", "default_demos_path", "default_output_dir", "check_env_id", "check_method", "check_finished",
-    "run_status", "latest_epoch", "load_evaluation_model", "load_run_hyperparams", "missing_pool_error",
+    "METHODS",
+    "RunSpec",
+    "plan_run",
+    "run_experiment",
+    "split_episodes",
+    "read_eval_csv",
+    "window_means",
+    "train_command",
+    "default_demos_path",
+    "default_output_dir",
+    "check_env_id",
+    "check_method",
+    "check_finished",
+    "run_status",
+    "latest_epoch",
+    "load_evaluation_model",
+    "load_run_hyperparams",
+    "missing_pool_error",
     # Settings and file names, defined in spec and run_folder, importable from here as before.
-    "DEFAULT_CHECKPOINT_EVERY", "DEFAULT_EVAL_EPISODES", "EXPERIMENT_KEYS", "FALLBACK_N_DEMOS", "HYPERPARAMS_NAME",
-    "TABLE_WINDOW", "CONFIG_FILE", "DISCARDED_CSV", "DONE_FILE", "ERROR_FILE", "EVAL_CSV", "FINAL_EVAL_COLUMNS",
-    "FINAL_EVAL_CSV", "LOG_FILE", "LOWEST_U_FILE", "LOWEST_U_MODEL", "MODEL_FILE", "PRETRAIN_CSV", "STATE_FILE",
+    "DEFAULT_CHECKPOINT_EVERY",
+    "DEFAULT_EVAL_EPISODES",
+    "EXPERIMENT_KEYS",
+    "FALLBACK_N_DEMOS",
+    "HYPERPARAMS_NAME",
+    "TABLE_WINDOW",
+    "CONFIG_FILE",
+    "DISCARDED_CSV",
+    "DONE_FILE",
+    "ERROR_FILE",
+    "EVAL_CSV",
+    "FINAL_EVAL_COLUMNS",
+    "FINAL_EVAL_CSV",
+    "LOG_FILE",
+    "LOWEST_U_FILE",
+    "LOWEST_U_MODEL",
+    "MODEL_FILE",
+    "PRETRAIN_CSV",
+    "STATE_FILE",
     "VECNORMALIZE_FILE",
 ]

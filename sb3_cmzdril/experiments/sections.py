@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
 
 from sb3_cmzdril.experiments.final_eval import (
     CONFIDENCE,
@@ -56,10 +56,10 @@ class GridReport:
 
     grid: Grid
     suffix: str  #: "" for the main grid, "_reference" for the reference grid (output file names)
-    rows: List[TableRow]  #: Table I
-    final: List[FinalRow]
-    experts: Dict[str, Tuple[float, float, int]]  #: the expert's return on the eval.csv episodes
-    signal: Dict[Tuple[str, str], Dict[str, Tuple[float, float]]]
+    rows: list[TableRow]  #: Table I
+    final: list[FinalRow]
+    experts: dict[str, tuple[float, float, int]]  #: the expert's return on the eval.csv episodes
+    signal: dict[tuple[str, str], dict[str, tuple[float, float]]]
 
     @property
     def label(self) -> str:
@@ -83,7 +83,7 @@ def _table_one_cell(rows: Sequence[TableRow], env: str, method: str) -> str:
     return "—" if row is None else f"{fmt_mean_std(row.mean('return'), row.std('return'))}, n={row.n_trials}"
 
 
-def headline_markdown(reports: Sequence[GridReport], reference: Optional[ReferenceTable]) -> str:
+def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable | None) -> str:
     """Return per env and method: each grid's final evaluation (mean [CI], trials) where it has one,
     each grid's Table I (mean (std), trials), and the reference's numbers; then the expert's return."""
     columns = []
@@ -121,7 +121,7 @@ def headline_markdown(reports: Sequence[GridReport], reference: Optional[Referen
     return md_table(["Env", "Method", *columns], body)
 
 
-def headline_text(reports: Sequence[GridReport], reference: Optional[ReferenceTable], window: int) -> str:
+def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int) -> str:
     """What the headline's columns are, in words."""
     parts = [f"The env's true return. Table I: each run's per-epoch evaluation (eval.csv) averaged over its last "
              f"{window} epochs, mean (population std) over trials, n = trials."]
@@ -169,7 +169,7 @@ def _paper_layout(rep: GridReport) -> str:
     return md_table(["Method", *envs], body)
 
 
-def final_sections(rep: GridReport, h: str, figure: Optional[Path]) -> List[str]:
+def final_sections(rep: GridReport, h: str, figure: Path | None) -> list[str]:
     """The final evaluation of one grid: the table, the paired comparisons, the figure."""
     if not rep.final:
         return [f"{h} Final evaluation", "", "None: no run of this grid has a final_eval.csv (grids made before the "
@@ -188,7 +188,7 @@ def final_sections(rep: GridReport, h: str, figure: Optional[Path]) -> List[str]
     return parts
 
 
-def table_sections(rep: GridReport, h: str, window: int) -> List[str]:
+def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
     """Table I, the gap closed by CMZ-DRIL and the reward signal of one grid."""
     rows, experts = rep.rows, rep.experts
     gaps = gap_closed(rows)
@@ -246,7 +246,7 @@ def _run_line(run: RunRecord, root: Path, table_value: float) -> str:
     return text + ")"
 
 
-def sources_sections(rep: GridReport, heading: str = "") -> List[str]:
+def sources_sections(rep: GridReport, heading: str = "") -> list[str]:
     """The runs behind each number and the commands that made them, under ``heading`` if one is given."""
     parts = [heading, ""] if heading else []
     parts += ["Each (env, method) cell averages these runs; beside each run, the epochs it reached, its own return "
@@ -261,12 +261,12 @@ def sources_sections(rep: GridReport, heading: str = "") -> List[str]:
     return parts + [""]
 
 
-def _commands(records: Sequence[RunRecord], root: Path) -> Tuple[List[str], List[str]]:
+def _commands(records: Sequence[RunRecord], root: Path) -> tuple[list[str], list[str]]:
     """(commands that created the runs, other commands that resumed them), each listed once."""
     created = list(dict.fromkeys(str(r.config["command"]) for r in records if r.config.get("command")))
-    resumed: List[str] = []
+    resumed: list[str] = []
 
-    def add(command: Optional[str]) -> None:
+    def add(command: str | None) -> None:
         if command and command not in created and command not in resumed:
             resumed.append(str(command))
 
@@ -283,7 +283,7 @@ def _commands(records: Sequence[RunRecord], root: Path) -> Tuple[List[str], List
     return created, resumed
 
 
-def status_lines(rep: GridReport) -> List[str]:
+def status_lines(rep: GridReport) -> list[str]:
     """Unfinished runs and runs that failed before any evaluation (they must not vanish silently)."""
     records, root = rep.grid.records, rep.root
     unfinished = [r for r in records if r.status != "done"]

@@ -13,7 +13,7 @@ import dataclasses
 import functools
 import shlex
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -21,11 +21,11 @@ from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonst
 from sb3_cmzdril.io import PathLike
 
 #: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL.
-METHODS: Tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz")
+METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz")
 #: Hyperparameter file of the repository used when none is given (hyperparams/cmzdril.yml).
 HYPERPARAMS_NAME = "cmzdril"
 #: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs).
-EXPERIMENT_KEYS: Tuple[str, ...] = ("n_demos",)
+EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos",)
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -51,7 +51,7 @@ class RunSpec:
     hyperparams: str
     eval_every: int = 1
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY
-    command: Optional[str] = None
+    command: str | None = None
 
     @property
     def label(self) -> str:
@@ -59,7 +59,7 @@ class RunSpec:
         return f"{env_name(self.env_id)}/{self.method}/trial{self.seed}"
 
 
-def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> Tuple[List[int], List[int]]:
+def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> tuple[list[int], list[int]]:
     """Disjoint training and evaluation episode indices of a demo pool for trial ``seed``.
 
     ``numpy.random.default_rng(seed).permutation(n_pool)``: the first ``n_train`` train, the next
@@ -102,7 +102,9 @@ def load_run_hyperparams(path: PathLike, env_id: str):
     from sb3_cmzdril.hyperparams import load_hyperparams
 
     hp = load_hyperparams(path, env_id)
-    hp.check_supported(unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train")
+    hp.check_supported(
+        unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
+    )
     settings = {k: hp.algo_kwargs.pop(k) for k in EXPERIMENT_KEYS if k in hp.algo_kwargs}
     unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs())
     if unknown:
@@ -158,15 +160,15 @@ def plan_run(
     method: str,
     seed: int,
     *,
-    demos: Optional[PathLike] = None,
-    n_demos: Optional[int] = None,
+    demos: PathLike | None = None,
+    n_demos: int | None = None,
     n_eval_episodes: int = DEFAULT_EVAL_EPISODES,
-    timesteps: Optional[int] = None,
-    output_dir: Optional[PathLike] = None,
-    hyperparams: Optional[PathLike] = None,
+    timesteps: int | None = None,
+    output_dir: PathLike | None = None,
+    hyperparams: PathLike | None = None,
     eval_every: int = 1,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
-    command: Optional[str] = None,
+    command: str | None = None,
 ) -> RunSpec:
     """Resolve defaults and check everything that can fail before training starts.
 
@@ -237,14 +239,23 @@ def _preflight(spec: RunSpec, hp) -> None:
     """
     from sb3_cmzdril.algorithm import CMZDRIL
 
-    key = (spec.env_id, spec.method, spec.hyperparams, file_mtime_ns(spec.hyperparams), spec.demos, file_mtime_ns(spec.demos))
+    key = (
+        spec.env_id,
+        spec.method,
+        spec.hyperparams,
+        file_mtime_ns(spec.hyperparams),
+        spec.demos,
+        file_mtime_ns(spec.demos),
+    )
     if key in _PREFLIGHT_PASSED:
         return
     where = f"hyperparameters {hp.key!r} in {spec.hyperparams}"
     try:
         venv = make_training_env(spec, hp, spec.seed, None)
     except Exception as e:  # whatever the env's constructor or VecNormalize raises for bad kwargs
-        raise ValueError(f"cannot make {spec.env_id} with the env_kwargs/normalize of {where}: {type(e).__name__}: {e}") from e
+        raise ValueError(
+            f"cannot make {spec.env_id} with the env_kwargs/normalize of {where}: {type(e).__name__}: {e}"
+        ) from e
     try:
         pool = load_pool(spec.demos, key[-1])
         try:
@@ -254,10 +265,18 @@ def _preflight(spec: RunSpec, hp) -> None:
         kwargs = hp.model_kwargs()
         kwargs.setdefault("device", "cpu")
         try:
-            CMZDRIL(hp.policy or "MlpPolicy", venv, demonstrations=pool, reward="zero" if spec.method == "bc" else spec.method,
-                    seed=spec.seed, **kwargs)
+            CMZDRIL(
+                hp.policy or "MlpPolicy",
+                venv,
+                demonstrations=pool,
+                reward="zero" if spec.method == "bc" else spec.method,
+                seed=spec.seed,
+                **kwargs,
+            )
         except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
-            raise ValueError(f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}") from e
+            raise ValueError(
+                f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}"
+            ) from e
     finally:
         venv.close()
     _PREFLIGHT_PASSED.add(key)
@@ -266,18 +285,35 @@ def _preflight(spec: RunSpec, hp) -> None:
 def train_command(spec: RunSpec) -> str:
     """The ``sb3-cmzdril train`` line that performs exactly this run."""
     args = [
-        "sb3-cmzdril", "train", "--env", spec.env_id, "--reward", spec.method, "--demos", spec.demos,
-        "--n-demos", str(spec.n_demos), "--eval-episodes", str(spec.n_eval_episodes), "--seed", str(spec.seed),
-        "--eval-every", str(spec.eval_every), "--checkpoint-every", str(spec.checkpoint_every),
-        "--hyperparams", spec.hyperparams, "-o", spec.output_dir,
+        "sb3-cmzdril",
+        "train",
+        "--env",
+        spec.env_id,
+        "--reward",
+        spec.method,
+        "--demos",
+        spec.demos,
+        "--n-demos",
+        str(spec.n_demos),
+        "--eval-episodes",
+        str(spec.n_eval_episodes),
+        "--seed",
+        str(spec.seed),
+        "--eval-every",
+        str(spec.eval_every),
+        "--checkpoint-every",
+        str(spec.checkpoint_every),
+        "--hyperparams",
+        spec.hyperparams,
+        "-o",
+        spec.output_dir,
     ]
     if spec.method != "bc":
         args[6:6] = ["--timesteps", str(spec.timesteps)]
     return shlex.join(args)
 
 
-
-def _normalize_kwargs(hp) -> Optional[Dict[str, Any]]:
+def _normalize_kwargs(hp) -> dict[str, Any] | None:
     """VecNormalize kwargs from the zoo's ``normalize`` (True or a dict), None when off.
 
     As in the zoo, VecNormalize discounts rewards with the algorithm's gamma unless told otherwise.
@@ -290,7 +326,7 @@ def _normalize_kwargs(hp) -> Optional[Dict[str, Any]]:
     return kwargs
 
 
-def make_training_env(spec: RunSpec, hp, env_seed: int, vecnormalize_path: Optional[Path]):
+def make_training_env(spec: RunSpec, hp, env_seed: int, vecnormalize_path: Path | None):
     """The training VecEnv (Monitor inside), with VecNormalize when asked (loaded from a checkpoint)."""
     from stable_baselines3.common.vec_env import VecNormalize
 

@@ -17,8 +17,9 @@ import dataclasses
 import hashlib
 import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW, window_means
 from sb3_cmzdril.io import PathLike
 
 #: Table metrics: (key in window_means, column header, eval.csv column).
-METRICS: Tuple[Tuple[str, str, str], ...] = (
+METRICS: tuple[tuple[str, str, str], ...] = (
     ("return", "Return", "return_mean"),
     ("frechet", "Fréchet distance", "frechet_mean"),
     ("action_mse", "Action MSE", "action_mse"),
@@ -41,8 +42,8 @@ class TableRow:
 
     env: str
     method: str
-    runs: List[RunRecord]
-    per_run: Dict[str, List[float]]  #: metric -> each run's window mean, in run order
+    runs: list[RunRecord]
+    per_run: dict[str, list[float]]  #: metric -> each run's window mean, in run order
     window: int
 
     @property
@@ -56,7 +57,7 @@ class TableRow:
         return float(np.std(self.per_run[metric]))  # population std over trials (ddof=0)
 
 
-def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> List[TableRow]:
+def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> list[TableRow]:
     """Table I rows, one per (env, method) present, in the report's order."""
     rows = []
     for (env, method), runs in group(records).items():
@@ -66,25 +67,25 @@ def table_one(records: Sequence[RunRecord], window: int = TABLE_WINDOW) -> List[
     return rows
 
 
-GAP_METHODS: Tuple[str, ...] = ("cmz", "zero", "env")
+GAP_METHODS: tuple[str, ...] = ("cmz", "zero", "env")
 
 
-def gap_trials(rows: Sequence[TableRow]) -> Dict[str, List[int]]:
+def gap_trials(rows: Sequence[TableRow]) -> dict[str, list[int]]:
     """env -> the trials that CMZ-DRIL, no reward and env reward all have (the gap compares them paired)."""
     by = {(r.env, r.method): r for r in rows}
-    result: Dict[str, List[int]] = {}
+    result: dict[str, list[int]] = {}
     for env in dict.fromkeys(r.env for r in rows):
         sets = [{run.trial for run in by[(env, m)].runs} if (env, m) in by else set() for m in GAP_METHODS]
         result[env] = sorted(set.intersection(*sets))
     return result
 
 
-def gap_closed(rows: Sequence[TableRow]) -> Dict[str, Dict[str, Optional[float]]]:
+def gap_closed(rows: Sequence[TableRow]) -> dict[str, dict[str, float | None]]:
     """env -> metric -> (cmz - zero) / (env - zero) over the trials all three have (:func:`gap_trials`):
     a grid still running must not divide one trial's env reward into five trials' means. None where no
     trial has all three or env == zero."""
     by = {(r.env, r.method): r for r in rows}
-    result: Dict[str, Dict[str, Optional[float]]] = {}
+    result: dict[str, dict[str, float | None]] = {}
     for env, trials in gap_trials(rows).items():
         result[env] = {}
         for key, _, _ in METRICS:
@@ -110,7 +111,7 @@ def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
         header += [f"{key}_mean", f"{key}_std"]
     writer.writerow(header + ["run_dirs"])
     for r in rows:
-        values: List[Any] = [r.env, r.method, r.n_trials, r.window]
+        values: list[Any] = [r.env, r.method, r.n_trials, r.window]
         for key, _, _ in METRICS:
             values += [repr(r.mean(key)), repr(r.std(key))]
         writer.writerow(values + [";".join(run.relative(runs_dir) for run in r.runs)])
@@ -118,7 +119,7 @@ def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
 
 
 # -- the expert's scale -----------------------------------------------------------------------------------
-def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> List[Path]:
+def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> list[Path]:
     """Where a run's demo pool may be: the path it recorded, else experts/<EnvName>/demos.npz beside
     the working directory or the repository holding ``runs_dir`` (a fresh clone moves the path)."""
     tail = Path("experts") / record.env / "demos.npz"
@@ -126,13 +127,13 @@ def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> List[Path]:
     return found + [Path.cwd() / tail] + [parent / tail for parent in runs_dir.resolve().parents]
 
 
-def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> Dict[str, Tuple[float, float, int]]:
+def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> dict[str, tuple[float, float, int]]:
     """env -> (mean, std over trials, trials) of the mean true return of each trial's held-out expert
     episodes: the episodes its evaluations replay. Trials whose pool cannot be found, whose pool's
     sha256 differs from the one recorded, or whose pool has no rewards are left out."""
     root = Path(runs_dir)
-    per_env: Dict[str, Dict[int, float]] = {}
-    pools: Dict[Path, Tuple[str, Any]] = {}
+    per_env: dict[str, dict[int, float]] = {}
+    pools: dict[Path, tuple[str, Any]] = {}
     for r in records:
         episodes = r.config.get("eval_episodes")
         if not episodes or r.trial in per_env.get(r.env, {}):
@@ -154,7 +155,7 @@ def expert_returns(records: Sequence[RunRecord], runs_dir: PathLike) -> Dict[str
 
 # -- the reward signal ------------------------------------------------------------------------------------
 #: Columns of SB3's progress CSV that :func:`reward_signal` summarises.
-SIGNAL_COLUMNS: Tuple[Tuple[str, str], ...] = (
+SIGNAL_COLUMNS: tuple[tuple[str, str], ...] = (
     ("u", "rollout/disagreement_mean"),
     ("shaped", "rollout/shaped_reward_mean"),
     ("ubar", "rollout/ubar_mean"),
@@ -164,7 +165,7 @@ SIGNAL_COLUMNS: Tuple[Tuple[str, str], ...] = (
 SIGNAL_EPOCHS = 10
 
 
-def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
+def _progress_log(record: RunRecord) -> dict[str, np.ndarray]:
     """The run's SB3 progress CSVs (one per segment, ``progress_<start step>.csv``) joined in step
     order; a resumed segment replaces the rows its predecessor logged after the checkpoint it
     resumed from. {} without logs."""
@@ -173,12 +174,12 @@ def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
         start = path.stem.split("_")[-1]
         if start.isdigit():
             segments.append((int(start), path))
-    rows: List[Dict[str, str]] = []
+    rows: list[dict[str, str]] = []
     for start, path in sorted(segments):
         rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
         with open(path, newline="", encoding="utf-8") as f:
             rows += [row for row in csv.DictReader(f) if row.get("time/total_timesteps")]
-    columns: Dict[str, np.ndarray] = {}
+    columns: dict[str, np.ndarray] = {}
     for key, column in SIGNAL_COLUMNS:
         values = [float(row[column]) if row.get(column) else np.nan for row in rows]
         columns[key] = np.asarray(values, dtype=np.float64)
@@ -186,16 +187,16 @@ def _progress_log(record: RunRecord) -> Dict[str, np.ndarray]:
 
 
 def reward_signal(records: Sequence[RunRecord],
-                  epochs: int = SIGNAL_EPOCHS) -> Dict[Tuple[str, str], Dict[str, Tuple[float, float]]]:
+                  epochs: int = SIGNAL_EPOCHS) -> dict[tuple[str, str], dict[str, tuple[float, float]]]:
     """(env, method) -> {"u": (first, last), "shaped": (first, last), "ubar": ..., "ep_len": ...}: the
     mean over trials of each run's rollout statistics averaged over its first and last ``epochs``
     PPO updates. Runs without progress logs are left out; so is BC (it has no rollouts)."""
-    result: Dict[Tuple[str, str], Dict[str, Tuple[float, float]]] = {}
+    result: dict[tuple[str, str], dict[str, tuple[float, float]]] = {}
     for (env, method), runs in group(r for r in records if r.method != "bc").items():
         logs = [log for log in map(_progress_log, runs) if log and log["u"].size]
         if not logs:
             continue
-        cell: Dict[str, Tuple[float, float]] = {}
+        cell: dict[str, tuple[float, float]] = {}
         for key, _ in SIGNAL_COLUMNS:
             first = [np.nanmean(log[key][:epochs]) for log in logs if np.isfinite(log[key][:epochs]).any()]
             last = [np.nanmean(log[key][-epochs:]) for log in logs if np.isfinite(log[key][-epochs:]).any()]

@@ -9,7 +9,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Dict, Optional, Tuple
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -22,7 +22,7 @@ from sb3_cmzdril.io import atomic_path, write_json
 class ProgressCallback(BaseCallback):
     """tqdm bar on a terminal; on a file (nohup, CI) a plain line every ``line_every`` steps."""
 
-    def __init__(self, total: int, show: bool = True, line_every: Optional[int] = None) -> None:
+    def __init__(self, total: int, show: bool = True, line_every: int | None = None) -> None:
         super().__init__()
         self.total = int(total)
         self.show = show
@@ -78,7 +78,7 @@ class ExpertEvalCallback(BaseCallback):
     """
 
     def __init__(self, eval_env, eval_freq: int, n_eval_episodes: int, model_path: Path, best_path: Path,
-                 state: Dict[str, Any], log: bool = True) -> None:
+                 state: dict[str, Any], log: bool = True) -> None:
         super().__init__()
         self.eval_env = eval_env
         self.eval_freq = int(eval_freq)
@@ -99,7 +99,7 @@ class ExpertEvalCallback(BaseCallback):
                 self.evaluate()
         return True
 
-    def evaluate(self) -> Tuple[float, float]:
+    def evaluate(self) -> tuple[float, float]:
         """Evaluate now; the model becomes model.zip when it beats the best so far."""
         returns, lengths = evaluate_policy(
             self.model, self.eval_env, n_eval_episodes=self.n_eval_episodes, deterministic=True,
@@ -139,7 +139,7 @@ class ResumableCheckpointCallback(BaseCallback):
     either the previous or the new checkpoint complete. Older checkpoint files are removed.
     """
 
-    def __init__(self, save_freq: int, ckpt_dir: Path, state: Dict[str, Any], t_start: float) -> None:
+    def __init__(self, save_freq: int, ckpt_dir: Path, state: dict[str, Any], t_start: float) -> None:
         super().__init__()
         self.save_freq = int(save_freq)
         self.ckpt_dir = ckpt_dir

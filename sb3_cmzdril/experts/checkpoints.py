@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Any, Dict, Tuple
+from typing import Any
 
 from sb3_cmzdril.experts.loading import load_sb3_model
 from sb3_cmzdril.io import atomic_path, read_json, write_json
@@ -20,7 +20,7 @@ STATE_FILE = "state.json"
 BEST_FILE = "best.json"
 
 
-def save_checkpoint(model, ckpt_dir: Path, state: Dict[str, Any], t_start: float) -> None:
+def save_checkpoint(model, ckpt_dir: Path, state: dict[str, Any], t_start: float) -> None:
     """Write model (+ replay buffer) then ``state.json`` pointing at them; prune older files."""
     steps = int(model.num_timesteps)
     model_file = f"model_{steps}_steps.zip"
@@ -47,7 +47,7 @@ def save_checkpoint(model, ckpt_dir: Path, state: Dict[str, Any], t_start: float
 
 
 def training_state(out: Path, ckpt_dir: Path, env_id: str, algo: str, seed: int,
-                   t_start: float) -> Tuple[Dict[str, Any], bool, int]:
+                   t_start: float) -> tuple[dict[str, Any], bool, int]:
     """The training state to start from: ``(state, resuming, seed)``.
 
     A fresh state, or the one of ``checkpoints/state.json`` (which must be of this env and
@@ -55,7 +55,7 @@ def training_state(out: Path, ckpt_dir: Path, env_id: str, algo: str, seed: int,
     fresher, and is dropped when ``model.zip`` is missing (nothing to protect from being replaced).
     """
     model_path = out / "model.zip"
-    state: Dict[str, Any] = {"env_id": env_id, "algo": algo, "seed": int(seed), "num_timesteps": 0,
+    state: dict[str, Any] = {"env_id": env_id, "algo": algo, "seed": int(seed), "num_timesteps": 0,
                              "wall_time_s": 0.0, "resumes": 0, "evaluations": [], "best": None}
     state_path = ckpt_dir / STATE_FILE
     resume = state_path.is_file()
@@ -84,7 +84,7 @@ def training_state(out: Path, ckpt_dir: Path, env_id: str, algo: str, seed: int,
     return state, resume, seed
 
 
-def load_checkpoint(algo_cls: type, ckpt_dir: Path, state: Dict[str, Any], env, seed: int):
+def load_checkpoint(algo_cls: type, ckpt_dir: Path, state: dict[str, Any], env, seed: int):
     """The model (with its replay buffer) of the checkpoint ``state`` names, attached to ``env``.
 
     :raises ValueError: a damaged model or buffer, or one whose step count disagrees with state.json.

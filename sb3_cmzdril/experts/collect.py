@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Dict, Optional, Union
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -37,7 +37,7 @@ def load_demonstrations(path: PathLike) -> Demonstrations:
         raise ValueError(f"demo file {path} is corrupt: {e}") from e
 
 
-def run_episode(expert: Any, env: gym.Env, seed: int) -> Dict[str, Any]:
+def run_episode(expert: Any, env: gym.Env, seed: int) -> dict[str, Any]:
     """One episode with deterministic expert actions, reset with ``seed``."""
     obs, _ = env.reset(seed=int(seed))
     observations, actions, rewards = [], [], []
@@ -95,12 +95,12 @@ def _log_summary(demos: Demonstrations, title: str) -> None:
 
 
 def collect_demos(
-    expert: Union[str, PathLike, Any],
+    expert: str | PathLike | Any,
     env_id: str,
     n_episodes: int,
     seed: int = 0,
-    output: Optional[PathLike] = None,
-    env_kwargs: Optional[Dict[str, Any]] = None,
+    output: PathLike | None = None,
+    env_kwargs: dict[str, Any] | None = None,
     verbose: bool = True,
     force: bool = False,
 ) -> Demonstrations:
@@ -180,7 +180,7 @@ def _describe_pool(path: Path) -> str:
 
 
 def _record_demos_provenance(
-    output: Path, description: str, env_id: str, demos: Demonstrations, seed: int, env_kwargs: Optional[Dict[str, Any]]
+    output: Path, description: str, env_id: str, demos: Demonstrations, seed: int, env_kwargs: dict[str, Any] | None
 ) -> None:
     """Add a ``demos`` section to the ``metadata.json`` beside the demos file (creating the file for
     a scripted expert), so a shipped pool says which expert, command and seeds made it."""

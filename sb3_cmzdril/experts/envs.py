@@ -4,7 +4,7 @@ The checks run before a command creates any folder, so a typo leaves nothing beh
 """
 from __future__ import annotations
 
-from typing import Any, Dict, Optional
+from typing import Any
 
 import gymnasium as gym
 
@@ -40,7 +40,7 @@ def check_seed(seed: int) -> int:
     return int(seed)
 
 
-def make_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: Optional[Dict[str, Any]]):
+def make_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any] | None):
     """SB3's ``make_vec_env`` (Monitor inside each env, env ``i`` seeded ``seed + i``)."""
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 

@@ -5,7 +5,7 @@ import json
 import os
 import zipfile
 from pathlib import Path
-from typing import Any, Dict, Optional, Tuple, Union
+from typing import Any
 
 import gymnasium as gym
 
@@ -13,7 +13,7 @@ from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS
 from sb3_cmzdril.io import PathLike
 
 
-def algorithm_classes() -> Dict[str, type]:
+def algorithm_classes() -> dict[str, type]:
     """SB3 algorithms by the zoo's lowercase names."""
     from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 
@@ -39,7 +39,7 @@ def load_sb3_model(algo_cls: type, path: Path, env=None):
         raise ValueError(f"cannot load {algo_cls.__name__} model from {path} (corrupt or not an SB3 zip?): {e}") from e
 
 
-def _infer_algo(path: Path) -> Optional[str]:
+def _infer_algo(path: Path) -> str | None:
     """The algorithm of an SB3 zip: metadata.json beside it, else the policy class's module."""
     meta = path.parent / "metadata.json"
     if meta.is_file():
@@ -61,7 +61,7 @@ def _infer_algo(path: Path) -> Optional[str]:
     return None
 
 
-def load_expert_model(path: PathLike, algo: Optional[str] = None):
+def load_expert_model(path: PathLike, algo: str | None = None):
     """Load an SB3 model zip of any algorithm (``algo`` given, from metadata.json, or tried in turn)."""
     path = Path(path)
     if path.is_dir():
@@ -84,7 +84,7 @@ def load_expert_model(path: PathLike, algo: Optional[str] = None):
     raise ValueError(f"cannot load expert model {path} (corrupt or not an SB3 zip?): " + "; ".join(errors))
 
 
-def resolve_expert(expert: Union[str, PathLike, Any], env: gym.Env) -> Tuple[Any, str]:
+def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str]:
     """An object with ``predict`` and a description, from a path, a folder or a scripted name."""
     if hasattr(expert, "predict") and not isinstance(expert, (str, Path)):
         return expert, type(expert).__name__

@@ -7,13 +7,14 @@ registered by name.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Dict
+from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 
 ScriptedExpertFactory = Callable[[gym.Env], Any]
 #: Registered factories by name (``sb3_cmzdril.envs`` adds ``"waypoint-reactive"`` on import).
-SCRIPTED_EXPERTS: Dict[str, ScriptedExpertFactory] = {}
+SCRIPTED_EXPERTS: dict[str, ScriptedExpertFactory] = {}
 
 
 def register_scripted_expert(name: str, factory: ScriptedExpertFactory) -> None:

@@ -17,7 +17,7 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any
 
 import numpy as np
 
@@ -40,7 +40,7 @@ from sb3_cmzdril.io import (
 logger = logging.getLogger(__name__)
 
 
-def check_threads(n_threads: Optional[int]) -> Optional[int]:
+def check_threads(n_threads: int | None) -> int | None:
     """``torch.set_num_threads`` value: None (torch's default) or >= 1 (0 would make torch raise)."""
     if n_threads is not None and (isinstance(n_threads, bool) or int(n_threads) < 1):
         raise ValueError(f"threads must be >= 1, got {n_threads!r}")
@@ -50,17 +50,17 @@ def check_threads(n_threads: Optional[int]) -> Optional[int]:
 def train_expert(
     env_id: str,
     algo: str = "sac",
-    timesteps: Optional[int] = None,
+    timesteps: int | None = None,
     seed: int = 0,
-    hyperparams_path: Optional[PathLike] = None,
-    output_dir: Optional[PathLike] = None,
+    hyperparams_path: PathLike | None = None,
+    output_dir: PathLike | None = None,
     eval_freq: int = 10_000,
     n_eval_episodes: int = 5,
     checkpoint_freq: int = 20_000,
     progress_bar: bool = True,
     final_eval_episodes: int = 10,
-    n_threads: Optional[int] = 1,
-    command: Optional[str] = None,
+    n_threads: int | None = 1,
+    command: str | None = None,
     verbose: int = 0,
     force: bool = False,
     _callback: Any = None,
@@ -137,7 +137,7 @@ def train_expert(
         unlock_output(ckpt_dir, lock)
 
 
-def _check_expert_folder(out: Path, env_id: str, algo: str, total: int, force: bool) -> Optional[int]:
+def _check_expert_folder(out: Path, env_id: str, algo: str, total: int, force: bool) -> int | None:
     """Refuse to train over an expert that resuming would not continue; returns its step count
     when it is a finished expert of this env and algorithm with at least ``total`` steps.
 
@@ -240,7 +240,7 @@ def _train_expert_locked(env_id, algo, algo_cls, hp, hp_path, total, seed, out, 
 
 
 def _expert_metadata(env_id, algo, seed, total, model, state, returns, lengths, final_eval_episodes, eval_freq,
-                     n_eval_episodes, hp, hp_path, command, wall) -> Dict[str, Any]:
+                     n_eval_episodes, hp, hp_path, command, wall) -> dict[str, Any]:
     """metadata.json of a finished expert: what was trained, how, how well, and with what."""
     import torch
 

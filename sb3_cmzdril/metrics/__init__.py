@@ -6,12 +6,14 @@
 * :func:`evaluate_against_expert` — replays held-out expert episodes from their recorded reset seeds
   with the agent in control, and reports return, Fréchet distance to the expert's path and action MSE.
 * :class:`ExpertEvalCallback` — runs that evaluation every k PPO updates (epoch 0 included: the
-  BC-pretrained policy), logs ``eval/mean_reward`` (SB3's key), ``eval/frechet``, ``eval/action_mse`` and appends to a CSV.
+  BC-pretrained policy), logs ``eval/mean_reward`` (SB3's key), ``eval/frechet``, ``eval/action_mse``
+  and appends to a CSV.
 
 The paper does not say on which features it measures the Fréchet distance. We use the vehicle's 2-D
 position for WaypointNav (the paper's PyUXV path) and the full observation vector elsewhere
 (:data:`TRAJECTORY_FEATURES`); pass ``trajectory_fn`` to choose otherwise.
 """
+
 from sb3_cmzdril.metrics.action_mse import action_mse
 from sb3_cmzdril.metrics.callbacks import ExpertEvalCallback
 from sb3_cmzdril.metrics.evaluation import ExpertEvaluation, evaluate_against_expert

@@ -2,8 +2,9 @@
 observations (and the prediction helpers the evaluation shares)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Optional, Union
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -15,7 +16,7 @@ ObsTransform = Callable[[np.ndarray], np.ndarray]
 _PREDICT_CHUNK = 8192
 
 
-def _model_action_space(model: Any) -> Optional[spaces.Space]:
+def _model_action_space(model: Any) -> spaces.Space | None:
     for holder in (model, getattr(model, "policy", None)):
         space = getattr(holder, "action_space", None)
         if isinstance(space, spaces.Space):
@@ -23,7 +24,7 @@ def _model_action_space(model: Any) -> Optional[spaces.Space]:
     return None
 
 
-def _action_space_of(model: Any, action_space: Optional[spaces.Space] = None) -> spaces.Space:
+def _action_space_of(model: Any, action_space: spaces.Space | None = None) -> spaces.Space:
     if action_space is not None:
         return action_space
     space = _model_action_space(model)
@@ -35,7 +36,7 @@ def _action_space_of(model: Any, action_space: Optional[spaces.Space] = None) ->
     return space
 
 
-def _observation_transform(model: Any, obs_transform: Optional[ObsTransform]) -> Optional[ObsTransform]:
+def _observation_transform(model: Any, obs_transform: ObsTransform | None) -> ObsTransform | None:
     """The transform the policy expects its observations through: explicit, else VecNormalize's."""
     if obs_transform is not None:
         return obs_transform
@@ -48,7 +49,7 @@ def _observation_transform(model: Any, obs_transform: Optional[ObsTransform]) ->
     return None
 
 
-def _predict(model: Any, observations: np.ndarray, transform: Optional[ObsTransform]) -> np.ndarray:
+def _predict(model: Any, observations: np.ndarray, transform: ObsTransform | None) -> np.ndarray:
     """Deterministic actions for a batch of observations, one row per observation."""
     batch = transform(observations) if transform is not None else observations
     result = model.predict(batch, deterministic=True)
@@ -66,7 +67,7 @@ def _step_errors(
     model: Any,
     demos: Demonstrations,
     action_space: spaces.Space,
-    transform: Optional[ObsTransform],
+    transform: ObsTransform | None,
 ) -> np.ndarray:
     """Per-step error (n_steps,): squared error averaged over action dims, or 0/1 disagreement."""
     n = len(demos)
@@ -74,14 +75,18 @@ def _step_errors(
         dim = int(np.prod(action_space.shape))
         expert = demos.actions.reshape(n, -1)
         if expert.shape[1] != dim:
-            raise ValueError(f"demonstration actions have {expert.shape[1]} entries but the action space {action_space} has {dim}")
+            raise ValueError(
+                f"demonstration actions have {expert.shape[1]} entries but the action space {action_space} has {dim}"
+            )
         low = action_space.low.astype(np.float32).reshape(-1)
         high = action_space.high.astype(np.float32).reshape(-1)
         expert = np.clip(expert.astype(np.float32), low, high).astype(np.float64)
     elif isinstance(action_space, spaces.Discrete):
         expert = demos.actions.reshape(n, -1)
         if expert.shape[1] != 1:
-            raise ValueError(f"Discrete action space needs scalar actions; demonstrations have shape {demos.actions.shape[1:]}")
+            raise ValueError(
+                f"Discrete action space needs scalar actions; demonstrations have shape {demos.actions.shape[1:]}"
+            )
         expert = expert[:, 0]
     else:
         raise ValueError(f"action MSE supports Box and Discrete action spaces, got {action_space}")
@@ -95,7 +100,9 @@ def _step_errors(
             # the expert gives exactly 0 rather than float32 rounding noise.
             pred = pred.reshape(stop - start, -1).astype(np.float32)
             if pred.shape[1] != expert.shape[1]:
-                raise ValueError(f"predicted actions have {pred.shape[1]} entries, the action space has {expert.shape[1]}")
+                raise ValueError(
+                    f"predicted actions have {pred.shape[1]} entries, the action space has {expert.shape[1]}"
+                )
             pred = np.clip(pred, low, high).astype(np.float64)
             errors[start:stop] = np.mean((pred - expert[start:stop]) ** 2, axis=1)
         else:
@@ -108,9 +115,9 @@ def _step_errors(
 
 def action_mse(
     model_or_policy: Any,
-    demos: Union[Demonstrations, str, Path],
-    obs_transform: Optional[ObsTransform] = None,
-    action_space: Optional[spaces.Space] = None,
+    demos: Demonstrations | str | Path,
+    obs_transform: ObsTransform | None = None,
+    action_space: spaces.Space | None = None,
 ) -> float:
     """Mean squared difference between the policy's deterministic actions and the expert's.
 
@@ -131,4 +138,6 @@ def action_mse(
     """
     demos = as_demonstrations(demos)
     space = _action_space_of(model_or_policy, action_space)
-    return float(np.mean(_step_errors(model_or_policy, demos, space, _observation_transform(model_or_policy, obs_transform))))
+    return float(
+        np.mean(_step_errors(model_or_policy, demos, space, _observation_transform(model_or_policy, obs_transform)))
+    )

@@ -4,8 +4,9 @@ from __future__ import annotations
 import csv
 import math
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -45,7 +46,7 @@ class ExpertEvalCallback(BaseCallback):
     :param trajectory_fn: see :func:`evaluate_against_expert`.
     """
 
-    CSV_COLUMNS: Tuple[str, ...] = (
+    CSV_COLUMNS: tuple[str, ...] = (
         "epoch",
         "timesteps",
         "return_mean",
@@ -59,12 +60,12 @@ class ExpertEvalCallback(BaseCallback):
 
     def __init__(
         self,
-        eval_env: Union[str, gym.Env],
-        demos: Union[Demonstrations, str, Path],
+        eval_env: str | gym.Env,
+        demos: Demonstrations | str | Path,
         eval_every: int = 1,
-        csv_path: Optional[Union[str, Path]] = None,
-        trajectory_fn: Optional[TrajectoryFn] = None,
-        env_kwargs: Optional[Mapping[str, Any]] = None,
+        csv_path: str | Path | None = None,
+        trajectory_fn: TrajectoryFn | None = None,
+        env_kwargs: Mapping[str, Any] | None = None,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
@@ -77,12 +78,12 @@ class ExpertEvalCallback(BaseCallback):
         self.trajectory_fn = trajectory_fn
         self._env_arg = eval_env
         self._env_kwargs = dict(env_kwargs or {})
-        self.eval_env: Optional[gym.Env] = None
+        self.eval_env: gym.Env | None = None
         self._owns_env = False
-        self._env_id: Optional[str] = None
+        self._env_id: str | None = None
         #: one summary dict per evaluation of this callback (epoch, timesteps and the CSV columns)
-        self.history: List[Dict[str, float]] = []
-        self.last_evaluation: Optional[ExpertEvaluation] = None
+        self.history: list[dict[str, float]] = []
+        self.last_evaluation: ExpertEvaluation | None = None
         self._done: set = set()  # (epoch, timesteps) already evaluated
         self._rollouts_completed = 0  # fallback epoch counter for algorithms without n_steps
 
@@ -124,7 +125,11 @@ class ExpertEvalCallback(BaseCallback):
             # Resumed run: the previous run's final evaluation already covers where we restart.
             self._done |= logged
         elif logged:
-            warnings.warn(f"{path} already has {len(logged)} rows from an earlier run; appending to them", UserWarning)
+            warnings.warn(
+                f"{path} already has {len(logged)} rows from an earlier run; appending to them",
+                UserWarning,
+                stacklevel=2,
+            )
 
     # -- hooks ----------------------------------------------------------------------------------
     def _epoch(self) -> int:
@@ -158,7 +163,7 @@ class ExpertEvalCallback(BaseCallback):
         trajectory_fn = self.trajectory_fn if self.trajectory_fn is not None else trajectory_features(self._env_id)
         result = evaluate_against_expert(self.model, self.eval_env, self.demos, trajectory_fn=trajectory_fn)
         self.last_evaluation = result
-        row: Dict[str, float] = {"epoch": epoch, "timesteps": timesteps, **result.summary()}
+        row: dict[str, float] = {"epoch": epoch, "timesteps": timesteps, **result.summary()}
         self.history.append(row)
 
         self.logger.record("eval/mean_reward", result.mean_return)

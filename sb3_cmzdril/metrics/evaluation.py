@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -34,7 +35,7 @@ class ExpertEvaluation:
     expert_returns: np.ndarray  #: the expert's recorded return (NaN when the demos carry no rewards)
     expert_lengths: np.ndarray  #: the expert's episode length
     start_matches: np.ndarray  #: whether the reset observation equalled the expert's first one
-    agent_observations: List[np.ndarray] = field(repr=False, default_factory=list)  #: (T_i, *obs_shape) each
+    agent_observations: list[np.ndarray] = field(repr=False, default_factory=list)  #: (T_i, *obs_shape) each
 
     @property
     def n_episodes(self) -> int:
@@ -65,7 +66,7 @@ class ExpertEvaluation:
         """Over all expert steps (episodes weighted by length): equals ``action_mse(model, demos)``."""
         return float(np.sum(self.episode_action_mse * self.expert_lengths) / np.sum(self.expert_lengths))
 
-    def summary(self) -> Dict[str, float]:
+    def summary(self) -> dict[str, float]:
         """Scalars for logging and tables."""
         return {
             "return_mean": self.mean_return,
@@ -87,7 +88,7 @@ def _require_seeds(demos: Demonstrations) -> None:
         )
 
 
-def _make_env(env: Union[str, gym.Env], env_kwargs: Optional[Mapping[str, Any]]) -> Tuple[gym.Env, bool, Optional[str]]:
+def _make_env(env: str | gym.Env, env_kwargs: Mapping[str, Any] | None) -> tuple[gym.Env, bool, str | None]:
     """(env, whether we own it and must close it, its id for the trajectory-feature lookup)."""
     if isinstance(env, str):
         return gym.make(env, **dict(env_kwargs or {})), True, env
@@ -115,13 +116,13 @@ def _rollout(
     model: Any,
     env: gym.Env,
     seed: int,
-    transform: Optional[ObsTransform],
-    max_steps: Optional[int],
-) -> Tuple[np.ndarray, float]:
+    transform: ObsTransform | None,
+    max_steps: int | None,
+) -> tuple[np.ndarray, float]:
     """One deterministic episode: (observations acted on, (T, *obs_shape)), true return)."""
     space = env.action_space
     obs, _ = env.reset(seed=int(seed))
-    observations: List[np.ndarray] = []
+    observations: list[np.ndarray] = []
     total = 0.0
     while True:
         observations.append(np.asarray(obs))
@@ -140,13 +141,13 @@ def _rollout(
 
 def evaluate_against_expert(
     model: Any,
-    env: Union[str, gym.Env],
-    demos: Union[Demonstrations, str, Path],
-    trajectory_fn: Optional[TrajectoryFn] = None,
-    obs_transform: Optional[ObsTransform] = None,
+    env: str | gym.Env,
+    demos: Demonstrations | str | Path,
+    trajectory_fn: TrajectoryFn | None = None,
+    obs_transform: ObsTransform | None = None,
     *,
-    env_kwargs: Optional[Mapping[str, Any]] = None,
-    max_steps: Optional[int] = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    max_steps: int | None = None,
     start_mismatch: str = "warn",
 ) -> ExpertEvaluation:
     """Replay each held-out expert episode's start with the agent in control and compare.

@@ -1,7 +1,7 @@
 """Which features of the observations make the path that the Fréchet distance compares."""
 from __future__ import annotations
 
-from typing import Callable, Dict, Optional
+from collections.abc import Callable
 
 import numpy as np
 
@@ -20,7 +20,7 @@ def waypoint_position(obs: np.ndarray) -> np.ndarray:
 
 
 #: Env id (without ``module:`` prefix) -> function mapping observations (T, d) to path points (T, k).
-TRAJECTORY_FEATURES: Dict[str, TrajectoryFn] = {
+TRAJECTORY_FEATURES: dict[str, TrajectoryFn] = {
     "WaypointNav-v0": waypoint_position,
 }
 
@@ -29,7 +29,7 @@ def _strip_module(env_id: str) -> str:
     return env_id.split(":", 1)[-1]
 
 
-def trajectory_features(env_id: Optional[str]) -> TrajectoryFn:
+def trajectory_features(env_id: str | None) -> TrajectoryFn:
     """The trajectory feature function for an env id (``module:`` prefix allowed); full observation by default."""
     if env_id is None:
         return full_observation
