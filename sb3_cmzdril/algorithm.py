@@ -1,9 +1,11 @@
 """CMZDRIL: SB3's PPO with CMZ-DRIL's imitation machinery (paper, Algorithm 1).
 
-On the first ``learn()`` (or an explicit :meth:`CMZDRIL.pretrain`) the model checks the demonstrations
-against the env, sets the policy's input standardisation to the demos' statistics, pretrains the
-policy by NLL behaviour cloning until the NLL of held-out demo steps stops improving, and fits the
-bootstrap ensemble. Each rollout is then scored from the rollout buffer (:mod:`sb3_cmzdril.scoring`):
+On the first ``learn()`` of a model that is not pretrained yet (or an explicit
+:meth:`CMZDRIL.pretrain`) the model checks the demonstrations against the env, sets the policy's
+input standardisation to the demos' statistics, pretrains the policy by NLL behaviour cloning until
+the NLL of held-out demo steps stops improving, and fits the bootstrap ensemble. ``model.pretrained``
+says whether that is done; weights that ``load()`` or ``set_parameters()`` bring are kept (see
+:attr:`CMZDRIL.pretrained`). Each rollout is then scored from the rollout buffer (:mod:`sb3_cmzdril.scoring`):
 the env stack keeps the true reward, so every Monitor, VecMonitor and ``evaluate_policy`` reports the
 true return. Every PPO update is followed by ``bc_epochs_per_update`` NLL epochs on the demos.
 
@@ -18,6 +20,7 @@ again; ``load(..., demonstrations=...)`` replaces them.
 """
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Sequence
@@ -27,12 +30,20 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import PPO
+from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.callbacks import (
+    BaseCallback,
+    CallbackList,
+    ProgressBarCallback,
+    tqdm,  # SB3's (rich) tqdm; None without it, and then SB3 refuses progress_bar=True first
+)
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
+from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
@@ -102,6 +113,9 @@ class CMZDRIL(PPO):
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
         VecNormalize gets anyway. The rewards are the same.
+
+    Pretraining happens once, in the first ``learn()`` (or :meth:`pretrain`) of a model whose
+    :attr:`pretrained` is False; it never overwrites weights the user brought (see :attr:`pretrained`).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = PPO.policy_aliases
@@ -201,7 +215,17 @@ class CMZDRIL(PPO):
         #: whether the policy was trained on VecNormalize'd observations (saved with the model, so that
         #: an evaluation without the statistics can be refused instead of silently wrong)
         self.vecnormalize_obs = False
+        #: the reward rule (and DRIL threshold) is made for the current ensemble
         self._imitation_ready = False
+        #: the policy holds pretrained (or loaded) weights: pretraining leaves it alone
+        self._policy_pretrained = False
+        #: pretrain/* keys waiting for learn()'s logger (it is made after pretraining, in _setup_learn)
+        self._pretrain_log_pending = False
+        #: set_parameters() brought an ensemble: the rule (and DRIL threshold) is remade for it
+        self._ensemble_replaced = False
+        if isinstance(env, str):
+            with mujoco_warnings_routed():  # e.g. HalfCheetah's settotalmass notice at model compile
+                env = maybe_make_env(env, verbose)
         super().__init__(
             policy,
             env,
@@ -234,6 +258,27 @@ class CMZDRIL(PPO):
             self._setup_model()
 
     # -- model construction and persistence --------------------------------------------------
+    @property
+    def pretrained(self) -> bool:
+        """Whether the policy is pretrained and the ensemble fitted, so that ``learn()`` goes straight
+        to RL (as SB3's ``learn()`` continues from the current parameters).
+
+        True after the first ``learn()`` or :meth:`pretrain`, after ``load()`` of a model saved
+        pretrained, and after ``set_parameters()`` with a policy and a fitted ensemble. A
+        ``set_parameters()`` that brings only some of them (``exact_match=False``) keeps what it
+        brought: the next ``learn()`` pretrains only the rest (a loaded policy is not cloned again, a
+        loaded fitted ensemble is not refitted). Set it to True after loading weights by hand (e.g.
+        ``model.policy.load_state_dict(...)``) to skip pretraining; set it to False to pretrain and
+        refit from scratch at the next ``learn()``.
+        """
+        return self._policy_pretrained and bool(self.ensemble.fitted)
+
+    @pretrained.setter
+    def pretrained(self, value: bool) -> None:
+        self._policy_pretrained = bool(value)
+        th.Tensor.fill_(self.ensemble.fitted, bool(value))  # type: ignore[arg-type]  # a registered buffer
+        self._imitation_ready = False  # the rule (and DRIL threshold) is remade for the ensemble at learn()
+
     def _setup_model(self) -> None:
         if self.standardize_observations:
             self.policy_kwargs = standardizing_policy_kwargs(self.policy_class, self.policy_kwargs)
@@ -252,7 +297,9 @@ class CMZDRIL(PPO):
             setattr(self, name, th.zeros(0))
 
     def _excluded_save_params(self) -> list:
-        return super()._excluded_save_params() + ["demonstrations", "reward_rule", "ensemble", "bc"]
+        return super()._excluded_save_params() + [
+            "demonstrations", "reward_rule", "ensemble", "bc", "_ensemble_replaced", "_pretrain_log_pending"
+        ]
 
     def _get_torch_save_params(self) -> tuple[list, list]:
         state_dicts, variables = super()._get_torch_save_params()
@@ -271,7 +318,7 @@ class CMZDRIL(PPO):
         super().save(path, exclude=exclude, include=include)
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls: type[SelfCMZDRIL],
         path: Any,
         env: GymEnv | None = None,
@@ -295,7 +342,28 @@ class CMZDRIL(PPO):
         model._restore_saved_state(None if demonstrations is None else as_demonstrations(demonstrations))
         return model
 
+    def set_parameters(
+        self,
+        load_path_or_dict: str | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """SB3's ``set_parameters``; what it loads is kept by the next ``learn()``: a loaded policy is
+        not pretrained again and a loaded fitted ensemble not refitted (see :attr:`pretrained`)."""
+        if isinstance(load_path_or_dict, dict):
+            params = load_path_or_dict
+        else:
+            _, params, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
+        super().set_parameters(params, exact_match=exact_match, device=device)
+        if "policy" in params:
+            self._policy_pretrained = True
+        if "ensemble" in params:
+            self._ensemble_replaced = True  # the DRIL threshold and the rule belong to the old ensemble
+
     def _restore_saved_state(self, demonstrations: Demonstrations | None) -> None:
+        # Models saved before _policy_pretrained existed were pretrained when their rule was ready.
+        self._policy_pretrained = self._policy_pretrained or self._imitation_ready
+        self._ensemble_replaced = False  # load()'s own set_parameters: threshold and rule came with the ensemble
         if demonstrations is not None:
             self.demonstrations = demonstrations
         elif self._saved_demo_obs.numel():
@@ -341,9 +409,10 @@ class CMZDRIL(PPO):
 
     def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the policy's input standardisation, pretrain the policy by NLL
-        (early-stopped on held-out demo steps) and fit the ensemble (once; later calls only re-check
-        the demos). Returns NLLs, epochs, the policy's log-std and timings; the per-epoch curve is
-        in ``pretrain_history``."""
+        (early-stopped on held-out demo steps) and fit the ensemble, each unless already done or
+        loaded (:attr:`pretrained`); later calls only re-check the demos. Returns NLLs, epochs, the
+        policy's log-std and timings of what ran; the per-epoch curve is in ``pretrain_history``.
+        The values reach the logger as ``pretrain/*`` at the next ``learn()``'s first dump."""
         if self.demonstrations is None:
             raise ValueError(
                 "CMZDRIL needs demonstrations: pass demonstrations=... (a Demonstrations, a path to a "
@@ -351,8 +420,38 @@ class CMZDRIL(PPO):
             )
         self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
         self.bc.set_demonstrations(self.demonstrations)
-        if self._imitation_ready:
+        if self._imitation_ready and not self._ensemble_replaced:
             return self.pretrain_info
+        info: dict[str, float] = {}
+        if not self._policy_pretrained:
+            info.update(self._pretrain_policy(progress_bar))
+        if not bool(self.ensemble.fitted):
+            start = time.perf_counter()
+            self.ensemble.fit(
+                self.demonstrations,
+                self.ensemble_epochs,
+                self.ensemble_batch_size,
+                self.ensemble_learning_rate,
+                progress_bar,
+            )
+            assert self.ensemble.train_loss_ is not None  # set by fit()
+            info["ensemble_loss"] = float(np.mean(self.ensemble.train_loss_))
+            info["ensemble_seconds"] = time.perf_counter() - start
+        if self.reward == "dril":
+            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        self.reward_rule = self._make_rule()
+        self._imitation_ready = True
+        self._ensemble_replaced = False
+        if info:
+            self.pretrain_info = info
+            self._pretrain_log_pending = True
+        if self.verbose >= 1:
+            print(self._pretrain_summary(info))
+        return self.pretrain_info
+
+    def _pretrain_policy(self, progress_bar: bool) -> dict[str, float]:
+        """Set the policy's input standardisation and clone the demos by NLL; the statistics of it."""
+        assert self.demonstrations is not None
         transform = self._demo_obs_transform()
         standardizer = self._standardizer()
         if standardizer is not None:
@@ -361,7 +460,7 @@ class CMZDRIL(PPO):
                     "VecNormalize normalises the observations already: the demo standardisation of the policy "
                     "is left as the identity (CMZDRIL(standardize_observations=False) silences this)",
                     UserWarning,
-                    stacklevel=2,
+                    stacklevel=3,
                 )
             else:
                 standardizer.set_statistics(*observation_statistics(self.demonstrations.observations))
@@ -374,21 +473,9 @@ class CMZDRIL(PPO):
         log_std_learned = mean_log_std(self.policy)
         if self.log_std_floor is not None:
             floor_log_std(self.policy, self.log_std_floor)
-        bc_seconds = time.perf_counter() - start
-        start = time.perf_counter()
-        self.ensemble.fit(
-            self.demonstrations,
-            self.ensemble_epochs,
-            self.ensemble_batch_size,
-            self.ensemble_learning_rate,
-            progress_bar,
-        )
-        if self.reward == "dril":
-            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
-        self.reward_rule = self._make_rule()
-        self._imitation_ready = True
+        self._policy_pretrained = True
         self.pretrain_history = {"train_nll": stopping.train_nll, "validation_nll": stopping.validation_nll}
-        self.pretrain_info = {
+        return {
             "bc_nll_before": nll_before,
             "bc_nll_after": nll_after,
             "bc_validation_nll": min(stopping.validation_nll) if stopping.validation_nll else float("nan"),
@@ -396,22 +483,24 @@ class CMZDRIL(PPO):
             "bc_epochs": stopping.epochs,
             "bc_log_std_learned": log_std_learned,
             "bc_log_std": mean_log_std(self.policy),
-            "bc_seconds": bc_seconds,
-            "ensemble_loss": float(np.mean(self.ensemble.train_loss_)),
-            "ensemble_seconds": time.perf_counter() - start,
+            "bc_seconds": time.perf_counter() - start,
         }
-        if getattr(self, "_logger", None) is not None:
-            for key, value in self.pretrain_info.items():
-                self.logger.record(f"pretrain/{key}", value)
-        if self.verbose >= 1:
-            info = self.pretrain_info
-            print(
-                f"CMZDRIL pretraining: BC NLL {nll_before:.3f} -> {nll_after:.3f} (best of {stopping.epochs} epochs: "
-                f"{stopping.best_epoch}, {info['bc_seconds']:.1f}s); ensemble loss {info['ensemble_loss']:.4g} "
-                f"({info['ensemble_seconds']:.1f}s)"
-                + (f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else "")
+
+    def _pretrain_summary(self, info: dict[str, float]) -> str:
+        """The verbose line of :meth:`pretrain`: what ran, and what was kept as loaded."""
+        if "bc_epochs" in info:
+            bc = (
+                f"BC NLL {info['bc_nll_before']:.3f} -> {info['bc_nll_after']:.3f} (best of {int(info['bc_epochs'])} "
+                f"epochs: {int(info['bc_best_epoch'])}, {info['bc_seconds']:.1f}s)"
             )
-        return self.pretrain_info
+        else:
+            bc = "policy kept as loaded"
+        if "ensemble_loss" in info:
+            fit = f"ensemble loss {info['ensemble_loss']:.4g} ({info['ensemble_seconds']:.1f}s)"
+        else:
+            fit = "ensemble kept as loaded"
+        threshold = f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else ""
+        return f"CMZDRIL pretraining: {bc}; {fit}{threshold}"
 
     def reward_wrapper(self) -> DisagreementReward | None:
         """The per-step DisagreementReward in the training env, or None (the default scores rollouts
@@ -456,24 +545,38 @@ class CMZDRIL(PPO):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfCMZDRIL:
-        self.pretrain(progress_bar=progress_bar)
-        self._wrap_training_env()
-        vec_normalize = self.get_vec_normalize_env()
-        self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+        """PPO's ``learn``, after pretraining if the model is not :attr:`pretrained` yet."""
+        # Rollouts step MuJoCo: its warnings (e.g. unstable simulation) go to stderr, not MUJOCO_LOG.TXT.
+        with mujoco_warnings_routed():
+            self.pretrain(progress_bar=progress_bar)
+            self._wrap_training_env()
+            vec_normalize = self.get_vec_normalize_env()
+            self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
+            return super().learn(
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=progress_bar,
+            )
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> tuple[int, BaseCallback]:
+        result = super()._setup_learn(*args, **kwargs)
+        # learn()'s logger (TensorBoard included) exists only from here: pretraining ran before it.
+        if self._pretrain_log_pending:
+            for key, value in self.pretrain_info.items():
+                self.logger.record(f"pretrain/{key}", value)
+            self._pretrain_log_pending = False
+        return result
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
-        user = super()._init_callback(callback, progress_bar)
-        scorer = RolloutScorer(rescore=not self._per_step_scoring())
-        combined = CallbackList([scorer, user])
+        user = super()._init_callback(callback, progress_bar=False)
+        callbacks: list[BaseCallback] = [RolloutScorer(rescore=not self._per_step_scoring()), user]
+        if progress_bar:
+            callbacks.append(_WholeRolloutsProgressBar())
+        combined = CallbackList(callbacks)
         combined.init_callback(self)
         return combined
 
@@ -484,3 +587,14 @@ class CMZDRIL(PPO):
             for _ in range(self.bc_epochs_per_update):
                 nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+class _WholeRolloutsProgressBar(ProgressBarCallback):
+    """SB3's progress bar with the steps ``learn()`` really takes as its total: PPO collects whole
+    rollouts, so it overshoots ``total_timesteps`` up to the next multiple of ``n_steps * n_envs``,
+    and a bar whose count passes its total drops the total (and its percentage and ETA)."""
+
+    def _on_training_start(self) -> None:
+        remaining = self.locals["total_timesteps"] - self.model.num_timesteps
+        rollout = self.model.n_steps * self.training_env.num_envs  # type: ignore[attr-defined]
+        self.pbar = tqdm(total=max(0, math.ceil(remaining / rollout) * rollout))

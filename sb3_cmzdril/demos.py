@@ -48,9 +48,9 @@ class Demonstrations:
         self,
         observations: np.ndarray,
         actions: np.ndarray,
-        episode_lengths: Sequence[int],
+        episode_lengths: Sequence[int] | np.ndarray,
         rewards: np.ndarray | None = None,
-        seeds: Sequence[int] | None = None,
+        seeds: Sequence[int] | np.ndarray | None = None,
     ) -> None:
         obs = np.asarray(observations)
         act = np.asarray(actions)

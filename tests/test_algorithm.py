@@ -224,3 +224,130 @@ def test_reward_normalising_vecnormalize_scores_per_step(pendulum_demos):
     model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
     model.learn(64)
     assert model.env is venv and isinstance(venv.venv, DisagreementReward)
+
+
+def _forbid(model: CMZDRIL, *, clone: bool = False, fit: bool = False) -> None:
+    """Make the model's BC pretraining and/or ensemble fit fail the test if they run."""
+    if clone:
+        model.bc.train_early_stopping = lambda *a, **k: pytest.fail("the policy was pretrained again")
+    if fit:
+        model.ensemble.fit = lambda *a, **k: pytest.fail("the ensemble was refitted")
+
+
+@pytest.mark.parametrize("reward", ["cmz", "dril"])
+def test_set_parameters_then_learn_keeps_the_loaded_weights(reward, pendulum_demos, tmp_path):
+    trained = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward=reward, **TINY)
+    trained.learn(64)
+    trained.save(tmp_path / "a.zip")
+    fresh = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward=reward, **{**TINY, "seed": 7})
+    assert not fresh.pretrained
+    fresh.set_parameters(str(tmp_path / "a.zip"))
+    assert fresh.pretrained
+    obs = pendulum_demos.observations[:30]
+    assert np.array_equal(fresh.predict(obs, deterministic=True)[0], trained.predict(obs, deterministic=True)[0])
+    _forbid(fresh, clone=True, fit=True)
+    fresh.learn(64)
+    assert np.array_equal(fresh.ensemble.member_outputs(obs), trained.ensemble.member_outputs(obs))
+    if reward == "dril":  # the threshold belongs to the loaded ensemble, on the same demos
+        assert fresh.dril_threshold == pytest.approx(trained.dril_threshold)
+
+
+def test_set_parameters_of_the_policy_only_fits_only_the_ensemble(pendulum_demos):
+    trained = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    trained.pretrain()
+    fresh = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "seed": 7})
+    fresh.set_parameters({"policy": trained.policy.state_dict()}, exact_match=False)
+    assert not fresh.pretrained  # the ensemble is not fitted yet
+    obs = pendulum_demos.observations[:30]
+    expected = trained.predict(obs, deterministic=True)[0]
+    _forbid(fresh, clone=True)
+    info = fresh.pretrain()
+    assert "ensemble_loss" in info and "bc_nll_after" not in info
+    assert fresh.pretrained
+    assert np.array_equal(fresh.predict(obs, deterministic=True)[0], expected)
+
+
+def test_pretrained_is_settable_and_saved(pendulum_demos, tmp_path):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    model.learn(64)
+    assert model.pretrained
+    model.save(tmp_path / "a.zip")
+    loaded = CMZDRIL.load(tmp_path / "a.zip", env=gym.make("Pendulum-v1"))
+    assert loaded.pretrained
+    _forbid(loaded, clone=True, fit=True)
+    loaded.learn(64, reset_num_timesteps=False)
+    # weights put in by hand: the user says they are pretrained
+    by_hand = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "seed": 3})
+    by_hand.policy.load_state_dict(model.policy.state_dict())
+    by_hand.ensemble.load_state_dict(model.ensemble.state_dict())
+    by_hand.pretrained = True
+    _forbid(by_hand, clone=True, fit=True)
+    by_hand.learn(64)
+    # False: the next learn pretrains and refits from the start
+    model.pretrained = False
+    assert not model.pretrained
+    calls = []
+    fit = model.ensemble.fit
+    model.ensemble.fit = lambda *a, **k: calls.append(1) or fit(*a, **k)
+    info = model.pretrain()
+    assert calls == [1] and "bc_nll_after" in info and model.pretrained
+
+
+def test_pretrain_keys_reach_tensorboard_on_the_first_learn(pendulum_demos, tmp_path):
+    pytest.importorskip("tensorboard", reason="tensorboard is in the test extra")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, tensorboard_log=str(tmp_path), **TINY)
+    model.learn(64, tb_log_name="run")
+    events = EventAccumulator(str(tmp_path / "run_1"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"pretrain/bc_nll_after", "pretrain/ensemble_loss"} <= tags
+    model.learn(64, tb_log_name="run", reset_num_timesteps=False)  # logged once, not again
+    assert model._pretrain_log_pending is False
+
+
+def test_progress_bar_total_is_the_steps_learn_takes(pendulum_demos, monkeypatch):
+    import sb3_cmzdril.algorithm as algorithm
+
+    bars = []
+
+    class Bar:
+        def __init__(self, total):
+            self.total, self.n = total, 0
+            bars.append(self)
+
+        def update(self, n):
+            self.n += n
+
+        def refresh(self):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(algorithm, "tqdm", Bar)
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    model.learn(100, progress_bar=True)  # PPO collects whole rollouts of 64 steps: 128
+    assert [(b.total, b.n) for b in bars] == [(128, 128)]
+
+
+def test_mujoco_warnings_are_routed_only_while_the_library_works(pendulum_demos, tmp_path, monkeypatch, capfd):
+    mujoco = pytest.importorskip("mujoco")
+    monkeypatch.chdir(tmp_path)
+    assert mujoco.get_mju_user_warning() is None
+    seen = []
+
+    class Handler(BaseCallback):
+        def _on_step(self) -> bool:
+            seen.append(mujoco.get_mju_user_warning())
+            return True
+
+    model = CMZDRIL("MlpPolicy", "HalfCheetah-v5", demonstrations=None, **TINY)  # compiles the model: settotalmass
+    assert model.env is not None
+    pendulum = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    pendulum.learn(64, callback=Handler())
+    assert seen and all(h is not None for h in seen)  # rollouts step with the handler in place
+    assert mujoco.get_mju_user_warning() is None  # and MuJoCo's default is back afterwards
+    assert "settotalmass" not in capfd.readouterr().err
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
