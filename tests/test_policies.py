@@ -27,7 +27,7 @@ def test_standardizer_forward_and_bad_statistics():
     x = th.tensor([[1.0, 2.0]])
     assert th.equal(ext(x), x)  # identity until set
     ext.set_statistics(np.array([1.0, 0.0]), np.array([2.0, 4.0]))
-    np.testing.assert_allclose(ext(x).numpy(), [[0.0, 0.5]])
+    np.testing.assert_allclose(ext(x).cpu().numpy(), [[0.0, 0.5]])
     with pytest.raises(ValueError, match="positive std"):
         ext.set_statistics(np.zeros(2), np.array([1.0, 0.0]))
     with pytest.raises(ValueError, match="2 observation dimensions"):
@@ -40,14 +40,14 @@ def test_policy_sees_demo_standardised_inputs_that_survive_save_load(pendulum_de
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer)
     mean, std = observation_statistics(pendulum_demos.observations)
-    np.testing.assert_allclose(ext.obs_mean.numpy(), mean, rtol=1e-6)
-    np.testing.assert_allclose(ext.obs_std.numpy(), std, rtol=1e-6)
+    np.testing.assert_allclose(ext.obs_mean.cpu().numpy(), mean, rtol=1e-6)
+    np.testing.assert_allclose(ext.obs_std.cpu().numpy(), std, rtol=1e-6)
     # the ensemble standardises with the very same statistics
-    np.testing.assert_allclose(model.ensemble.obs_mean.numpy(), mean, rtol=1e-6)
-    np.testing.assert_allclose(model.ensemble.obs_std.numpy(), std, rtol=1e-6)
+    np.testing.assert_allclose(model.ensemble.obs_mean.cpu().numpy(), mean, rtol=1e-6)
+    np.testing.assert_allclose(model.ensemble.obs_std.cpu().numpy(), std, rtol=1e-6)
     model.save(tmp_path / "m.zip")
     loaded = CMZDRIL.load(tmp_path / "m.zip")
-    np.testing.assert_array_equal(loaded.policy.features_extractor.obs_mean.numpy(), ext.obs_mean.numpy())
+    np.testing.assert_array_equal(loaded.policy.features_extractor.obs_mean.cpu().numpy(), ext.obs_mean.cpu().numpy())
     obs = pendulum_demos.observations[:50] * 1.1
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
 
@@ -56,7 +56,7 @@ def test_switched_off_the_policy_sees_raw_observations(pendulum_demos):
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, standardize_observations=False, **TINY)
     model.pretrain()
     assert type(model.policy.features_extractor) is FlattenExtractor
-    obs = th.as_tensor(pendulum_demos.observations[:5])
+    obs = th.as_tensor(pendulum_demos.observations[:5], device=model.device)
     assert th.equal(model.policy.extract_features(obs, model.policy.features_extractor), obs)
 
 

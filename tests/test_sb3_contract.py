@@ -102,7 +102,7 @@ def test_seed_none_draws_from_the_global_rng(pendulum_demos):
     def ensemble_weights(global_seed: int) -> np.ndarray:
         np.random.seed(global_seed)
         model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "seed": None})
-        return model.ensemble.weights[0].detach().numpy().copy()
+        return model.ensemble.weights[0].detach().cpu().numpy().copy()
 
     assert np.array_equal(ensemble_weights(1), ensemble_weights(1))
     assert not np.array_equal(ensemble_weights(1), ensemble_weights(2))  # not a fixed seed 0
