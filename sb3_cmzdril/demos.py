@@ -153,6 +153,7 @@ class Demonstrations:
                 arrays = {k: data[k] for k in data.files}
         except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
             raise ValueError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
+        _check_format_version(path, arrays.get("format_version"))
         missing = {"observations", "actions", "episode_lengths"} - set(arrays)
         if missing:
             raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
@@ -285,6 +286,22 @@ class Demonstrations:
         )
         clipped = np.clip(self.actions, low, high)
         return Demonstrations(self.observations, clipped, self.episode_lengths, self.rewards, self.seeds)
+
+
+def _check_format_version(path: Path, version: np.ndarray | None) -> None:
+    """Refuse a file of a newer format than this package writes: its arrays may mean something
+    else (files without a version predate it and are version 1's layout)."""
+    if version is None:
+        return
+    try:
+        number = int(np.asarray(version).reshape(()))
+    except (TypeError, ValueError):
+        raise ValueError(f"demonstrations file {path} has an unreadable format_version {version!r}") from None
+    if number > FORMAT_VERSION:
+        raise ValueError(
+            f"demonstrations file {path} has format_version {number}, newer than this sb3-cmzdril reads "
+            f"({FORMAT_VERSION}): upgrade sb3-cmzdril"
+        )
 
 
 def as_demonstrations(demos: Demonstrations | PathLike | list[Mapping[str, Any]]) -> Demonstrations:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations, as_demonstrations
 
 OBS_SPACE = spaces.Box(-np.inf, np.inf, (3,), np.float32)
 ACT_SPACE = spaces.Box(-1.0, 1.0, (2,), np.float32)
@@ -165,3 +165,18 @@ def test_load_errors_name_the_path(tmp_path):
     np.savez(partial, observations=np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"partial.npz lacks arrays \['actions', 'episode_lengths'\]"):
         Demonstrations.load(partial)
+
+
+def test_a_newer_format_version_is_refused(tmp_path):
+    demos = Demonstrations(np.zeros((3, 2)), np.zeros((3, 1)), [3])
+    arrays = {"observations": demos.observations, "actions": demos.actions, "episode_lengths": demos.episode_lengths}
+    np.savez(tmp_path / "future.npz", format_version=np.asarray(FORMAT_VERSION + 1), **arrays)
+    with pytest.raises(ValueError, match=rf"future.npz has format_version {FORMAT_VERSION + 1}, newer"):
+        Demonstrations.load(tmp_path / "future.npz")
+    np.savez(tmp_path / "odd.npz", format_version=np.asarray("x"), **arrays)
+    with pytest.raises(ValueError, match="odd.npz has an unreadable format_version"):
+        Demonstrations.load(tmp_path / "odd.npz")
+    np.savez(tmp_path / "old.npz", **arrays)  # files from before the version existed still load
+    assert Demonstrations.load(tmp_path / "old.npz").n_episodes == 1
+    demos.save(tmp_path / "now.npz")
+    assert Demonstrations.load(tmp_path / "now.npz").n_episodes == 1
