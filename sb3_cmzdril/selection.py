@@ -66,13 +66,21 @@ class LowestDisagreementPolicy(BaseCallback):
             th.save(blob, tmp)
 
     def load(self, path: PathLike) -> bool:
-        """Restore a choice written by :meth:`save`; False when there is no such file."""
+        """Restore a choice written by :meth:`save`; False when there is no such file, a ValueError
+        naming it when it is damaged."""
         if not Path(path).is_file():
             return False
-        blob = th.load(path, map_location="cpu", weights_only=True)
-        self.best_state = blob["state_dict"]
-        self.best_epoch = int(blob["epoch"])
-        self.best_u = float(blob["u"])
+        try:
+            blob = th.load(path, map_location="cpu", weights_only=True)
+            state, epoch, u = blob["state_dict"], int(blob["epoch"]), float(blob["u"])
+            if not isinstance(state, dict):
+                raise TypeError(f"state_dict is a {type(state).__name__}")
+        except Exception as e:  # torch raises RuntimeError, OSError (errno 22), pickle errors... for damage
+            raise ValueError(
+                f"{path} is truncated or not a lowest-u policy file ({type(e).__name__}: {e}); delete it to "
+                "resume without the earlier choice"
+            ) from None
+        self.best_state, self.best_epoch, self.best_u = state, epoch, u
         return True
 
 

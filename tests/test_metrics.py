@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 from gymnasium import spaces
 from scipy.spatial.distance import cdist
 from stable_baselines3 import PPO
@@ -24,6 +25,7 @@ from sb3_cmzdril.metrics import (
     trajectory_features,
 )
 from sb3_cmzdril.metrics import frechet as frechet_module
+from sb3_cmzdril.selection import LowestDisagreementPolicy
 
 EPISODE_STEPS = 40  # short Pendulum episodes keep the file fast
 PENDULUM_KWARGS = {"max_episode_steps": EPISODE_STEPS}
@@ -498,3 +500,17 @@ def test_callback_validates_arguments(tmp_path: Any, demos: Demonstrations) -> N
     callback = ExpertEvalCallback("Pendulum-v1", demos.select([0]), csv_path=path, env_kwargs=PENDULUM_KWARGS)
     with pytest.raises(ValueError, match="columns"):
         model.learn(64, callback=callback)
+
+
+def test_lowest_u_choice_round_trips_and_a_damaged_file_is_named(tmp_path):
+    kept = LowestDisagreementPolicy()
+    kept.best_state, kept.best_epoch, kept.best_u = {"w": th.arange(4.0)}, 3, 0.25
+    path = tmp_path / "lowest_u.pt"
+    kept.save(path)
+    back = LowestDisagreementPolicy()
+    assert back.load(path) and back.best_epoch == 3 and back.best_u == 0.25
+    assert th.equal(back.best_state["w"], th.arange(4.0))
+    assert not LowestDisagreementPolicy().load(tmp_path / "absent.pt")
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"lowest_u.pt is truncated or not a lowest-u policy file"):
+        LowestDisagreementPolicy().load(path)
