@@ -128,12 +128,17 @@ def write_json(path: PathLike, data: dict[str, Any]) -> None:
 
 
 def read_json(path: PathLike) -> dict[str, Any]:
-    """The JSON content of ``path``; a ValueError naming the file when it is unreadable or corrupt."""
+    """The JSON object in ``path``; a ValueError naming the file when it is unreadable, corrupt, or
+    holds something else than an object (a hand-edited list or null would fail later, unnamed)."""
     path = Path(path)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as e:
         raise ValueError(f"{path} is unreadable or corrupt: {e}") from e
+    if not isinstance(data, dict):
+        kind = "null" if data is None else {list: "array", str: "string", bool: "boolean"}.get(type(data), "number")
+        raise ValueError(f"{path} is not what sb3-cmzdril wrote: it holds a JSON {kind}, not an object")
+    return data
 
 
 def read_json_or_empty(path: PathLike) -> dict[str, Any]:

@@ -51,22 +51,23 @@ def _run_evaluate(args) -> int:
     from sb3_cmzdril.experiments.spec import default_demos_path
     from sb3_cmzdril.experts import check_env_id, load_demonstrations
     from sb3_cmzdril.hyperparams import safe_eval
-    from sb3_cmzdril.io import read_json
     from sb3_cmzdril.metrics import evaluate_against_expert
+    from sb3_cmzdril.metrics.evaluation import make_env
 
     check_env_id(args.env)
     model_path = Path(args.model)
     if not model_path.is_file():
         raise FileNotFoundError(f"model file not found: {model_path}")
+    _check_model_zip(model_path)
     # A run folder's config.json knows how the model was trained and evaluated.
-    config_path = model_path.parent / CONFIG_FILE
-    run_config = read_json(config_path) if config_path.is_file() else {}
+    run_config = _run_config(model_path.parent / CONFIG_FILE)
     if args.env_kwargs is not None:
         env_kwargs = safe_eval(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
             raise ValueError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
     else:
         env_kwargs = run_config.get("env_kwargs") or {}
+    make_env(args.env, env_kwargs).close()  # kwargs the env does not take: one line now, not a traceback later
     demos_path = Path(args.demos or run_config.get("demos") or default_demos_path(args.env))
     demos = load_demonstrations(demos_path)
     indices, which = _evaluation_episodes(args.episodes, demos.n_episodes, demos_path, run_config)
@@ -108,6 +109,49 @@ def _run_evaluate(args) -> int:
     return 0
 
 
+#: config.json entries ``evaluate`` reads, with the JSON type each must have (None: absent).
+_CONFIG_TYPES: dict[str, tuple[type, str]] = {
+    "env_kwargs": (dict, "an object"),
+    "demos": (str, "a path"),
+    "demos_sha256": (str, "a string"),
+    "eval_episodes": (list, "a list of episode indices"),
+    "hyperparams_values": (dict, "an object"),
+}
+
+
+def _run_config(path) -> dict:
+    """The run's config.json beside the model ({} when there is none), checked entry by entry: a
+    hand-edited file must fail here with its name, not as a traceback deep in the evaluation."""
+    from sb3_cmzdril.io import read_json
+
+    if not path.is_file():
+        return {}
+    config = read_json(path)  # a JSON object, or a ValueError naming the file
+    for key, (kind, what) in _CONFIG_TYPES.items():
+        value = config.get(key)
+        if value is not None and not isinstance(value, kind):
+            raise ValueError(f"{path}: {key} must be {what}, got {value!r}")
+    held_out = config.get("eval_episodes") or []
+    if not all(isinstance(i, int) and not isinstance(i, bool) for i in held_out):
+        raise ValueError(f"{path}: eval_episodes must be a list of episode indices, got {held_out!r}")
+    return config
+
+
+def _check_model_zip(path) -> None:
+    """A model zip as SB3 writes it (its ``data`` entry a JSON object), else a ValueError naming the
+    model file (the loaders that follow would call it an expert's or report a bare zip error)."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data").decode("utf-8"))
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError) as e:
+        raise ValueError(f"model file {path} is truncated, corrupt or not an SB3 model zip: {e}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"model file {path} is not an SB3 model zip: its data entry is not a JSON object")
+
+
 def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: dict):
     """``(episode indices, how they were chosen)`` for ``evaluate``.
 
@@ -134,6 +178,12 @@ def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: 
             raise ValueError(
                 f"{demos_path} changed since the run was trained (sha256 differs from its config.json): its held-out "
                 "episodes cannot be told apart; pass --episodes"
+            )
+        bad = [i for i in held_out if not 0 <= i < n_pool]
+        if bad:
+            raise ValueError(
+                f"eval_episodes {bad} of the run's config.json are not episodes of {demos_path} ({n_pool} episodes, "
+                f"numbered 0 to {n_pool - 1}); pass --episodes"
             )
         return [int(i) for i in held_out], "the run's held-out episodes (eval_episodes of its config.json)"
     note = " (not the run's demo pool: no held-out split applies)" if held_out else ""

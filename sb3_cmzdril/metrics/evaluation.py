@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.demos import UNKNOWN_SEED, Demonstrations, as_demonstrations
 from sb3_cmzdril.metrics.action_mse import (
     ObsTransform,
@@ -88,10 +89,21 @@ def _require_seeds(demos: Demonstrations) -> None:
         )
 
 
+def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
+    """``gym.make(env_id, **env_kwargs)``, or a ValueError naming the env and the kwargs when it
+    cannot be made with them (an unknown keyword, a bad value: each env raises its own type)."""
+    kwargs = dict(env_kwargs or {})
+    try:
+        with mujoco_warnings_routed():
+            return gym.make(env_id, **kwargs)
+    except Exception as e:
+        raise ValueError(f"cannot make {env_id} with env_kwargs {kwargs}: {type(e).__name__}: {e}") from None
+
+
 def _make_env(env: str | gym.Env, env_kwargs: Mapping[str, Any] | None) -> tuple[gym.Env, bool, str | None]:
     """(env, whether we own it and must close it, its id for the trajectory-feature lookup)."""
     if isinstance(env, str):
-        return gym.make(env, **dict(env_kwargs or {})), True, env
+        return make_env(env, env_kwargs), True, env
     if not isinstance(env, gym.Env):
         raise TypeError(
             f"env must be a gymnasium Env or an env id, got {type(env).__name__} "
@@ -139,6 +151,7 @@ def _rollout(
     return np.stack(observations), total
 
 
+@mujoco_warnings_routed()  # the rollouts step MuJoCo: its warnings go to stderr, not MUJOCO_LOG.TXT
 def evaluate_against_expert(
     model: Any,
     env: str | gym.Env,
