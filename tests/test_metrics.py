@@ -514,3 +514,13 @@ def test_lowest_u_choice_round_trips_and_a_damaged_file_is_named(tmp_path):
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     with pytest.raises(ValueError, match=r"lowest_u.pt is truncated or not a lowest-u policy file"):
         LowestDisagreementPolicy().load(path)
+
+
+def test_make_env_names_the_env_and_the_kwargs_it_refuses():
+    from sb3_cmzdril.metrics.evaluation import make_env
+
+    with pytest.raises(ValueError, match=r"cannot make Pendulum-v1 with env_kwargs \{'nonsense': 1\}: TypeError"):
+        make_env("Pendulum-v1", {"nonsense": 1})
+    env = make_env("Pendulum-v1", {"max_episode_steps": 7})
+    assert env.spec.max_episode_steps == 7
+    env.close()

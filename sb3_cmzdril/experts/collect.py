@@ -14,6 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.console import RENDERABLE
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experts.envs import check_env_id, check_seed
@@ -94,6 +95,7 @@ def _log_summary(demos: Demonstrations, title: str) -> None:
     logger.info("%s", "\n".join(lines), extra=extra)
 
 
+@mujoco_warnings_routed()  # the expert steps MuJoCo: its warnings go to stderr, not MUJOCO_LOG.TXT
 def collect_demos(
     expert: str | PathLike | Any,
     env_id: str,

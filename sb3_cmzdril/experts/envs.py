@@ -44,4 +44,7 @@ def make_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]
     """SB3's ``make_vec_env`` (Monitor inside each env, env ``i`` seeded ``seed + i``)."""
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    return sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or None)
+    from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
+
+    with mujoco_warnings_routed():  # e.g. HalfCheetah's settotalmass notice, printed at model compile
+        return sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or None)
