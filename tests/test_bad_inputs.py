@@ -240,7 +240,7 @@ CASES = [
          lambda ws, c: ["evaluate", "--model", _evaluated_run(ws, c, {"env_kwargs": "x"}), "--env", ENV],
          "env_kwargs must be an object"),
     Case("evaluate", "truncated model", lambda ws, c: _evaluate(ws, _damaged_model(ws, c)),
-         "model file .*model.zip is truncated, corrupt or not an SB3 model zip"),
+         "model file .*model.zip is corrupt, truncated or not an SB3 model zip"),
     Case("evaluate", "model not a zip", lambda ws, c: _evaluate(ws, _damaged_model(ws, c, b"hello")),
          "model file .*model.zip"),
     Case("evaluate", "model missing", lambda ws, c: _evaluate(ws, str(c / "none.zip")), "none.zip"),

@@ -147,7 +147,7 @@ def _check_model_zip(path) -> None:
         with zipfile.ZipFile(path) as zf:
             data = json.loads(zf.read("data").decode("utf-8"))
     except (zipfile.BadZipFile, KeyError, ValueError, OSError) as e:
-        raise ValueError(f"model file {path} is truncated, corrupt or not an SB3 model zip: {e}") from None
+        raise ValueError(f"model file {path} is corrupt, truncated or not an SB3 model zip: {e}") from None
     if not isinstance(data, dict):
         raise ValueError(f"model file {path} is not an SB3 model zip: its data entry is not a JSON object")
 
