@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -36,6 +36,7 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import (
     DemoStandardizer,
     floor_log_std,
@@ -48,7 +49,7 @@ from sb3_cmzdril.scoring import RolloutScorer
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
-DemosLike = Demonstrations | str | list | None
+DemosLike = Demonstrations | PathLike | list | None
 
 # Tensors that travel in the zip next to the state dicts (SB3 loads them with weights_only=True).
 _SAVED_TENSORS = (
@@ -271,7 +272,7 @@ class CMZDRIL(PPO):
         super().save(path, exclude=exclude, include=include)
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls: type[SelfCMZDRIL],
         path: Any,
         env: GymEnv | None = None,
@@ -397,7 +398,8 @@ class CMZDRIL(PPO):
             "bc_log_std_learned": log_std_learned,
             "bc_log_std": mean_log_std(self.policy),
             "bc_seconds": bc_seconds,
-            "ensemble_loss": float(np.mean(self.ensemble.train_loss_)),
+            # fit() above has set train_loss_ (None only before the first fit).
+            "ensemble_loss": float(np.mean(cast(np.ndarray, self.ensemble.train_loss_))),
             "ensemble_seconds": time.perf_counter() - start,
         }
         if getattr(self, "_logger", None) is not None:

@@ -74,7 +74,8 @@ def _run_train(args) -> int:
     from sb3_cmzdril.experiments.spec import plan_run
     from sb3_cmzdril.experts import check_threads, command_line
 
-    torch.set_num_threads(check_threads(args.threads))
+    check_threads(args.threads)
+    torch.set_num_threads(args.threads)
     spec = plan_run(
         args.env,
         args.reward,
