@@ -21,8 +21,8 @@ from conftest import pendulum_expert, record
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments import grid, report, runs
-from sb3_cmzdril.experiments.grid import plan_grid, run_grid
-from sb3_cmzdril.experiments.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
+from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
 
 ENV = "Pendulum-v1"
 POOL_EPISODES = 6

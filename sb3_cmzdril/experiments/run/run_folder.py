@@ -1,6 +1,6 @@
 """A run folder's files: their names, how they are read, and the checks that keep one run per folder.
 
-:func:`~sb3_cmzdril.experiments.runs.run_experiment` writes into the run's own folder::
+:func:`~sb3_cmzdril.experiments.run.runs.run_experiment` writes into the run's own folder::
 
     DIR/config.json        everything needed to reproduce it: env, method, seeds, the train/eval
                            episode indices of the demo pool (and its sha256), hyperparameters,
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.spec import (
+from sb3_cmzdril.experiments.run.spec import (
     RunSpec,
     file_mtime_ns,
     load_pool,

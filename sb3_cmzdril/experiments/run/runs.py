@@ -1,8 +1,8 @@
 """One run of the paper's experiment: one env, one method, one trial seed.
 
-A run is described by a :class:`~sb3_cmzdril.experiments.spec.RunSpec` (built and validated by
-:func:`~sb3_cmzdril.experiments.spec.plan_run`) and executed here by :func:`run_experiment`, which
-writes into its own folder (the files: :mod:`sb3_cmzdril.experiments.run_folder`).
+A run is described by a :class:`~sb3_cmzdril.experiments.run.spec.RunSpec` (built and validated by
+:func:`~sb3_cmzdril.experiments.run.spec.plan_run`) and executed here by :func:`run_experiment`, which
+writes into its own folder (the files: :mod:`sb3_cmzdril.experiments.run.run_folder`).
 
 Resuming: with ``done.json`` the run is skipped. With ``model.zip`` the run continues from that
 checkpoint to the requested total (``learn(..., reset_num_timesteps=False)``). Evaluation rows
@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.run_folder import (
+from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
     DONE_FILE,
@@ -53,7 +53,7 @@ from sb3_cmzdril.experiments.run_folder import (
     window_means,
     write_pretrain_csv,
 )
-from sb3_cmzdril.experiments.spec import (
+from sb3_cmzdril.experiments.run.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     EXPERIMENT_KEYS,

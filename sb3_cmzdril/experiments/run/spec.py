@@ -4,8 +4,8 @@
 hyperparameters) into a :class:`RunSpec` and checks everything that can fail before training starts,
 down to building the run's env and model once (:func:`make_training_env`, which the run itself uses
 too). :func:`split_episodes` is the demo split every method of a trial shares; :func:`train_command`
-is the ``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.experiments.runs`
-and writes the files of :mod:`sb3_cmzdril.experiments.run_folder`.
+is the ``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.experiments.run.runs`
+and writes the files of :mod:`sb3_cmzdril.experiments.run.run_folder`.
 """
 from __future__ import annotations
 
