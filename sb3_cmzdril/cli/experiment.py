@@ -74,7 +74,9 @@ def _run_train(args) -> int:
     from sb3_cmzdril.experiments.run.spec import plan_run
     from sb3_cmzdril.experts import check_threads, command_line
 
-    torch.set_num_threads(check_threads(args.threads))
+    threads = check_threads(args.threads)
+    if threads is not None:
+        torch.set_num_threads(threads)
     spec = plan_run(
         args.env,
         args.reward,
