@@ -47,6 +47,7 @@ from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import (
     DemoStandardizer,
     floor_log_std,
@@ -59,7 +60,7 @@ from sb3_cmzdril.scoring import RolloutScorer
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
-DemosLike = Demonstrations | str | list | None
+DemosLike = Demonstrations | PathLike | list | None
 
 # Tensors that travel in the zip next to the state dicts (SB3 loads them with weights_only=True).
 _SAVED_TENSORS = (

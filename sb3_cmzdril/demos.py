@@ -69,8 +69,10 @@ class Demonstrations:
             raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
         if obs.dtype.kind not in "fiu" or act.dtype.kind not in "fiu":
             raise ValueError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
-        self.observations = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
-        self.actions = act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
+        self.observations: np.ndarray = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+        self.actions: np.ndarray = (
+            act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
+        )
         _finite("observations", self.observations)
         _finite("actions", self.actions)
         if rewards is not None:
@@ -170,7 +172,9 @@ class Demonstrations:
 
     def save(self, path: PathLike) -> None:
         """Write a compressed npz atomically (temp file + rename)."""
-        arrays: dict[str, np.ndarray] = {
+        # Values typed Any, not np.ndarray: mypy would match a dict of arrays against the stub's
+        # `allow_pickle: bool` keyword, which none of these keys is.
+        arrays: dict[str, Any] = {
             "format_version": np.asarray(FORMAT_VERSION),
             "observations": self.observations,
             "actions": self.actions,

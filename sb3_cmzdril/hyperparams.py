@@ -159,9 +159,10 @@ def safe_eval(text: str) -> Any:
         if isinstance(node, ast.Tuple):
             return tuple(conv(e) for e in node.elts)
         if isinstance(node, ast.Dict):
-            if any(k is None for k in node.keys):
+            keys = [k for k in node.keys if k is not None]  # None stands for a '**' entry
+            if len(keys) != len(node.keys):
                 raise fail(node, "'**' unpacking is not allowed")
-            return {conv(k): conv(v) for k, v in zip(node.keys, node.values, strict=True)}
+            return {conv(k): conv(v) for k, v in zip(keys, node.values, strict=True)}
         if isinstance(node, ast.Call):
             if isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
                 if any(kw.arg is None for kw in node.keywords):
@@ -304,10 +305,10 @@ def check_constructor_kwargs(hp: Hyperparams, classes: Sequence[type]) -> None:
 
     parameters: dict[str, inspect.Parameter] = {}
     for cls in classes:
-        for name, parameter in inspect.signature(cls.__init__).parameters.items():
+        for name, parameter in inspect.signature(cls).parameters.items():
             if parameter.kind not in (parameter.VAR_KEYWORD, parameter.VAR_POSITIONAL):
                 parameters.setdefault(name, parameter)
-    for name in ("self", "policy", "env", "_init_setup_model"):
+    for name in ("policy", "env", "_init_setup_model"):
         parameters.pop(name, None)
     where = f"hyperparameters {hp.key!r}" + (f" in {hp.path}" if hp.path else "")
     unknown = sorted(set(hp.algo_kwargs) - set(parameters))

@@ -16,7 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -193,7 +193,7 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
-        self._last_obs: np.ndarray | None = None
+        self._last_obs: VecEnvObs | None = None
         self._actions: np.ndarray | None = None
         self._sum_u = self._sum_reward = 0.0
         self._count = 0
@@ -211,7 +211,9 @@ class DisagreementReward(VecEnvWrapper):
         if self._last_obs is None:
             raise RuntimeError("DisagreementReward.step_wait() before reset(): the acted-on observation is unknown")
         obs, env_rewards, dones, infos = self.venv.step_wait()
-        u = self.ensemble.disagreement(self._last_obs, self._actions if self._pass_actions else None)
+        # The wrapper is for Box observation spaces (see the class docstring), whose VecEnvs return arrays.
+        acted_on = cast(np.ndarray, self._last_obs)
+        u = self.ensemble.disagreement(acted_on, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist(), strict=True):
             info["env_reward"] = r_env

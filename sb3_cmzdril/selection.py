@@ -11,11 +11,12 @@ evaluation calls epoch ``k``; epoch 0 is the behaviour-cloned start.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 from sb3_cmzdril.io import PathLike, atomic_path
 
@@ -36,7 +37,9 @@ class LowestDisagreementPolicy(BaseCallback):
         self._epoch = 0
 
     def _on_rollout_start(self) -> None:
-        self._epoch = int(self.model.num_timesteps // (self.model.n_steps * self.model.n_envs))
+        # The callback is for CMZDRIL (a PPO): on-policy, n_steps per env in each rollout.
+        model = cast(OnPolicyAlgorithm, self.model)
+        self._epoch = int(model.num_timesteps // (model.n_steps * model.n_envs))
 
     def _on_step(self) -> bool:
         return True

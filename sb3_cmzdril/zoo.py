@@ -97,7 +97,7 @@ class ZooCMZDRIL(CMZDRIL):
         super().__init__(policy, env, demonstrations=demonstrations, **kwargs)
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls,
         path: Any,
         env: Any = None,

@@ -172,6 +172,13 @@ def test_corrupt_compressed_demo_file(setup, tmp_path, capsys):
         ("train", '  n_steps: "lots"\n', "n_steps must be int, got 'lots' \\(str\\)"),
         ("train", "  n_steps: 1\n", "`n_steps \\* n_envs` must be greater than 1"),
         ("train", "  alpha: [1, 2]\n", "alpha must be float, got \\[1, 2\\] \\(list\\)"),
+        # Values the constructors accept but training cannot use: refused before the run folder exists.
+        ("train", "  n_epochs: 0\n", "n_epochs must be >= 1, got 0"),
+        ("train", "  ensemble_epochs: 0\n", "ensemble_epochs must be >= 1, got 0"),
+        ("train", "  batch_size: 0\n", "`batch_size` must be greater than 1"),
+        ("train", "  learning_rate: .nan\n", "learning rate: nan"),
+        ("train", "  gamma: .nan\n", "gamma must be in \\[0, 1\\], got nan"),
+        ("train", "  clip_range: -1\n", "clip_range must be finite and > 0, got -1.0"),
         ("train-expert", "  n_step: 3\n", "\\['n_step'\\] are not SAC arguments"),
         ("train-expert", '  batch_size: "big"\n', "batch_size must be int, got 'big'"),
         ("train-expert", '  learning_rate: "fast"\n', "invalid schedule for learning_rate"),
@@ -208,6 +215,42 @@ def test_demo_pool_of_another_env_is_refused_before_config_json(setup, tmp_path,
     assert not (tmp_path / "run").exists()
     # The corrected command then runs in that folder.
     assert main(train_args(setup, "-o", str(tmp_path / "run"))) == 0
+
+
+def test_demo_pool_without_reset_seeds_is_refused_before_anything_is_written(setup, tmp_path, capsys):
+    pool = Demonstrations.load(setup["pool"])
+    unseeded = tmp_path / "unseeded.npz"
+    Demonstrations(pool.observations, pool.actions, pool.episode_lengths, pool.rewards).save(unseeded)
+    before = snapshot(tmp_path)
+    assert main(train_args(setup, "--demos", str(unseeded), "-o", str(tmp_path / "run"))) == 2
+    assert "held out for evaluation, have no recorded reset seed" in error_line(capsys, "train")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("command", ["train", "benchmark"])
+@pytest.mark.parametrize(
+    "files, message",
+    [
+        ({"config.json": '{"my": "notes"}'}, "config.json is not the config.json of an sb3-cmzdril run"),
+        ({"demos.npz": "", "metadata.json": "{}"}, "files that are not an sb3-cmzdril run's (demos.npz, metadata"),
+    ],
+    ids=["someone's config.json", "an expert's folder"],
+)
+def test_a_folder_the_run_did_not_create_is_refused_untouched(setup, tmp_path, capsys, command, files, message):
+    out = tmp_path / "runs" / ENV / "bc" / "trial0"  # where benchmark -o tmp_path/runs puts trial 0 of bc
+    out.mkdir(parents=True)
+    for name, text in files.items():
+        (out / name).write_text(text)
+    before = snapshot(tmp_path)
+    if command == "train":
+        args = train_args(setup, "-o", str(out))
+    else:
+        args = ["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--eval-episodes", "1", "--no-progress",
+                "--demos-dir", str(setup["pool"].parent.parent), "--hyperparams", str(setup["ppo"]),
+                "-o", str(tmp_path / "runs")]
+    assert main(args) == 2
+    assert message in error_line(capsys, command)
+    assert snapshot(tmp_path) == before
 
 
 def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun(setup, tmp_path):

@@ -21,8 +21,10 @@ from conftest import pendulum_expert, record
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments import grid, report, runs
-from sb3_cmzdril.experiments.grid import plan_grid, run_grid
-from sb3_cmzdril.experiments.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
+from sb3_cmzdril.experiments.run.run_folder import check_finished
+from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.experiments.run.spec import RunSpec
 
 ENV = "Pendulum-v1"
 POOL_EPISODES = 6
@@ -538,6 +540,46 @@ def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
     (out / "done.json").unlink()
     assert main([*base, "--reward", "bc", "-o", str(out), "--seed", "1"]) == 2
     assert "holds a different run" in capsys.readouterr().err
+
+
+def test_run_experiment_checks_a_spec_made_by_hand_before_writing(setup, tmp_path):
+    spec = plan_run(ENV, "cmz", 0, demos=setup["pool"], n_eval_episodes=1, timesteps=128, hyperparams=setup["hp"],
+                    output_dir=tmp_path / "run")
+    bad = tmp_path / "bad.yml"
+    bad.write_text(TINY_YAML + "  n_epochs: 0\n")
+    with pytest.raises(ValueError, match="n_epochs must be >= 1, got 0"):
+        run_experiment(dataclasses.replace(spec, hyperparams=str(bad)))
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_published_run_folder_is_still_the_same_run():
+    """A run folder written before the run half was restructured (docs/runs) is recognised as the
+    finished run of the same spec: config.json's identity is what it was."""
+    repo = Path(__file__).resolve().parent.parent
+    out = repo / "docs" / "runs" / "Hopper-v5" / "cmz" / "trial0"
+    config = _config(out)
+    spec = RunSpec(
+        env_id=config["env_id"], method=config["method"], demos=str(repo / "experts" / "Hopper-v5" / "demos.npz"),
+        seed=config["seed"], n_demos=config["n_demos"], n_eval_episodes=config["n_eval_episodes"],
+        timesteps=config["timesteps"], output_dir=str(out), hyperparams=str(repo / "hyperparams" / "cmzdril.yml"),
+    )
+    assert check_finished(spec) == json.loads((out / "done.json").read_text())
+    with pytest.raises(ValueError, match="holds a different, finished run \\(seed: 0 there, 1 now"):
+        check_finished(dataclasses.replace(spec, seed=1))
+
+
+def test_the_flat_module_paths_of_before_the_split_are_the_same_modules():
+    import importlib
+
+    from sb3_cmzdril.experiments import report as reporting
+    from sb3_cmzdril.experiments.report import report as report_module
+
+    for old, new in [("runs", "run.runs"), ("spec", "run.spec"), ("grid", "run.grid"), ("records", "report.records"),
+                     ("final_eval", "report.final_eval"), ("tables", "report.tables")]:
+        moved = importlib.import_module(f"sb3_cmzdril.experiments.{new}")
+        assert importlib.import_module(f"sb3_cmzdril.experiments.{old}") is moved
+    assert reporting.write_report is report_module.write_report
+    assert set(report_module.__all__) <= set(reporting.__all__)
 
 
 def test_grid_module_names():

@@ -12,7 +12,7 @@ _METHODS_HELP = "bc (pretrained policy only), zero, env, dril or cmz"
 
 def _add_run_options(p, what: str) -> None:
     """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
-    from sb3_cmzdril.experiments.spec import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
+    from sb3_cmzdril.experiments.run.spec import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
 
     p.add_argument(
         "--n-demos",
@@ -70,11 +70,13 @@ def add_train(sub) -> None:
 def _run_train(args) -> int:
     import torch
 
-    from sb3_cmzdril.experiments.runs import run_experiment
-    from sb3_cmzdril.experiments.spec import plan_run
+    from sb3_cmzdril.experiments.run.runs import run_experiment
+    from sb3_cmzdril.experiments.run.spec import plan_run
     from sb3_cmzdril.experts import check_threads, command_line
 
-    torch.set_num_threads(check_threads(args.threads))
+    threads = check_threads(args.threads)
+    if threads is not None:
+        torch.set_num_threads(threads)
     spec = plan_run(
         args.env,
         args.reward,
@@ -111,7 +113,7 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike) -
     sees that the lowest-disagreement policy (chosen without the env reward) may be the better one."""
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run_folder import LOWEST_U_MODEL, MODEL_FILE
+    from sb3_cmzdril.experiments.run.run_folder import LOWEST_U_MODEL, MODEL_FILE
 
     files = {"final": ("final policy", MODEL_FILE), "lowest_u": ("lowest-u policy", LOWEST_U_MODEL)}
     lines = []
@@ -142,7 +144,7 @@ def add_benchmark(sub) -> None:
         ),
     )
     p.add_argument("--env", required=True, help="environment id(s), comma-separated")
-    from sb3_cmzdril.experiments.spec import METHODS
+    from sb3_cmzdril.experiments.run.spec import METHODS
 
     p.add_argument(
         "--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)"
@@ -158,7 +160,7 @@ def add_benchmark(sub) -> None:
 
 
 def _run_benchmark(args) -> int:
-    from sb3_cmzdril.experiments.grid import benchmark, summarize_outcomes
+    from sb3_cmzdril.experiments.run.grid import benchmark, summarize_outcomes
     from sb3_cmzdril.experts import command_line
 
     outcomes = benchmark(

@@ -30,7 +30,7 @@ def add_report(sub) -> None:
     )
     p.add_argument("--label", help="how the report names RUNS_DIR's grid (default: the path as given)")
     p.add_argument("--reference-label", help="how the report names the --reference-runs grid (default: its path)")
-    from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW
+    from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW
 
     p.add_argument(
         "--window",
@@ -57,7 +57,7 @@ def add_report(sub) -> None:
 def _run_report(args) -> int:
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.report import PAPER_TABLE_I, report_outputs, write_report
+    from sb3_cmzdril.experiments.report.report import PAPER_TABLE_I, report_outputs, write_report
     from sb3_cmzdril.experts import command_line
 
     out = Path(args.output)

@@ -59,7 +59,7 @@ def plot_trajectories(
             raise ValueError(f"trajectory {label!r} must have shape (T, 2), got {xy.shape}")
         if normalised:
             xy = xy * half
-        kw = {"color": colors[i]} if colors is not None and i < len(colors) else {}
+        kw: dict[str, Any] = {"color": colors[i]} if colors is not None and i < len(colors) else {}
         ax.plot(xy[:, 0], xy[:, 1], lw=2, zorder=3, label=label, **kw)
     ax.set_xlim(-half, half)
     ax.set_ylim(-half, half)

@@ -104,9 +104,11 @@ class WaypointReactiveExpert:
         base = env.unwrapped
         if not isinstance(base, WaypointNavEnv):
             raise ValueError(f"the waypoint expert needs a WaypointNav env, got {type(base).__name__}")
-        config = dict(n_beams=base.n_beams, lidar_range=base.lidar_range, arena_size=base.arena_size,
-                      max_turn_rate=base.max_turn_rate, dt=base.dt,
-                      observation_space=base.observation_space, action_space=base.action_space)
+        config: dict[str, Any] = dict(
+            n_beams=base.n_beams, lidar_range=base.lidar_range, arena_size=base.arena_size,
+            max_turn_rate=base.max_turn_rate, dt=base.dt,
+            observation_space=base.observation_space, action_space=base.action_space,
+        )
         config.update(kwargs)
         return cls(**config)
 

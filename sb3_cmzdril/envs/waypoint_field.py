@@ -197,7 +197,7 @@ def place_obstacles(
         if len(placed) and len(pool):
             d = np.hypot(pool[:, None, 0] - placed[None, :, 0], pool[:, None, 1] - placed[None, :, 1])
             pool = pool[(d - pool[:, 2:] - placed[None, :, 2] >= gap).all(axis=1)]
-        accepted = []
+        accepted: list[np.ndarray] = []
         while len(pool) and len(placed) + len(accepted) < n:
             first = pool[0]
             accepted.append(first)

@@ -99,7 +99,7 @@ class Lidar:
         if self._n_obst:
             w = np.subtract(self._centres, pos, out=self._w)   # (K, 2) vehicle -> centre
             dist = np.hypot(self._wx, self._wy, out=self._dist_k)
-            contact = np.count_nonzero(np.less(dist, self._contact_dist, out=self._contact)) > 0
+            contact = bool(np.count_nonzero(np.less(dist, self._contact_dist, out=self._contact)))
             b = np.matmul(w, u, out=self._b)                  # (K, J) centre projected on each beam
             c = np.multiply(dist, dist, out=self._c)
             c -= self._r2                                      # |w|^2 - r^2 > 0 outside the disc
@@ -114,7 +114,7 @@ class Lidar:
             np.subtract(b, q, out=self._table_obst)
             np.putmask(self._table_obst, miss, np.inf)
         np.minimum.reduce(self._table, axis=0, out=self.ranges)
-        return bool(contact)
+        return contact
 
     def hit_points(self, x: float, y: float) -> np.ndarray:
         """(M, 2) world points, in metres, where the beams of the last :meth:`sense`, cast from

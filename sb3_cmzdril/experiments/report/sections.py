@@ -11,7 +11,7 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_cmzdril.experiments.final_eval import (
+from sb3_cmzdril.experiments.report.final_eval import (
     CONFIDENCE,
     MIN_TRIALS_FOR_CI,
     FinalRow,
@@ -24,10 +24,10 @@ from sb3_cmzdril.experiments.final_eval import (
     paired_markdown,
     trials_text,
 )
-from sb3_cmzdril.experiments.formatting import fmt, fmt_ci, fmt_mean_std, md_table
-from sb3_cmzdril.experiments.paper import PAPER_ENV_NAMES, ReferenceTable
-from sb3_cmzdril.experiments.readme import short_command
-from sb3_cmzdril.experiments.records import (
+from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, fmt_mean_std, md_table
+from sb3_cmzdril.experiments.report.paper import PAPER_ENV_NAMES, ReferenceTable
+from sb3_cmzdril.experiments.report.readme import short_command
+from sb3_cmzdril.experiments.report.records import (
     METHOD_LABELS,
     METHOD_ORDER,
     Grid,
@@ -36,8 +36,7 @@ from sb3_cmzdril.experiments.records import (
     relative,
     setting_differences,
 )
-from sb3_cmzdril.experiments.run_folder import ERROR_FILE, STATE_FILE, run_status
-from sb3_cmzdril.experiments.tables import (
+from sb3_cmzdril.experiments.report.tables import (
     METRICS,
     SIGNAL_EPOCHS,
     TableRow,
@@ -47,6 +46,7 @@ from sb3_cmzdril.experiments.tables import (
     reward_signal,
     table_one,
 )
+from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, STATE_FILE, run_status
 from sb3_cmzdril.io import read_json_or_empty
 
 

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments.records import RunRecord, group
-from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW, window_means
+from sb3_cmzdril.experiments.report.records import RunRecord, group
+from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW, window_means
 from sb3_cmzdril.io import PathLike
 
 #: Table metrics: (key in window_means, column header, eval.csv column).

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.run_folder import (
+from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
     EVAL_CSV,
@@ -28,7 +28,7 @@ from sb3_cmzdril.experiments.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.experiments.spec import METHODS
+from sb3_cmzdril.experiments.run.spec import METHODS
 from sb3_cmzdril.io import PathLike, read_json_or_empty
 
 #: How methods are named in tables and legends (the paper's names).

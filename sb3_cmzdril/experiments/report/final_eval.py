@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.formatting import fmt_ci, md_table
-from sb3_cmzdril.experiments.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
+from sb3_cmzdril.experiments.report.formatting import fmt_ci, md_table
+from sb3_cmzdril.experiments.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
 
 #: Final-evaluation metrics: (final_eval.csv column, table header).
 FINAL_METRICS: tuple[tuple[str, str], ...] = (

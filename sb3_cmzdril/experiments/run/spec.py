@@ -1,24 +1,33 @@
-"""What a run is and whether it can start: its specification, the demo split and the checks.
+"""What a run is and whether it can start: its specification, resolved once, and every check.
 
 :func:`plan_run` resolves a run's defaults (demo pool, number of demos and steps, output folder,
-hyperparameters) into a :class:`RunSpec` and checks everything that can fail before training starts,
-down to building the run's env and model once (:func:`make_training_env`, which the run itself uses
-too). :func:`split_episodes` is the demo split every method of a trial shares; :func:`train_command`
-is the ``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.experiments.runs`
-and writes the files of :mod:`sb3_cmzdril.experiments.run_folder`.
+hyperparameters) into a :class:`RunSpec`: plain values that travel to another process or Ray worker.
+:func:`resolve_run` turns a spec into a :class:`ResolvedRun`, everything the run needs read and
+checked once (hyperparameters, demo pool, split), and refuses whatever would fail after the run folder
+is written, down to building the run's env and model once (:func:`make_training_env`, which the run
+itself uses too) and checking the values the constructors accept but training cannot use.
+:func:`split_episodes` is the demo split every method of a trial shares; :func:`train_command` is the
+``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.experiments.run.runs` and
+writes the files of :mod:`sb3_cmzdril.experiments.run.run_folder`.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import shlex
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations
 from sb3_cmzdril.io import PathLike
+
+if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
+    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.hyperparams import Hyperparams
 
 #: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL.
 METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz")
@@ -93,7 +102,7 @@ def default_output_dir(env_id: str, method: str, seed: int, runs_dir: PathLike =
     return Path(runs_dir) / env_name(env_id) / method / f"trial{int(seed)}"
 
 
-def load_run_hyperparams(path: PathLike, env_id: str):
+def load_run_hyperparams(path: PathLike, env_id: str) -> tuple[Hyperparams, dict[str, Any]]:
     """The env's entry of a cmzdril.yml as ``(Hyperparams, experiment settings)``.
 
     Experiment keys (:data:`EXPERIMENT_KEYS`) are removed from the constructor kwargs; keys this
@@ -101,7 +110,7 @@ def load_run_hyperparams(path: PathLike, env_id: str):
     """
     from sb3_cmzdril.hyperparams import load_hyperparams
 
-    hp = load_hyperparams(path, env_id)
+    hp = load_hyperparams(Path(path), env_id)
     hp.check_supported(
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
@@ -131,10 +140,6 @@ def load_pool(path: str, mtime_ns: int):
     return load_demonstrations(path)
 
 
-def _pool_size(path: str, mtime_ns: int) -> int:
-    return load_pool(path, mtime_ns).n_episodes
-
-
 def file_mtime_ns(path: PathLike) -> int:
     """The file's modification time: the version key of the cached pool and of the preflight checks."""
     return Path(path).stat().st_mtime_ns
@@ -149,7 +154,7 @@ def missing_pool_error(env_id: str, path: PathLike, alternative: str) -> FileNot
     )
 
 
-def _positive(name: str, value: int) -> int:
+def _positive_int(name: str, value: int) -> int:
     if isinstance(value, bool) or int(value) != value or int(value) < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
@@ -177,37 +182,29 @@ def plan_run(
     :param timesteps: total PPO steps (default: ``n_timesteps`` of the YAML entry); unused by ``bc``.
     :param output_dir: default ``runs/<EnvName>/<method>/trial<seed>``.
     :param hyperparams: zoo-format YAML (default: the repository's ``hyperparams/cmzdril.yml``).
-    :raises ValueError: unknown method or env, bad counts, a pool too small for the split.
+    :raises ValueError: unknown method or env, bad counts, a pool too small for the split, anything
+        :func:`resolve_run` refuses.
     :raises FileNotFoundError: no demo pool or hyperparameter file.
     """
-    from stable_baselines3 import PPO
-
-    from sb3_cmzdril.algorithm import CMZDRIL
-    from sb3_cmzdril.hyperparams import check_constructor_kwargs, default_hyperparams_path
+    from sb3_cmzdril.hyperparams import default_hyperparams_path
 
     check_method(method)
     check_env_id(env_id)
     seed = check_seed(seed)
     hp_path = Path(hyperparams) if hyperparams is not None else default_hyperparams_path(HYPERPARAMS_NAME)
     hp, settings = load_run_hyperparams(hp_path, env_id)
-    check_constructor_kwargs(hp, [CMZDRIL, PPO])
-    n_demos = _positive("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
-    n_eval_episodes = _positive("n_eval_episodes", n_eval_episodes)
+    n_demos = _positive_int("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
+    n_eval_episodes = _positive_int("n_eval_episodes", n_eval_episodes)
     if method == "bc":
         timesteps = 0  # BC is the pretrained policy: no PPO steps
     else:
         timesteps = timesteps if timesteps is not None else hp.n_timesteps
         if timesteps is None:
             raise ValueError(f"no number of timesteps: pass --timesteps or set n_timesteps in {hp_path}")
-        timesteps = _positive("timesteps", timesteps)
+        timesteps = _positive_int("timesteps", timesteps)
     demos_path = Path(demos) if demos is not None else default_demos_path(env_id)
     if not demos_path.is_file():
         raise missing_pool_error(env_id, demos_path, "pass the path of an existing pool with --demos")
-    n_pool = _pool_size(str(demos_path.resolve()), file_mtime_ns(demos_path))
-    try:
-        split_episodes(n_pool, n_demos, n_eval_episodes, seed)
-    except ValueError as e:
-        raise ValueError(f"{demos_path}: {e}") from None
     out = Path(output_dir) if output_dir is not None else default_output_dir(env_id, method, seed)
     spec = RunSpec(
         env_id=env_id,
@@ -219,26 +216,102 @@ def plan_run(
         timesteps=int(timesteps),
         output_dir=str(out.resolve()),
         hyperparams=str(hp_path.resolve()),
-        eval_every=_positive("eval_every", eval_every),
-        checkpoint_every=_positive("checkpoint_every", checkpoint_every),
+        eval_every=_positive_int("eval_every", eval_every),
+        checkpoint_every=_positive_int("checkpoint_every", checkpoint_every),
         command=command,
     )
-    _preflight(spec, hp)
+    resolve_run(spec)  # everything else that can fail before training, the pool's fit included
     return spec
+
+
+@dataclasses.dataclass(frozen=True)
+class ResolvedRun:
+    """A run with every input read and checked: what :func:`~sb3_cmzdril.experiments.run.runs.run_experiment`
+    trains and evaluates, and what its config.json records. Build it with :func:`resolve_run`."""
+
+    spec: RunSpec
+    hp: Hyperparams
+    pool: Demonstrations  #: the whole demo pool; the run trains on ``train_idx`` and evaluates on the rest
+    train_idx: tuple[int, ...]
+    eval_idx: tuple[int, ...]  #: the episodes of the evaluation every ``eval_every`` PPO updates
+
+    @property
+    def held_out(self) -> list[int]:
+        """Every pool episode not used for training: the final evaluation replays them all."""
+        return [i for i in range(self.pool.n_episodes) if i not in set(self.train_idx)]
+
+    @property
+    def reward(self) -> str:
+        """CMZDRIL's reward mode: BC is CMZDRIL's pretrained policy, trained with no reward at all."""
+        return "zero" if self.spec.method == "bc" else self.spec.method
+
+    def model_kwargs(self) -> dict[str, Any]:
+        """The model's constructor kwargs: the YAML's, on the CPU unless it says otherwise."""
+        kwargs = self.hp.model_kwargs()
+        kwargs.setdefault("device", "cpu")  # small MLPs: the CPU beats a GPU's launch overheads
+        if self.spec.method == "bc":
+            # The ensemble is not used by BC; one epoch (the minimum) instead of hundreds. It is fitted
+            # after the policy's NLL pretraining, so the BC policy equals the other methods' epoch 0.
+            kwargs["ensemble_epochs"] = 1
+        return kwargs
+
+
+def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
+    """Read the run's hyperparameters and demo pool and split the pool, once.
+
+    With ``check`` (the default), also refuse everything that would otherwise fail after the run
+    folder is written: held-out episodes without a reset seed to replay them from, an env or model
+    the hyperparameters cannot build, a pool recorded on another env, values the constructors accept
+    but training cannot use. :func:`plan_run` calls it, so a planned grid fails at once, not run by run.
+
+    :raises ValueError: naming the file and the value at fault.
+    """
+    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
+    pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
+    try:
+        train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
+    except ValueError as e:
+        raise ValueError(f"{spec.demos}: {e}") from None
+    run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx))
+    if check:
+        from stable_baselines3 import PPO
+
+        from sb3_cmzdril.algorithm import CMZDRIL
+        from sb3_cmzdril.hyperparams import check_constructor_kwargs
+
+        check_constructor_kwargs(hp, [CMZDRIL, PPO])
+        _check_reset_seeds(run)
+        _preflight(run)
+    return run
+
+
+def _check_reset_seeds(run: ResolvedRun) -> None:
+    """Evaluation replays each held-out episode from its recorded reset seed: one without cannot be."""
+    from sb3_cmzdril.demos import UNKNOWN_SEED
+
+    unknown = [i for i in run.held_out if int(run.pool.seeds[i]) == UNKNOWN_SEED]
+    if unknown:
+        raise ValueError(
+            f"demo pool {run.spec.demos}: episodes {unknown}, held out for evaluation, have no recorded reset seed, "
+            "so they cannot be replayed from the expert's start; record the pool with seeds "
+            "(`sb3-cmzdril collect-demos` does)"
+        )
 
 
 #: Keys of the preflight checks passed in this process (a grid plans many runs that share one).
 _PREFLIGHT_PASSED: set = set()
 
 
-def _preflight(spec: RunSpec, hp) -> None:
+def _preflight(run: ResolvedRun) -> None:
     """Build the run's env and model, without training, and fit the demo pool to their spaces.
 
     What fails here would otherwise fail in the run after config.json is written: SB3's own checks
-    (``n_steps * n_envs > 1``), env_kwargs the env does not take, a pool recorded on another env.
+    (``n_steps * n_envs > 1``), env_kwargs the env does not take, a pool recorded on another env,
+    values only training would trip over (:func:`_check_values`).
     """
     from sb3_cmzdril.algorithm import CMZDRIL
 
+    spec = run.spec
     key = (
         spec.env_id,
         spec.method,
@@ -249,37 +322,83 @@ def _preflight(spec: RunSpec, hp) -> None:
     )
     if key in _PREFLIGHT_PASSED:
         return
-    where = f"hyperparameters {hp.key!r} in {spec.hyperparams}"
+    where = f"hyperparameters {run.hp.key!r} in {spec.hyperparams}"
     try:
-        venv = make_training_env(spec, hp, spec.seed, None)
+        venv = make_training_env(spec, run.hp, spec.seed, None)
     except Exception as e:  # whatever the env's constructor or VecNormalize raises for bad kwargs
         raise ValueError(
             f"cannot make {spec.env_id} with the env_kwargs/normalize of {where}: {type(e).__name__}: {e}"
         ) from e
     try:
-        pool = load_pool(spec.demos, key[-1])
         try:
-            pool.check_spaces(venv.observation_space, venv.action_space)
+            run.pool.check_spaces(venv.observation_space, venv.action_space)
         except ValueError as e:
             raise ValueError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
-        kwargs = hp.model_kwargs()
-        kwargs.setdefault("device", "cpu")
         try:
-            CMZDRIL(
-                hp.policy or "MlpPolicy",
-                venv,
-                demonstrations=pool,
-                reward="zero" if spec.method == "bc" else spec.method,
-                seed=spec.seed,
-                **kwargs,
+            model = CMZDRIL(
+                run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool, reward=run.reward, seed=spec.seed,
+                **run.model_kwargs(),
             )
         except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
             raise ValueError(
                 f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}"
             ) from e
+        _check_values(model, where)
     finally:
         venv.close()
     _PREFLIGHT_PASSED.add(key)
+
+
+def _at_least_one(value: float) -> bool:
+    return value >= 1
+
+
+def _positive(value: float) -> bool:
+    return math.isfinite(value) and value > 0
+
+
+def _non_negative(value: float) -> bool:
+    return math.isfinite(value) and value >= 0
+
+
+def _fraction(value: float) -> bool:
+    return 0 <= value <= 1
+
+
+#: Values the constructors (SB3's PPO, CMZDRIL) accept but training cannot use: each would fail, or
+#: train on nan, only once the run folder is written (``n_epochs: 0`` ends in an UnboundLocalError
+#: inside PPO.train). Attribute of the built model, the condition, and the condition in words; a
+#: schedule is checked at the start of training (a linear one ends at 0 by design), and None (off)
+#: is always accepted.
+_VALUE_CHECKS: tuple[tuple[str, Callable[[float], bool], str], ...] = (
+    ("n_epochs", _at_least_one, ">= 1"),
+    ("batch_size", _at_least_one, ">= 1"),
+    ("ensemble_epochs", _at_least_one, ">= 1"),
+    ("ensemble_batch_size", _at_least_one, ">= 1"),
+    ("bc_batch_size", _at_least_one, ">= 1"),
+    ("learning_rate", _positive, "finite and > 0"),
+    ("ensemble_learning_rate", _positive, "finite and > 0"),
+    ("bc_learning_rate", _positive, "finite and > 0"),
+    ("clip_range", _positive, "finite and > 0"),
+    ("clip_range_vf", _positive, "finite and > 0"),
+    ("target_kl", _positive, "finite and > 0"),
+    ("max_grad_norm", _positive, "finite and > 0"),
+    ("vf_coef", _non_negative, "finite and >= 0"),
+    ("ent_coef", math.isfinite, "finite"),
+    ("gamma", _fraction, "in [0, 1]"),
+    ("gae_lambda", _fraction, "in [0, 1]"),
+)
+
+
+def _check_values(model: Any, where: str) -> None:
+    """ValueError naming the first hyperparameter of ``model`` that training cannot use."""
+    for name, ok, rule in _VALUE_CHECKS:
+        value = getattr(model, name, None)
+        if value is None:
+            continue
+        start = float(value(1.0)) if callable(value) else float(value)
+        if not ok(start):
+            raise ValueError(f"{where}: {name} must be {rule}, got {start!r}")
 
 
 def train_command(spec: RunSpec) -> str:
@@ -348,6 +467,7 @@ __all__ = [
     "FALLBACK_N_DEMOS",
     "HYPERPARAMS_NAME",
     "METHODS",
+    "ResolvedRun",
     "RunSpec",
     "check_method",
     "default_demos_path",
@@ -358,6 +478,7 @@ __all__ = [
     "make_training_env",
     "missing_pool_error",
     "plan_run",
+    "resolve_run",
     "split_episodes",
     "train_command",
 ]

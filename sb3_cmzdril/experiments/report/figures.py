@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_cmzdril.experiments.final_eval import (
+from sb3_cmzdril.experiments.report.final_eval import (
     CONFIDENCE,
     FinalRow,
     baselines,
@@ -24,8 +24,8 @@ from sb3_cmzdril.experiments.final_eval import (
     paired,
     trials_text,
 )
-from sb3_cmzdril.experiments.records import METHOD_LABELS, METHOD_ORDER, RunRecord, env_key, group
-from sb3_cmzdril.experiments.tables import METRICS
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, RunRecord, env_key, group
+from sb3_cmzdril.experiments.report.tables import METRICS
 from sb3_cmzdril.io import PathLike, atomic_path
 
 #: The paper's figures: which methods each compares.

@@ -1,8 +1,11 @@
 """One run of the paper's experiment: one env, one method, one trial seed.
 
-A run is described by a :class:`~sb3_cmzdril.experiments.spec.RunSpec` (built and validated by
-:func:`~sb3_cmzdril.experiments.spec.plan_run`) and executed here by :func:`run_experiment`, which
-writes into its own folder (the files: :mod:`sb3_cmzdril.experiments.run_folder`).
+A run is described by a :class:`~sb3_cmzdril.experiments.run.spec.RunSpec` (built and validated by
+:func:`~sb3_cmzdril.experiments.run.spec.plan_run`) and executed here by :func:`run_experiment`, top to
+bottom: the spec resolved once into a :class:`~sb3_cmzdril.experiments.run.spec.ResolvedRun` (every
+input read and checked before a file is written), its
+:class:`~sb3_cmzdril.experiments.run.run_folder.RunFolder` opened (the folder owns every file), the
+model built or resumed, trained, evaluated on the held-out episodes, done.json written.
 
 Resuming: with ``done.json`` the run is skipped. With ``model.zip`` the run continues from that
 checkpoint to the requested total (``learn(..., reset_num_timesteps=False)``). Evaluation rows
@@ -19,13 +22,12 @@ This module stays the public path of the planning and run-folder names that user
 """
 from __future__ import annotations
 
-import contextlib
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.run_folder import (
+from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
     DONE_FILE,
@@ -41,25 +43,24 @@ from sb3_cmzdril.experiments.run_folder import (
     STATE_FILE,
     TABLE_WINDOW,
     VECNORMALIZE_FILE,
+    RunFolder,
     RunState,
     check_finished,
-    check_or_write_config,
     discard_rows_after,
     latest_epoch,
-    locked,
     read_eval_csv,
     run_config,
     run_status,
     window_means,
-    write_pretrain_csv,
 )
-from sb3_cmzdril.experiments.spec import (
+from sb3_cmzdril.experiments.run.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     EXPERIMENT_KEYS,
     FALLBACK_N_DEMOS,
     HYPERPARAMS_NAME,
     METHODS,
+    ResolvedRun,
     RunSpec,
     check_method,
     default_demos_path,
@@ -68,12 +69,13 @@ from sb3_cmzdril.experiments.spec import (
     make_training_env,
     missing_pool_error,
     plan_run,
+    resolve_run,
     split_episodes,
     train_command,
 )
 from sb3_cmzdril.experts import check_env_id
 from sb3_cmzdril.experts.callbacks import ProgressCallback
-from sb3_cmzdril.io import PathLike, atomic_path, remove_stale_temporaries, write_json
+from sb3_cmzdril.io import PathLike
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -89,118 +91,117 @@ def run_experiment(
     ``status`` is ``"skipped"`` (done.json was there: its content is returned), ``"done"`` (the
     summary just written to done.json) or ``"stopped"`` (a callback ended training early: no
     done.json, the checkpoint allows resuming). Exceptions propagate; the last checkpoint stays.
+    Whatever :func:`~sb3_cmzdril.experiments.run.spec.resolve_run` or the folder refuses is refused
+    before a file is written.
 
     :param callbacks: extra SB3 callbacks for the PPO training (not used by ``bc``).
     """
-    out = Path(spec.output_dir)
-    done = check_finished(spec)
+    run = resolve_run(spec)  # every input read and checked, once
+    folder = RunFolder(run)
+    done = folder.finished()  # refuses a folder that holds someone's files or another run
     if done is not None:
         return {**done, "status": "skipped"}
-    out.mkdir(parents=True, exist_ok=True)
-    with locked(out):
-        remove_stale_temporaries(out)
-        return _run_locked(spec, out, progress_bar, list(callbacks), verbose)
+    with folder.open():  # created and locked; config.json written, or matched with the run there
+        resume = folder.resumable
+        model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
+        discarded = discard_rows_after(folder.eval_csv, start if resume else -1)
+        model.set_logger(folder.segment_logger(start, verbose))
+        state = RunState(folder.path, spec, start)
+        if discarded:
+            state.data["segments"][-1]["discarded_eval_rows"] = discarded
+        selector, eval_cb = _selector(folder, resume), _eval_callback(run, folder, verbose)
+        try:
+            _train(run, folder, model, state, eval_cb, selector, list(callbacks), start=start, resume=resume,
+                   progress_bar=progress_bar)
+            finished = model.num_timesteps >= spec.timesteps
+            final = _final_evaluation(run, folder, model, selector) if finished else None
+        finally:
+            eval_cb.close()
+            venv.close()
+        if not finished:
+            return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(folder.path)}
+        state.write(model.num_timesteps)
+        return folder.finish({**_summary(run, model, folder, state), "final_evaluation": final})
 
 
-def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: list[Any], verbose: int) -> dict[str, Any]:
+def _new_model(run: ResolvedRun, verbose: int) -> tuple[Any, Any, int]:
+    """(model, its training env, 0): a fresh model on the run's training episodes."""
     from sb3_cmzdril.algorithm import CMZDRIL
-    from sb3_cmzdril.demos import Demonstrations
-    from sb3_cmzdril.metrics import ExpertEvalCallback
+
+    venv = make_training_env(run.spec, run.hp, run.spec.seed, None)
+    model = CMZDRIL(
+        run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
+        seed=run.spec.seed, verbose=verbose, **run.model_kwargs(),
+    )
+    return model, venv, 0
+
+
+def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
+    """(model, its training env, its step count): the run's checkpoint, to train on from where it stopped."""
+    from sb3_cmzdril.algorithm import CMZDRIL
+
+    venv = make_training_env(run.spec, run.hp, run.spec.seed, folder.vecnormalize)
+    try:
+        model = CMZDRIL.load(folder.model, env=venv, device=run.model_kwargs()["device"])
+    except Exception as e:  # a zip is written atomically, so this is a foreign or damaged file
+        venv.close()
+        raise ValueError(f"cannot resume from {folder.model}: {type(e).__name__}: {e}") from e
+    start = int(model.num_timesteps)
+    # Seeds of a resumed segment (networks' sampling and the env, which set_random_seed also
+    # seeds) are offset by its start, so it does not replay the first segment's noise.
+    model.set_random_seed(run.spec.seed + start)
+    return model, venv, start
+
+
+def _selector(folder: RunFolder, resume: bool) -> Any:
+    """The reward-free search for the lowest-disagreement policy, continued from the checkpoint's."""
     from sb3_cmzdril.selection import LowestDisagreementPolicy
 
-    pool = Demonstrations.load(spec.demos)
-    train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
-    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
-    config = check_or_write_config(out, run_config(spec, hp, train_idx, eval_idx, pool))
-
-    model_path, vecnorm_path, csv_path = out / MODEL_FILE, out / VECNORMALIZE_FILE, out / EVAL_CSV
-    resume = spec.method != "bc" and model_path.is_file()
-    kwargs = hp.model_kwargs()
-    kwargs.setdefault("device", "cpu")  # small MLPs: the CPU beats a GPU's launch overheads
-    if resume:
-        venv = make_training_env(spec, hp, spec.seed, vecnorm_path)
-        try:
-            model = CMZDRIL.load(model_path, env=venv, device=kwargs["device"])
-        except Exception as e:  # a zip is written atomically, so this is a foreign or damaged file
-            venv.close()
-            raise ValueError(f"cannot resume from {model_path}: {type(e).__name__}: {e}") from e
-        start = int(model.num_timesteps)
-        # Seeds of a resumed segment (networks' sampling and the env, which set_random_seed also
-        # seeds) are offset by its start, so it does not replay the first segment's noise.
-        model.set_random_seed(spec.seed + start)
-        discarded = discard_rows_after(csv_path, start)
-    else:
-        start = 0
-        venv = make_training_env(spec, hp, spec.seed, None)
-        if spec.method == "bc":
-            # The ensemble is not used by BC; one epoch (the minimum) instead of hundreds. It is fitted
-            # after the policy's NLL pretraining, so the BC policy equals the other methods' epoch 0.
-            kwargs["ensemble_epochs"] = 1
-        reward = "zero" if spec.method == "bc" else spec.method
-        model = CMZDRIL(
-            hp.policy or "MlpPolicy", venv, demonstrations=pool.select(train_idx), reward=reward, seed=spec.seed,
-            verbose=verbose, **kwargs,
-        )
-        discarded = discard_rows_after(csv_path, -1)  # rows of an attempt that died before its first checkpoint
-    model.set_logger(_segment_logger(out, start, verbose))
-    state = RunState(out, spec, start)
-    if discarded:
-        state.data["segments"][-1]["discarded_eval_rows"] = discarded
-
-    eval_cb = ExpertEvalCallback(
-        spec.env_id, pool.select(eval_idx), eval_every=spec.eval_every, csv_path=csv_path, env_kwargs=hp.env_kwargs,
-        verbose=verbose,
-    )
     selector = LowestDisagreementPolicy()
     if resume:
-        selector.load(out / LOWEST_U_FILE)
-
-    def save(m) -> None:
-        vec_normalize = m.get_vec_normalize_env()
-        if vec_normalize is not None:
-            with atomic_path(vecnorm_path, suffix=".pkl") as tmp:
-                vec_normalize.save(str(tmp))
-        with atomic_path(model_path, suffix=".zip") as tmp:
-            m.save(tmp)
-        selector.save(out / LOWEST_U_FILE)  # with the checkpoint, so a resume continues the same search
-        state.write(m.num_timesteps)
-
-    try:
-        # Pretraining (BC to convergence, the ensemble fit) takes seconds to minutes: show it.
-        model.pretrain(progress_bar=progress_bar)
-        if spec.method == "bc":
-            # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
-            model.learn(0, callback=[eval_cb])
-            save(model)  # the BC policy itself, for `sb3-cmzdril evaluate` and later inspection
-            write_pretrain_csv(out / PRETRAIN_CSV, model.pretrain_history)
-        else:
-            checkpoint_cb = _checkpoint_callback_class()(save, spec.checkpoint_every)
-            progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
-            model.learn(
-                max(spec.timesteps - start, 0),
-                callback=[eval_cb, selector, checkpoint_cb, progress_cb, *callbacks],
-                reset_num_timesteps=not resume,
-            )
-            if not resume:
-                write_pretrain_csv(out / PRETRAIN_CSV, model.pretrain_history)
-        if model.num_timesteps >= spec.timesteps:
-            final = _final_evaluation(spec, model, pool, train_idx, hp, selector, out)
-    finally:
-        eval_cb.close()
-        venv.close()
-
-    if model.num_timesteps < spec.timesteps:
-        return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(out)}
-    state.write(model.num_timesteps)
-    summary = _summary(spec, model, config, state, csv_path)
-    summary["final_evaluation"] = final
-    write_json(out / DONE_FILE, summary)
-    with contextlib.suppress(FileNotFoundError):
-        (out / ERROR_FILE).unlink()  # an earlier attempt's failure is history once the run is done
-    return summary
+        selector.load(folder.lowest_u)
+    return selector
 
 
-def _final_evaluation(spec: RunSpec, model, pool, train_idx: list[int], hp, selector, out: Path) -> dict[str, Any]:
+def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:
+    """eval.csv's rows: the policy against the held-out expert episodes every ``eval_every`` updates."""
+    from sb3_cmzdril.metrics import ExpertEvalCallback
+
+    return ExpertEvalCallback(
+        run.spec.env_id, run.pool.select(run.eval_idx), eval_every=run.spec.eval_every, csv_path=folder.eval_csv,
+        env_kwargs=run.hp.env_kwargs, verbose=verbose,
+    )
+
+
+def _train(
+    run: ResolvedRun, folder: RunFolder, model: Any, state: RunState, eval_cb: Any, selector: Any,
+    callbacks: list[Any], *, start: int, resume: bool, progress_bar: bool,
+) -> None:
+    """Pretrain (BC to convergence, the ensemble fit), then PPO from step ``start`` to the run's
+    ``timesteps``, checkpointing into the folder; BC stops after pretraining."""
+    spec = run.spec
+    # Pretraining takes seconds to minutes: show it.
+    model.pretrain(progress_bar=progress_bar)
+    if spec.method == "bc":
+        # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
+        model.learn(0, callback=[eval_cb])
+        folder.checkpoint(model, selector, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
+        folder.write_pretrain(model.pretrain_history)
+        return
+    checkpoint_cb = _checkpoint_callback_class()(
+        lambda m: folder.checkpoint(m, selector, state), spec.checkpoint_every, model.n_steps * model.n_envs
+    )
+    progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
+    model.learn(
+        max(spec.timesteps - start, 0),
+        callback=[eval_cb, selector, checkpoint_cb, progress_cb, *callbacks],
+        reset_num_timesteps=not resume,
+    )
+    if not resume:
+        folder.write_pretrain(model.pretrain_history)
+
+
+def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector: Any) -> dict[str, Any]:
     """Replay every pool episode not used for training with the final policy and, for the RL
     methods, the lowest-u one; write final_eval.csv (one row per policy and episode) and
     model_lowest_u.zip; return the summaries for done.json.
@@ -210,22 +211,21 @@ def _final_evaluation(spec: RunSpec, model, pool, train_idx: list[int], hp, sele
     """
     from sb3_cmzdril.metrics import evaluate_against_expert
 
-    episodes = [i for i in range(pool.n_episodes) if i not in set(train_idx)]
-    held_out = pool.select(episodes)
+    episodes = run.held_out
+    held_out = run.pool.select(episodes)
     policies = {"final": None}
-    if spec.method != "bc" and selector.best_state is not None:
+    if run.spec.method != "bc" and selector.best_state is not None:
         policies["lowest_u"] = selector
     results: dict[str, Any] = {"episodes": episodes}
-    rows = [",".join(FINAL_EVAL_COLUMNS)]
+    rows = []
     final_state = {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
     try:
         for name, source in policies.items():
             if source is not None:
                 source.apply(model)
-                with atomic_path(out / LOWEST_U_MODEL, suffix=".zip") as tmp:
-                    model.save(tmp)
+                folder.save_lowest_u_model(model)
             ev = evaluate_against_expert(
-                model, spec.env_id, held_out, env_kwargs=hp.env_kwargs, start_mismatch="ignore"
+                model, run.spec.env_id, held_out, env_kwargs=run.hp.env_kwargs, start_mismatch="ignore"
             )
             summary = ev.summary()
             if source is not None:
@@ -249,13 +249,13 @@ def _final_evaluation(spec: RunSpec, model, pool, train_idx: list[int], hp, sele
                 )
     finally:
         model.policy.load_state_dict(final_state)
-    with atomic_path(out / FINAL_EVAL_CSV) as tmp:
-        tmp.write_text("\n".join(rows) + "\n")
+    folder.write_final_evaluation(rows)
     return results
 
 
-def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: RunState, csv_path: Path) -> dict[str, Any]:
-    columns = read_eval_csv(csv_path)
+def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -> dict[str, Any]:
+    spec = run.spec
+    columns = read_eval_csv(folder.eval_csv)
     integral = ("epoch", "timesteps", "n_episodes")
     last = (
         {c: (int(v[-1]) if c in integral else float(v[-1])) for c, v in columns.items()}
@@ -267,8 +267,8 @@ def _summary(spec: RunSpec, model, config: Mapping[str, Any], state: RunState, c
         "env_id": spec.env_id,
         "method": spec.method,
         "seed": spec.seed,
-        "train_episodes": config["train_episodes"],
-        "eval_episodes": config["eval_episodes"],
+        "train_episodes": folder.config["train_episodes"],
+        "eval_episodes": folder.config["eval_episodes"],
         "num_timesteps": int(model.num_timesteps),
         "requested_timesteps": spec.timesteps,
         "epochs": int(model.num_timesteps // (model.n_steps * model.n_envs)),
@@ -329,19 +329,6 @@ def load_evaluation_model(
 
 
 # -- building blocks --------------------------------------------------------------------------------
-def _segment_logger(out: Path, start: int, verbose: int):
-    """SB3 logger writing this segment's progress CSV (a resumed run must not overwrite the last one)."""
-    import sys
-
-    from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
-
-    (out / "logs").mkdir(exist_ok=True)
-    formats = [CSVOutputFormat(str(out / "logs" / f"progress_{start}.csv"))]
-    if verbose >= 1:
-        formats.append(HumanOutputFormat(sys.stdout))
-    return Logger(folder=None, output_formats=formats)
-
-
 def _checkpoint_callback_class():
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -352,14 +339,15 @@ def _checkpoint_callback_class():
         evaluated the same policy, so an eval row and the checkpoint at that step always agree.
         """
 
-        def __init__(self, save: Any, every: int) -> None:
+        def __init__(self, save: Any, every: int, steps_per_update: int) -> None:
             super().__init__()
             self.save = save
             self.every = int(every)
+            self.steps_per_update = int(steps_per_update)
             self._last = -1
 
         def _on_rollout_start(self) -> None:
-            epoch = self.model.num_timesteps // (self.model.n_steps * self.model.n_envs)
+            epoch = self.model.num_timesteps // self.steps_per_update
             if epoch > 0 and epoch % self.every == 0:
                 self._save()
 

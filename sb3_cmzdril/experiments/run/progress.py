@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.run_folder import ERROR_FILE, latest_epoch
-from sb3_cmzdril.experiments.spec import RunSpec
+from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, latest_epoch
+from sb3_cmzdril.experiments.run.spec import RunSpec
 
 
 class GridProgress:

@@ -30,10 +30,10 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.progress import GridProgress
-from sb3_cmzdril.experiments.run_folder import ERROR_FILE, LOG_FILE, check_finished
-from sb3_cmzdril.experiments.runs import run_experiment
-from sb3_cmzdril.experiments.spec import (
+from sb3_cmzdril.experiments.run.progress import GridProgress
+from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, LOG_FILE, check_finished
+from sb3_cmzdril.experiments.run.runs import run_experiment
+from sb3_cmzdril.experiments.run.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     METHODS,

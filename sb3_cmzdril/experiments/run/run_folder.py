@@ -1,6 +1,6 @@
 """A run folder's files: their names, how they are read, and the checks that keep one run per folder.
 
-:func:`~sb3_cmzdril.experiments.runs.run_experiment` writes into the run's own folder::
+:func:`~sb3_cmzdril.experiments.run.runs.run_experiment` writes into the run's own folder::
 
     DIR/config.json        everything needed to reproduce it: env, method, seeds, the train/eval
                            episode indices of the demo pool (and its sha256), hyperparameters,
@@ -21,12 +21,13 @@
     DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
     DIR/done.json          written last: the final summary; its presence means "finished"
 
-Here: the file names, eval.csv as columns and its Table I window (:func:`read_eval_csv`,
-:func:`window_means`), moving evaluation rows written after a checkpoint aside
-(:func:`discard_rows_after`), config.json and the identity checks that keep two different runs out
-of one folder (:func:`check_or_write_config`, :func:`check_finished`), state.json
-(:class:`RunState`), the folder's lock, and what a folder holds (:func:`run_status`,
-:func:`latest_epoch`).
+Here: :class:`RunFolder`, through which a run writes every one of those files; the file names,
+eval.csv as columns and its Table I window (:func:`read_eval_csv`, :func:`window_means`), moving
+evaluation rows written after a checkpoint aside (:func:`discard_rows_after`), config.json and the
+checks that keep a run out of a folder that is not its own: someone else's files
+(:func:`check_run_folder`) or a different run (:func:`check_or_write_config`,
+:func:`check_finished`); state.json (:class:`RunState`), the folder's lock, and what a folder holds
+(:func:`run_status`, :func:`latest_epoch`).
 """
 from __future__ import annotations
 
@@ -41,21 +42,17 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.spec import (
-    RunSpec,
-    file_mtime_ns,
-    load_pool,
-    load_run_hyperparams,
-    split_episodes,
-    train_command,
-)
+from sb3_cmzdril.experiments.run.spec import ResolvedRun, RunSpec, resolve_run, train_command
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import (
+    LOCK_FILE,
     PathLike,
     atomic_path,
     jsonable,
     lock_output,
     read_json,
+    read_json_or_empty,
+    remove_stale_temporaries,
     unlock_output,
     versions,
     write_json,
@@ -84,6 +81,11 @@ LOG_FILE = "log.txt"
 _IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes", "demos_sha256", "hyperparams_values")
 #: config.json entries a resume may change.
 _SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command")
+#: done.json's repeat of the identity, for a folder of ours whose config.json went missing.
+_DONE_IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes")
+#: What a run of ours leaves in its folder before config.json: the grid's log, a failed attempt's
+#: error, the lock (and the temporaries of atomic writes, named ``.<name>.tmp...``).
+_BEFORE_CONFIG = (LOG_FILE, ERROR_FILE, LOCK_FILE)
 
 
 # -- eval.csv ------------------------------------------------------------------------------------
@@ -141,7 +143,8 @@ def discard_rows_after(csv_path: Path, timesteps: int) -> int:
     lines = csv_path.read_text().splitlines()
     if not lines:
         return 0
-    header, keep, moved = lines[0], [lines[0]], []
+    header, keep = lines[0], [lines[0]]
+    moved: list[str] = []
     n_fields = len(header.split(","))
     for line in lines[1:]:
         fields = line.split(",")
@@ -307,24 +310,56 @@ def locked(out: Path) -> Iterator[None]:
         unlock_output(out, lock)
 
 
-def check_finished(spec: RunSpec) -> dict[str, Any] | None:
+def check_run_folder(out: Path) -> None:
+    """ValueError unless ``out`` is absent, empty or a run folder of ours: one whose config.json (or,
+    should that have gone missing, done.json) is a run's, or that holds only what a run of ours leaves
+    before writing config.json. Someone's config.json is never replaced, and an expert's folder never
+    receives a run's files."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise ValueError(f"{out} is a file, not a run folder; use another output folder")
+    if (out / CONFIG_FILE).is_file():
+        if all(k in read_json_or_empty(out / CONFIG_FILE) for k in _IDENTITY_KEYS):
+            return
+        raise ValueError(
+            f"{out / CONFIG_FILE} is not the config.json of an sb3-cmzdril run, and it is not ours to replace; "
+            "use another output folder"
+        )
+    if (out / DONE_FILE).is_file() and all(k in read_json_or_empty(out / DONE_FILE) for k in _DONE_IDENTITY_KEYS):
+        return
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in _BEFORE_CONFIG and not _is_temporary(p.name))
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+        raise ValueError(
+            f"{out} holds files that are not an sb3-cmzdril run's ({shown}); train into a new or empty folder"
+        )
+
+
+def _is_temporary(name: str) -> bool:
+    """An atomic write's temporary (``.<name>.tmp...``), left behind by a hard kill."""
+    return name.startswith(".") and ".tmp" in name
+
+
+def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, Any] | None:
     """done.json's summary when ``spec.output_dir`` holds this run finished, None when it is not finished.
 
-    :raises ValueError: the folder holds a finished run of something else (another method, seed,
-        split, demo pool or hyperparameters), whose numbers must not pass for this run's; or this
-        run, finished with fewer steps than ``spec.timesteps`` asks for.
+    :param run: ``spec`` resolved, when the caller has it (else it is resolved here, if done.json is there).
+    :raises ValueError: the folder is not a run folder of ours (:func:`check_run_folder`); or it holds
+        a finished run of something else (another method, seed, split, demo pool or hyperparameters),
+        whose numbers must not pass for this run's; or this run, finished with fewer steps than
+        ``spec.timesteps`` asks for.
     """
     out = Path(spec.output_dir)
+    check_run_folder(out)
     done_path = out / DONE_FILE
     if not done_path.is_file():
         return None
     done = read_json(done_path)
     # done.json repeats the first identity entries, for a folder whose config.json went missing.
     saved = read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
-    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
-    pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
-    train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
-    check_same_run(out, saved, as_stored(run_config(spec, hp, train_idx, eval_idx, pool)), "a different, finished run")
+    run = run if run is not None else resolve_run(spec, check=False)  # finished: nothing left to check
+    check_same_run(out, saved, as_stored(_config_of(run)), "a different, finished run")
     steps = int(done.get("num_timesteps", 0))
     if spec.timesteps > steps:
         raise ValueError(
@@ -333,6 +368,84 @@ def check_finished(spec: RunSpec) -> dict[str, Any] | None:
             "another output folder"
         )
     return done
+
+
+def _config_of(run: ResolvedRun) -> dict[str, Any]:
+    return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool)
+
+
+class RunFolder:
+    """The folder of one resolved run, through which the run reads and writes every file of it."""
+
+    def __init__(self, run: ResolvedRun) -> None:
+        self.run = run
+        self.path = Path(run.spec.output_dir)
+        self.model = self.path / MODEL_FILE
+        self.vecnormalize = self.path / VECNORMALIZE_FILE
+        self.eval_csv = self.path / EVAL_CSV
+        self.lowest_u = self.path / LOWEST_U_FILE
+        self.config: dict[str, Any] = {}  #: config.json's content, once :meth:`open` has written or read it
+
+    def finished(self) -> dict[str, Any] | None:
+        """done.json's summary of this very run, or None (:func:`check_finished`)."""
+        return check_finished(self.run.spec, self.run)
+
+    @contextlib.contextmanager
+    def open(self) -> Iterator[RunFolder]:
+        """The folder created (or checked to be ours) and locked, with config.json written or matched."""
+        check_run_folder(self.path)
+        self.path.mkdir(parents=True, exist_ok=True)
+        with locked(self.path):
+            remove_stale_temporaries(self.path)
+            self.config = check_or_write_config(self.path, _config_of(self.run))
+            yield self
+
+    @property
+    def resumable(self) -> bool:
+        """Whether the run continues from a checkpoint (BC has none to continue from: it is retrained)."""
+        return self.run.spec.method != "bc" and self.model.is_file()
+
+    def segment_logger(self, start: int, verbose: int):
+        """SB3 logger writing the progress CSV of the segment that starts at step ``start`` (a resumed
+        run must not overwrite the last one's)."""
+        import sys
+
+        from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
+
+        (self.path / "logs").mkdir(exist_ok=True)
+        formats: list[Any] = [CSVOutputFormat(str(self.path / "logs" / f"progress_{start}.csv"))]
+        if verbose >= 1:
+            formats.append(HumanOutputFormat(sys.stdout))
+        return Logger(folder=None, output_formats=formats)
+
+    def checkpoint(self, model: Any, selector: Any, state: RunState) -> None:
+        """model.zip, the VecNormalize statistics beside it, the lowest-u search and state.json."""
+        vec_normalize = model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            with atomic_path(self.vecnormalize, suffix=".pkl") as tmp:
+                vec_normalize.save(str(tmp))
+        with atomic_path(self.model, suffix=".zip") as tmp:
+            model.save(tmp)
+        selector.save(self.lowest_u)  # with the checkpoint, so a resume continues the same search
+        state.write(model.num_timesteps)
+
+    def write_pretrain(self, history: Mapping[str, Sequence[float]]) -> None:
+        write_pretrain_csv(self.path / PRETRAIN_CSV, history)
+
+    def write_final_evaluation(self, rows: Sequence[str]) -> None:
+        with atomic_path(self.path / FINAL_EVAL_CSV) as tmp:
+            tmp.write_text("\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
+
+    def save_lowest_u_model(self, model: Any) -> None:
+        with atomic_path(self.path / LOWEST_U_MODEL, suffix=".zip") as tmp:
+            model.save(tmp)
+
+    def finish(self, summary: dict[str, Any]) -> dict[str, Any]:
+        """done.json, written last: from now on the folder holds a finished run."""
+        write_json(self.path / DONE_FILE, summary)
+        with contextlib.suppress(FileNotFoundError):
+            (self.path / ERROR_FILE).unlink()  # an earlier attempt's failure is history once the run is done
+        return summary
 
 
 # -- what a folder holds ---------------------------------------------------------------------------
@@ -377,10 +490,12 @@ __all__ = [
     "STATE_FILE",
     "TABLE_WINDOW",
     "VECNORMALIZE_FILE",
+    "RunFolder",
     "RunState",
     "as_stored",
     "check_finished",
     "check_or_write_config",
+    "check_run_folder",
     "check_same_run",
     "discard_rows_after",
     "file_sha256",

@@ -24,7 +24,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_cmzdril.experiments.figures import (
+from sb3_cmzdril.experiments.report.figures import (
     FIGURES,
     FINAL_FIGURE,
     FINAL_FIGURE_REFERENCE,
@@ -32,13 +32,19 @@ from sb3_cmzdril.experiments.figures import (
     plot_figure,
     plot_final,
 )
-from sb3_cmzdril.experiments.final_eval import final_csv, final_table, mean_ci
-from sb3_cmzdril.experiments.formatting import fmt, fmt_ci, fmt_mean_std
-from sb3_cmzdril.experiments.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
-from sb3_cmzdril.experiments.readme import README_BEGIN, README_END, link, readme_block, short_command, update_readme
-from sb3_cmzdril.experiments.records import METHOD_LABELS, RunRecord, load_grid, load_runs
-from sb3_cmzdril.experiments.run_folder import TABLE_WINDOW
-from sb3_cmzdril.experiments.sections import (
+from sb3_cmzdril.experiments.report.final_eval import final_csv, final_table, mean_ci
+from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, fmt_mean_std
+from sb3_cmzdril.experiments.report.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
+from sb3_cmzdril.experiments.report.readme import (
+    README_BEGIN,
+    README_END,
+    link,
+    readme_block,
+    short_command,
+    update_readme,
+)
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS, RunRecord, load_grid, load_runs
+from sb3_cmzdril.experiments.report.sections import (
     GridReport,
     analyse,
     differences_markdown,
@@ -49,7 +55,15 @@ from sb3_cmzdril.experiments.sections import (
     status_lines,
     table_sections,
 )
-from sb3_cmzdril.experiments.tables import expert_returns, gap_closed, gap_trials, reward_signal, table_csv, table_one
+from sb3_cmzdril.experiments.report.tables import (
+    expert_returns,
+    gap_closed,
+    gap_trials,
+    reward_signal,
+    table_csv,
+    table_one,
+)
+from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
