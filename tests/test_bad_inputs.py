@@ -37,13 +37,6 @@ Pendulum-v1:
   policy_kwargs: "dict(net_arch=[16, 16])"
 """
 
-#: Cases that need the train/benchmark validation of the h-split branch (issue 20 items 1 and 6):
-#: strict, so that once it is merged they fail as XPASS until this marker is taken off them.
-NEEDS_RUN_VALIDATION = pytest.mark.xfail(
-    strict=True, reason="train/benchmark validation before the first write (issue 20 items 1, 6: h-split)"
-)
-
-
 @pytest.fixture(scope="module")
 def ws(tmp_path_factory) -> Path:
     """The shared workspace; no case may change it."""
@@ -190,29 +183,22 @@ CASES = [
     Case("train", "YAML batch_size 0",
          lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  batch_size: 0\n")), "batch_size"),
     Case("train", "YAML n_epochs 0",
-         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  n_epochs: 0\n")), "n_epochs",
-         (NEEDS_RUN_VALIDATION,)),
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  n_epochs: 0\n")), "n_epochs"),
     Case("train", "YAML ensemble_epochs 0",
-         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  ensemble_epochs: 0\n")), "ensemble_epochs",
-         (NEEDS_RUN_VALIDATION,)),
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  ensemble_epochs: 0\n")), "ensemble_epochs"),
     Case("train", "YAML learning_rate nan",
-         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")), "learning_rate",
-         (NEEDS_RUN_VALIDATION,)),
-    Case("train", "demo pool without reset seeds", lambda ws, c: _cmz(ws, c / "out", demos="noseeds.npz"), "seed",
-         (NEEDS_RUN_VALIDATION,)),
-    Case("train", "-o holds someone's config.json", lambda ws, c: _cmz(ws, _foreign_config(c)), "config.json",
-         (NEEDS_RUN_VALIDATION,)),
-    Case("train", "-o is an expert folder", lambda ws, c: _cmz(ws, ws / "experts" / ENV), "",
-         (NEEDS_RUN_VALIDATION,)),
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")), "learning rate: nan"),
+    Case("train", "demo pool without reset seeds", lambda ws, c: _cmz(ws, c / "out", demos="noseeds.npz"), "seed"),
+    Case("train", "-o holds someone's config.json", lambda ws, c: _cmz(ws, _foreign_config(c)), "config.json"),
+    Case("train", "-o is an expert folder", lambda ws, c: _cmz(ws, ws / "experts" / ENV), ""),
     Case("train", "done.json an array", lambda ws, c: _cmz(ws, _hand_edited(ws, c, "done.json", "[]")),
          "done.json is not what sb3-cmzdril wrote"),
     Case("train", "done.json null", lambda ws, c: _cmz(ws, _hand_edited(ws, c, "done.json", "null")),
          "done.json is not what sb3-cmzdril wrote"),
     Case("train", "config.json an array", lambda ws, c: _cmz(ws, _hand_edited(ws, c, "config.json", "[1, 2]")),
-         "config.json is not what sb3-cmzdril wrote"),
-    # today config.json and the resumed segment's log are written before lowest_u.pt is read
+         "run/config.json is not"),
     Case("train", "truncated lowest_u.pt on resume", lambda ws, c: _cmz(ws, _unfinished(ws, c, "lowest_u.pt")),
-         "lowest_u.pt is truncated", (NEEDS_RUN_VALIDATION,)),
+         "lowest_u.pt is truncated"),
     # -- evaluate -------------------------------------------------------------------------------------
     Case("evaluate", "env_kwargs the env does not take",
          lambda ws, c: _evaluate(ws, _model(ws), "--env-kwargs", "dict(nonsense=1)"),
@@ -265,8 +251,7 @@ CASES = [
     Case("benchmark", "demos dir missing", lambda ws, c: [*_benchmark(ws, c), "--demos-dir", str(c / "nowhere")],
          "nowhere"),
     Case("benchmark", "YAML n_epochs 0",
-         lambda ws, c: _benchmark(ws, c, "--hyperparams", _yaml(ws, c, "  n_epochs: 0\n")), "n_epochs",
-         (NEEDS_RUN_VALIDATION,)),
+         lambda ws, c: _benchmark(ws, c, "--hyperparams", _yaml(ws, c, "  n_epochs: 0\n")), "n_epochs"),
     # -- report ---------------------------------------------------------------------------------------
     Case("report", "runs folder missing", lambda ws, c: ["report", str(c / "nowhere"), "-o", str(c / "rep")],
          "nowhere"),

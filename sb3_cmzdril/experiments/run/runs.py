@@ -101,6 +101,8 @@ def run_experiment(
     done = folder.finished()  # refuses a folder that holds someone's files or another run
     if done is not None:
         return {**done, "status": "skipped"}
+    # Read before folder.open() writes config.json: a damaged lowest_u.pt refuses with the folder untouched.
+    selector = _selector(folder, folder.resumable)
     with folder.open():  # created and locked; config.json written, or matched with the run there
         resume = folder.resumable
         model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
@@ -109,7 +111,7 @@ def run_experiment(
         state = RunState(folder.path, spec, start)
         if discarded:
             state.data["segments"][-1]["discarded_eval_rows"] = discarded
-        selector, eval_cb = _selector(folder, resume), _eval_callback(run, folder, verbose)
+        eval_cb = _eval_callback(run, folder, verbose)
         try:
             _train(run, folder, model, state, eval_cb, selector, list(callbacks), start=start, resume=resume,
                    progress_bar=progress_bar)
