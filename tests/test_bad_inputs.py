@@ -110,6 +110,12 @@ def _damaged_model(ws: Path, case: Path, data: bytes | None = None) -> str:
     return str(path)
 
 
+def _cartpole_model(case: Path) -> str:
+    path = case / "cartpole.zip"
+    CMZDRIL("MlpPolicy", "CartPole-v1", **TINY).save(path)
+    return str(path)
+
+
 def _evaluate(ws: Path, model: str, *extra: str, demos: str | None = "demos.npz") -> list[str]:
     """``evaluate`` of ``model`` on the workspace pool (``demos=None``: the run's own choice)."""
     pool = ["--demos", str(ws / demos)] if demos else []
@@ -229,6 +235,7 @@ CASES = [
          "model file .*model.zip is corrupt, truncated or not an SB3 model zip"),
     Case("evaluate", "model not a zip", lambda ws, c: _evaluate(ws, _damaged_model(ws, c, b"hello")),
          "model file .*model.zip"),
+    Case("evaluate", "model of another env", lambda ws, c: _evaluate(ws, _cartpole_model(c)), "observation shape"),
     Case("evaluate", "model missing", lambda ws, c: _evaluate(ws, str(c / "none.zip")), "none.zip"),
     Case("evaluate", "demo file of a newer format", lambda ws, c: _evaluate(ws, _model(ws), demos="future.npz"),
          "future.npz has format_version"),
