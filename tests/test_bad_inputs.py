@@ -37,6 +37,7 @@ Pendulum-v1:
   policy_kwargs: "dict(net_arch=[16, 16])"
 """
 
+
 @pytest.fixture(scope="module")
 def ws(tmp_path_factory) -> Path:
     """The shared workspace; no case may change it."""
@@ -332,5 +333,5 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(case, ws, capsys, monk
 def test_every_command_has_cases():
     from sb3_cmzdril.cli import build_parser
 
-    commands = set(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
     assert commands == {c.command for c in CASES}
