@@ -8,10 +8,12 @@ test_experiments.py (Pendulum-v1, 16x16 networks, 64-step rollouts).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from test_experiments import ENV, POOL_EPISODES, TINY_YAML, Interrupt
@@ -98,7 +100,14 @@ def grids(cluster):
     with pytest.raises(KeyboardInterrupt):
         run_experiment(specs["local"][1], callbacks=[Interrupt(at=64)])
     shutil.copytree(specs["local"][1].output_dir, specs["ray"][1].output_dir)
-    outcomes = {backend: run_grid(specs[backend], workers=2, backend=backend, progress=False)
+    bad_hp = cluster / "bad.yml"
+    bad_hp.write_text(TINY_YAML.replace("n_demos: 1", "n_demos: 1\n  ensemble_size: 1"))  # fails in the worker
+    for backend, grid in specs.items():
+        grid.append(dataclasses.replace(grid[0], method="zero", hyperparams=str(bad_hp),
+                                        output_dir=str(cluster / backend / "broken" / "zero" / "trial0")))
+    # One local worker: a second one would only add a process start-up on this small machine.
+    outcomes = {backend: run_grid(specs[backend], workers=1 if backend == "local" else 2, backend=backend,
+                                  progress=False)
                 for backend in ("local", "ray")}
     return {"specs": specs, "outcomes": outcomes}
 
@@ -111,15 +120,23 @@ def _read(run_dir: str, name: str) -> bytes | None:
 def test_ray_grid_equals_the_local_grid(grids):
     specs, outcomes = grids["specs"], grids["outcomes"]
     for backend in ("local", "ray"):
-        assert [o["status"] for o in outcomes[backend]] == ["done", "done"], outcomes[backend]
+        assert [o["status"] for o in outcomes[backend]] == ["done", "done", "failed"], outcomes[backend]
         assert [o["run_dir"] for o in outcomes[backend]] == [s.output_dir for s in specs[backend]]
-    for local, ray_spec in zip(specs["local"], specs["ray"], strict=True):
+    for local, ray_spec in zip(specs["local"][:2], specs["ray"][:2], strict=True):
         for name in RUN_FILES:
             assert _read(ray_spec.output_dir, name) == _read(local.output_dir, name), name
         done = {b: json.loads(_read(s.output_dir, "done.json")) for b, s in (("local", local), ("ray", ray_spec))}
         assert done["ray"]["final_evaluation"] == done["local"]["final_evaluation"]
         assert done["ray"]["run_dir"] == ray_spec.output_dir
         assert not (Path(ray_spec.output_dir) / ".lock").exists()
+
+
+def test_worker_errors_come_back_as_on_the_local_backend(grids):
+    (_, _, local), (_, _, on_ray) = grids["outcomes"]["local"], grids["outcomes"]["ray"]
+    assert on_ray["error"] == local["error"] and "at least 2 members" in local["error"]
+    text = (Path(on_ray["run_dir"]) / "error.txt").read_text()
+    assert "Traceback" in text and local["error"].split(": ", 1)[1] in text
+    assert not (Path(on_ray["run_dir"]) / ".lock").exists()
 
 
 def test_interrupted_run_resumed_on_the_worker(grids):
@@ -131,7 +148,7 @@ def test_interrupted_run_resumed_on_the_worker(grids):
 
 
 def test_records_name_the_driver_paths(grids):
-    for spec in grids["specs"]["ray"]:
+    for spec in grids["specs"]["ray"][:2]:
         config = json.loads(_read(spec.output_dir, "config.json"))
         assert (config["demos"], config["hyperparams_file"]) == (spec.demos, spec.hyperparams)
         assert config["train_command"] == train_command(spec)
@@ -152,7 +169,10 @@ def test_ray_report_equals_local_report(grids, tmp_path):
 def test_checkpoints_reach_the_driver_while_the_run_goes_on(cluster, tmp_path, monkeypatch):
     """A worker's snapshot thread sends what a checkpoint changed (state.json last written) to the sink."""
     monkeypatch.setattr(remote, "SNAPSHOT_INTERVAL_S", 0.05)
-    sink = ray.remote(num_cpus=0)(remote.FolderSink).remote()
+    # The actor's method, called in this process (an actor would cost a worker start-up).
+    sink = SimpleNamespace(store=SimpleNamespace(
+        remote=lambda *args: (remote.FolderSink().store(*args), ray.put(None))[1]
+    ))
     worker, driver = tmp_path / "worker", tmp_path / "driver"
     (worker / "logs").mkdir(parents=True)
     for folder in (worker, driver):  # a file the driver shipped, which the run then deletes

@@ -11,7 +11,8 @@ A task carries everything its run reads, and its run folder comes back to the dr
 * after every checkpoint the worker sends the run folder's changed files to a small actor on the
   driver's node (:class:`FolderSink`), so that checkpoints outlive a lost worker or an interrupted
   driver; at the end the task returns the files changed since it started (:class:`RunResult`), and
-  the driver writes them atomically into its runs folder.
+  the driver writes them atomically into its runs folder. (A driver on Ray Client, ``ray://``, gets
+  no such sink: its checkpoints come back with the finished run only.)
 
 The driver holds the run folder's lock while its run is away, so a second grid (any backend) cannot
 work in the same folder meanwhile. config.json, done.json, state.json and the outcome name the
@@ -257,6 +258,15 @@ def pack_run(spec: RunSpec) -> RunPackage:
     )
 
 
+def _ray_client(ray: Any) -> bool:
+    """Whether this driver reaches the cluster through Ray Client (``ray://``), from another machine."""
+    try:
+        from ray.util.client import ray as client
+    except ImportError:
+        return False
+    return bool(client.is_connected())
+
+
 class RemoteRuns:
     """Submits runs as Ray tasks with one CPU each and writes their results into the driver's folders."""
 
@@ -266,8 +276,10 @@ class RemoteRuns:
         self.ray = ray
         # max_retries=0: a run that crashed its worker is reported, not silently restarted.
         self.task = ray.remote(num_cpus=1, max_retries=0)(run_shipped)
-        here = NodeAffinitySchedulingStrategy(node_id=ray.get_runtime_context().get_node_id(), soft=False)
-        self.sink = ray.remote(num_cpus=0)(FolderSink).options(scheduling_strategy=here).remote()
+        self.sink: Any = None
+        if not _ray_client(ray):  # a Ray Client driver's node is the head, not this machine
+            here = NodeAffinitySchedulingStrategy(node_id=ray.get_runtime_context().get_node_id(), soft=False)
+            self.sink = ray.remote(num_cpus=0)(FolderSink).options(scheduling_strategy=here).remote()
         self.pools: dict[tuple[str, int], Any] = {}
         self.in_flight: dict[Any, tuple[RunSpec, IO[str] | None]] = {}
 
