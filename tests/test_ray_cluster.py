@@ -11,7 +11,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import threading
 import time
+import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -145,6 +147,39 @@ def test_interrupted_run_resumed_on_the_worker(grids):
     assert [s["from_timesteps"] for s in state["segments"]] == [0, 64] and state["num_timesteps"] == 128
     assert sorted(p.name for p in (resumed / "logs").iterdir()) == ["progress_0.csv", "progress_64.csv"]
     assert json.loads((resumed / "done.json").read_text())["segments"] == 2
+
+
+def test_lost_worker_leaves_its_last_checkpoint_on_the_driver(cluster, grids, monkeypatch):
+    """A worker killed mid-run: its run fails as on the local backend, its last checkpoint that reached
+    the driver stays, and the next grid continues from it."""
+    [spec] = plan_grid(ENV, "zero", [0], cluster / "lost", demos_dir=cluster / "experts",
+                       hyperparams=cluster / "cmzdril.yml", timesteps=64 * 20, n_eval_episodes=2, checkpoint_every=1)
+    handles = []
+    submit = remote.RemoteRuns.submit
+    monkeypatch.setattr(remote.RemoteRuns, "submit", lambda self, s: handles.append(submit(self, s)) or handles[-1])
+    state = Path(spec.output_dir) / "state.json"
+
+    def kill_after_the_first_checkpoint() -> None:
+        deadline = time.time() + 120
+        while not (handles and state.exists()) and time.time() < deadline:
+            time.sleep(0.05)
+        ray.cancel(handles[0], force=True)
+
+    killer = threading.Thread(target=kill_after_the_first_checkpoint)
+    killer.start()
+    [outcome] = run_grid([spec], workers=1, backend="ray", progress=False)
+    killer.join()
+    assert outcome["status"] == "failed" and (Path(spec.output_dir) / "error.txt").is_file()
+    # The model may be a checkpoint newer than state.json (it is read after it), never older.
+    with zipfile.ZipFile(Path(spec.output_dir) / "model.zip") as model:
+        reached = json.loads(model.read("data"))["num_timesteps"]
+    assert 0 < json.loads(state.read_text())["num_timesteps"] <= reached < spec.timesteps
+
+    [outcome] = run_grid([dataclasses.replace(spec, timesteps=reached + 64)], backend="ray", progress=False)
+    assert outcome["status"] == "done"
+    resumed = json.loads(state.read_text())
+    assert [s["from_timesteps"] for s in resumed["segments"]] == [0, reached]
+    assert resumed["num_timesteps"] == reached + 64
 
 
 def test_records_name_the_driver_paths(grids):

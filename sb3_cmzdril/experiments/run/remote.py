@@ -137,7 +137,8 @@ def read_files(folder: Path, names: Sequence[str], moved: Sequence[tuple[str, st
     """The named files of ``folder`` (relative paths); JSON records with the worker's paths restored.
 
     state.json is read first: a checkpoint writes it last, so the model read after it is at least
-    as new as the step count it records. A file that vanished meanwhile is left out.
+    as new as the step count it records (a resume starts from the model's own count, and state.json
+    only keeps the segments' history). A file that vanished meanwhile is left out.
     """
     files: dict[str, bytes] = {}
     for name in sorted(names, key=lambda n: n != STATE_FILE):
@@ -160,9 +161,12 @@ def _inside(folder: Path, name: str) -> Path:
 
 
 def write_files(folder: PathLike, files: Mapping[str, bytes], removed: Sequence[str] = ()) -> None:
-    """Write ``files`` (relative paths) into ``folder``, each atomically, and delete ``removed``."""
+    """Write ``files`` (relative paths) into ``folder``, each atomically, and delete ``removed``.
+
+    state.json goes last, as a checkpoint writes it: the model beside it is never older than it says.
+    """
     folder = Path(folder)
-    for name, data in files.items():
+    for name, data in sorted(files.items(), key=lambda item: item[0] == STATE_FILE):
         with atomic_path(_inside(folder, name)) as tmp:
             tmp.write_bytes(data)
     for name in removed:
@@ -176,6 +180,9 @@ class FolderSink:
 
     def store(self, folder: str, files: Mapping[str, bytes], removed: Sequence[str]) -> None:
         write_files(folder, files, removed)
+
+    def flush(self) -> None:
+        """Returns once the stores this actor received before it are written (it runs one call at a time)."""
 
 
 class _Snapshots:
@@ -315,7 +322,15 @@ class RemoteRuns:
         spec, lock = self.in_flight.pop(handle)
         out = Path(spec.output_dir)
         try:
-            result: RunResult = self.ray.get(handle)
+            try:
+                result: RunResult = self.ray.get(handle)
+            except BaseException:
+                # A killed worker's last checkpoint may still be on its way: let it land before the
+                # folder is unlocked, so that nothing writes into it once another run may own it.
+                if self.sink is not None:
+                    with contextlib.suppress(Exception):
+                        self.ray.get(self.sink.flush.remote(), timeout=60)
+                raise
             write_files(out, result.files, result.removed)
             return result.outcome
         finally:
