@@ -209,15 +209,20 @@ class _Snapshots:
             import ray
 
             try:
-                ray.get(self.pending)
+                ray.get(self.pending, timeout=60)
             except Exception as e:  # the driver went away: the task's own result still carries the run
                 logger.warning("could not send a checkpoint of %s to the driver: %s", self.driver_folder, e)
 
     def _watch(self) -> None:
         while not self.stop.wait(SNAPSHOT_INTERVAL_S):
             now = _listing(self.folder)
-            if now.get(STATE_FILE) != self.sent.get(STATE_FILE):
+            if now.get(STATE_FILE) == self.sent.get(STATE_FILE):
+                continue
+            try:
                 self._send(now)
+            except Exception as e:  # the sink is gone: the run goes on, its result still comes back
+                logger.warning("stopped sending checkpoints of %s to the driver: %s", self.driver_folder, e)
+                return
 
     def _send(self, now: Listing) -> None:
         changed = [name for name, stamp in now.items() if self.sent.get(name) != stamp]
