@@ -11,7 +11,8 @@ Both backends execute :func:`execute_run` one run per worker (one CPU and one to
 * ``local``: a ``ProcessPoolExecutor`` with the ``spawn`` context (no forked torch/OpenMP state);
 * ``ray``: the same function as a ``ray.remote(num_cpus=1)`` task, on ``ray.init(address=...)`` or
   a local instance (an already initialised Ray is used as it is). Ray is optional:
-  ``pip install 'sb3-cmzdril[ray]'``. Paths are absolute, so a cluster needs a shared filesystem.
+  ``pip install 'sb3-cmzdril[ray]'``. No shared filesystem is needed: the task carries the demo pool,
+  the hyperparameters and a partial run's files, and the run folder comes back (:mod:`.remote`).
 
 At most ``workers`` runs are in flight at a time (so "running" in the progress display is exact).
 Finished runs (done.json) are skipped without starting a worker, interrupted ones continue from their
@@ -208,7 +209,7 @@ class _LocalBackend:
 
 
 class _RayBackend:
-    """``execute_run`` as Ray tasks with one CPU each; starts (and stops) a local Ray if none is up."""
+    """``execute_run`` as Ray tasks with one CPU each (:mod:`.remote`); starts (and stops) a local Ray if none is up."""
 
     def __init__(self, workers: int, address: str | None) -> None:
         try:
@@ -225,18 +226,19 @@ class _RayBackend:
                 ray.init(address=address)
             else:
                 ray.init(num_cpus=workers, include_dashboard=False)
-        # max_retries=0: a run that crashed its worker is reported, not silently restarted.
-        self.task = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+        from sb3_cmzdril.experiments.run.remote import RemoteRuns
+
+        self.runs = RemoteRuns(ray)
 
     def submit(self, spec: RunSpec) -> Any:
-        return self.task.remote(spec)
+        return self.runs.submit(spec)
 
     def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
         return ready
 
     def result(self, handle: Any) -> dict[str, Any]:
-        return self.ray.get(handle)
+        return self.runs.result(handle)
 
     def close(self, interrupted: bool = False) -> None:
         if self.owned:
