@@ -11,7 +11,7 @@ import importlib
 from types import ModuleType
 
 #: The extras pyproject.toml defines (``pip install 'sb3-cmzdril[<extra>]'``).
-EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "test", "all")
+EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "contrib", "test", "all")
 
 
 class MissingExtraError(ImportError):

@@ -48,7 +48,6 @@ SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 EXPRESSION_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "env_kwargs", "normalize")
 
 DEFAULT_KEY = "default"
-REPO_HYPERPARAMS_DIR = Path(__file__).resolve().parent.parent / "hyperparams"
 
 
 class LinearSchedule:
@@ -418,14 +417,8 @@ def load_hyperparams(path: str | Path, env_id: str) -> Hyperparams:
 
 
 def default_hyperparams_path(algo: str) -> Path:
-    """``hyperparams/<algo>.yml`` of the source checkout (the package is meant to be installed editable).
+    """The shipped ``hyperparams/<algo>.yml``: the repository's file in a source checkout, the
+    package's copy in a wheel install (:mod:`sb3_cmzdril.shipped`)."""
+    from sb3_cmzdril.shipped import shipped_hyperparams
 
-    When the package is installed from a wheel the folder does not exist: pass ``--hyperparams``.
-    """
-    path = REPO_HYPERPARAMS_DIR / f"{algo}.yml"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"default hyperparameter file {path} not found (it lives in the repository's hyperparams/ "
-            "folder); pass one explicitly with --hyperparams / hyperparams_path="
-        )
-    return path
+    return shipped_hyperparams(algo)

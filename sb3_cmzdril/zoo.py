@@ -1,14 +1,14 @@
 """rl-zoo3 plugin: train CMZDRIL with the zoo's own ``train`` entry point and flags.
 
 ``python -m sb3_cmzdril.zoo --env HalfCheetah-v5 -n 300000`` is rl-zoo3's ``train.py`` with
-``cmzdril`` registered (``--algo`` defaults to ``cmzdril``, ``--conf-file`` to the repository's
+``cmzdril`` registered (``--algo`` defaults to ``cmzdril``, ``--conf-file`` to the shipped
 ``hyperparams/cmzdril.yml``); every other flag is the zoo's. In a script, :func:`register` does the
 registration: ``rl_zoo3.ALGOS["cmzdril"]``.
 
 The class the zoo builds is :class:`ZooCMZDRIL`, a :class:`~sb3_cmzdril.CMZDRIL` that also takes
 what a zoo YAML holds besides constructor arguments: ``n_demos`` (train on the first ``n_demos``
 episodes of the demonstrations) and no ``demonstrations`` at all (the shipped pool
-``experts/<EnvId>/demos.npz``, looked up in the working directory, then in the source checkout).
+``experts/<EnvId>/demos.npz``, looked up in the working directory, then among the shipped pools).
 Its saved models load with ``CMZDRIL.load`` as well. Needs the ``zoo`` extra.
 """
 from __future__ import annotations
@@ -28,8 +28,6 @@ from sb3_cmzdril.extras import require_extra
 ALGO = "cmzdril"
 #: Where ``collect-demos`` puts an env's demo pool, relative to the working directory.
 DEMOS_DIR = Path("experts")
-#: The same folder in the source checkout, for runs started elsewhere (editable installs).
-REPO_DEMOS_DIR = Path(__file__).resolve().parent.parent / "experts"
 #: rl-zoo3 modules that hold an ``ALGOS`` table (all the same dict in rl-zoo3 2.x, but updated one
 #: by one so a release that copies it still sees cmzdril).
 _ZOO_MODULES = ("rl_zoo3", "rl_zoo3.utils", "rl_zoo3.exp_manager", "rl_zoo3.train")
@@ -49,17 +47,17 @@ def env_id_of(env: Any) -> str:
 
 
 def default_demos_path(env: Any) -> Path:
-    """``experts/<EnvId>/demos.npz`` in the working directory, else in the source checkout."""
-    relative = Path(env_id_of(env)) / "demos.npz"
-    candidates = [DEMOS_DIR / relative, REPO_DEMOS_DIR / relative]
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError(
-        f"no demonstrations given and no demo pool at {' or '.join(map(str, candidates))}: record one with "
-        "`sb3-cmzdril collect-demos`, or give `demonstrations: path/to/demos.npz` in the hyperparameters "
-        "(or -params demonstrations:\"'path'\")"
-    )
+    """``experts/<EnvId>/demos.npz`` in the working directory, else the shipped pool of that env."""
+    from sb3_cmzdril.shipped import local_or_shipped_demos
+
+    path = local_or_shipped_demos(env_id_of(env), DEMOS_DIR)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"no demonstrations given and no demo pool at {path} or shipped with sb3-cmzdril: record one with "
+            "`sb3-cmzdril collect-demos`, or give `demonstrations: path/to/demos.npz` in the hyperparameters "
+            "(or -params demonstrations:\"'path'\")"
+        )
+    return path
 
 
 def first_episodes(demos: Demonstrations, n_demos: int | None) -> Demonstrations:
@@ -148,13 +146,7 @@ def zoo_argv(argv: Sequence[str]) -> list[str]:
     if (known.algo or ALGO) == ALGO and known.conf_file is None:
         from sb3_cmzdril.hyperparams import default_hyperparams_path
 
-        try:
-            conf = default_hyperparams_path(ALGO)
-        except FileNotFoundError:
-            raise SystemExit(
-                "sb3_cmzdril.zoo: hyperparams/cmzdril.yml is not next to this installation (a wheel install); "
-                "pass the zoo a hyperparameter file with -conf path/to/cmzdril.yml"
-            ) from None
+        conf = default_hyperparams_path(ALGO)
         argv += ["--conf-file", str(conf)]
     return argv
 

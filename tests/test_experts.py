@@ -367,3 +367,38 @@ def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     rec = meta["demos"]
     assert rec["episodes"] == 2 and rec["seeds"] == [5, 6] and rec["steps"] == len(demos)
     assert rec["mean_return"] == pytest.approx(float(np.mean(demos.episode_returns)))
+
+
+def test_shipped_files_come_from_the_checkout_or_the_installed_copy(tmp_path, monkeypatch):
+    from sb3_cmzdril import shipped
+
+    repo = Path(__file__).resolve().parent.parent
+    assert shipped.shipped_demos("HalfCheetah-v5") == repo / "experts" / "HalfCheetah-v5" / "demos.npz"
+    assert shipped.shipped_demos("sb3_cmzdril:WaypointNav-v0").parent.name == "WaypointNav-v0"
+    assert {"HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "WaypointNav-v0"} <= set(shipped.shipped_envs())
+    with pytest.raises(FileNotFoundError, match=r"no shipped demo pool for 'Ant-v5'; shipped pools: .*HalfCheetah-v5"):
+        shipped.shipped_demos("Ant-v5")
+    with pytest.raises(FileNotFoundError, match=r"no shipped hyperparameter file nope.yml \(shipped: .*cmzdril"):
+        shipped.shipped_hyperparams("nope")
+    # A wheel install: the package's own copy wins over any experts/ folder beside it.
+    bundled = tmp_path / "_shipped"
+    (bundled / "experts" / "HalfCheetah-v5").mkdir(parents=True)
+    (bundled / "hyperparams").mkdir()
+    (bundled / "experts" / "HalfCheetah-v5" / "demos.npz").write_bytes(b"x")
+    monkeypatch.setattr(shipped, "BUNDLED_DIR", bundled)
+    assert shipped.shipped_demos("HalfCheetah-v5") == bundled / "experts" / "HalfCheetah-v5" / "demos.npz"
+    # The working directory's own experts/ folder wins over both; a folder the user names never falls back.
+    monkeypatch.chdir(tmp_path)
+    assert shipped.local_or_shipped_demos("HalfCheetah-v5") == bundled / "experts" / "HalfCheetah-v5" / "demos.npz"
+    (tmp_path / "experts" / "HalfCheetah-v5").mkdir(parents=True)
+    (tmp_path / "experts" / "HalfCheetah-v5" / "demos.npz").write_bytes(b"y")
+    assert shipped.local_or_shipped_demos("HalfCheetah-v5") == Path("experts/HalfCheetah-v5/demos.npz")
+    assert shipped.local_or_shipped_demos("HalfCheetah-v5", "mine") == Path("mine/HalfCheetah-v5/demos.npz")
+
+
+def test_version_flag(capsys):
+    from sb3_cmzdril import __version__
+
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0 and capsys.readouterr().out == f"sb3-cmzdril {__version__}\n"

@@ -7,7 +7,7 @@ def add_train_expert(sub) -> None:
         "train-expert",
         help="train an SB3 expert (SAC by default) with rl-zoo hyperparameters; resumable",
         description=(
-            "Train an expert with rl-zoo-style hyperparameters (hyperparams/<algo>.yml of the repository "
+            "Train an expert with rl-zoo-style hyperparameters (the shipped hyperparams/<algo>.yml "
             "unless --hyperparams is given). The best model by periodic deterministic evaluation is "
             "OUTPUT/model.zip; OUTPUT/metadata.json records how it was made. Checkpoints go to "
             "OUTPUT/checkpoints/; running the same command again resumes from the last one and trains "
@@ -21,7 +21,7 @@ def add_train_expert(sub) -> None:
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
-        "--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/<algo>.yml)"
+        "--hyperparams", default=None, help="zoo-format YAML (default: the shipped hyperparams/<algo>.yml)"
     )
     p.add_argument("-o", "--output", default=None, help="output folder (default: experts/<EnvId>)")
     p.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N steps (default 10000)")
@@ -70,11 +70,18 @@ def add_collect_demos(sub) -> None:
         help="record deterministic expert episodes into a demonstrations npz",
         description=(
             "Run an expert deterministically for K episodes (episode i reset with seed S+i) and save "
-            "observations, actions, rewards and seeds. --expert is an SB3 model zip (any algorithm), a "
-            "folder holding model.zip, or the name of a registered scripted expert."
+            "observations, actions, rewards and seeds. --expert is an SB3 or sb3-contrib model zip (any "
+            "algorithm; older SB3 zips that pickle gym load too), a folder holding model.zip, an RL Zoo "
+            "agent's folder (<Env>.zip with <Env>/config.yml and vecnormalize.pkl: the expert sees "
+            "normalised observations, the pool records raw ones), the env id of a shipped expert "
+            "(HalfCheetah-v5), or the name of a registered scripted expert."
         ),
     )
-    p.add_argument("--expert", required=True, help="model zip, folder with model.zip, or scripted expert name")
+    p.add_argument(
+        "--expert",
+        required=True,
+        help="model zip, folder with model.zip, RL Zoo agent folder, shipped expert's env id, or scripted expert name",
+    )
     p.add_argument("--env", required=True, help="environment id")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (default 0)")

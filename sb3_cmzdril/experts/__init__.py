@@ -9,6 +9,7 @@ One module a job:
 - :mod:`~sb3_cmzdril.experts.checkpoints`: its resumable state on disk
 - :mod:`~sb3_cmzdril.experts.callbacks`: its SB3 callbacks (progress, evaluation, checkpoints)
 - :mod:`~sb3_cmzdril.experts.collect`: ``collect_demos``, episodes and the pool's provenance
+- :mod:`sb3_cmzdril.shipped`: the shipped demo pools and experts, from a checkout or an installed wheel
 
 The names below are the package's API; import them from ``sb3_cmzdril.experts``.
 """
@@ -19,6 +20,7 @@ from sb3_cmzdril.experts.loading import algorithm_classes, load_expert_model, re
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS, ScriptedExpertFactory, register_scripted_expert
 from sb3_cmzdril.experts.training import check_threads, train_expert
 from sb3_cmzdril.io import LOCK_FILE, command_line
+from sb3_cmzdril.shipped import shipped_demos, shipped_envs, shipped_expert
 
 __all__ = [
     "BEST_FILE",
@@ -39,5 +41,8 @@ __all__ = [
     "resolve_expert",
     "run_episode",
     "save_checkpoint",
+    "shipped_demos",
+    "shipped_envs",
+    "shipped_expert",
     "train_expert",
 ]

@@ -27,7 +27,7 @@ class ProgressCallback(BaseCallback):
         self.total = int(total)
         self.show = show
         self.line_every = line_every or max(1000, self.total // 50)
-        self.bar = None
+        self.bar: Any = None  # a tqdm bar, where stderr is a terminal
         self._t0 = 0.0
         self._n0 = 0
         self._next_line = 0

@@ -11,6 +11,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
 from sb3_cmzdril.experts.loading import load_sb3_model
 from sb3_cmzdril.io import atomic_path, read_json, write_json
 
@@ -84,7 +87,7 @@ def training_state(out: Path, ckpt_dir: Path, env_id: str, algo: str, seed: int,
     return state, resume, seed
 
 
-def load_checkpoint(algo_cls: type, ckpt_dir: Path, state: dict[str, Any], env, seed: int):
+def load_checkpoint(algo_cls: type[BaseAlgorithm], ckpt_dir: Path, state: dict[str, Any], env, seed: int):
     """The model (with its replay buffer) of the checkpoint ``state`` names, attached to ``env``.
 
     :raises ValueError: a damaged model or buffer, or one whose step count disagrees with state.json.
@@ -92,7 +95,7 @@ def load_checkpoint(algo_cls: type, ckpt_dir: Path, state: dict[str, Any], env, 
     ckpt_model = ckpt_dir / state["model_file"]
     model = load_sb3_model(algo_cls, ckpt_model, env=env)
     buffer_file = state.get("replay_buffer_file")
-    if buffer_file and getattr(model, "replay_buffer", None) is not None:
+    if buffer_file and isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
         buffer_path = ckpt_dir / buffer_file
         if not buffer_path.is_file():
             raise FileNotFoundError(f"checkpoint replay buffer missing: {buffer_path}")

@@ -43,6 +43,7 @@ def run_episode(expert: Any, env: gym.Env, seed: int) -> dict[str, Any]:
     obs, _ = env.reset(seed=int(seed))
     observations, actions, rewards = [], [], []
     done = False
+    step_action: int | np.ndarray
     while not done:
         action, _ = expert.predict(obs, deterministic=True)
         action = np.asarray(action)
@@ -65,13 +66,20 @@ def run_episode(expert: Any, env: gym.Env, seed: int) -> dict[str, Any]:
     }
 
 
+def _episode_returns(demos: Demonstrations) -> np.ndarray:
+    returns = demos.episode_returns
+    if returns is None:  # run_episode records every reward; only a caller's own pool can lack them
+        raise ValueError("the demonstrations hold no rewards, so there are no returns to report")
+    return returns
+
+
 def _log_summary(demos: Demonstrations, title: str) -> None:
     """Log a table of the episodes (seed, return, length) and their mean.
 
     The message is the plain-text table; where rich is installed the record also carries the rich
     table (attribute :data:`RENDERABLE`), which the CLI prints in its place.
     """
-    returns = demos.episode_returns
+    returns = _episode_returns(demos)
     rows = [(i, int(demos.seeds[i]), float(returns[i]), int(demos.episode_lengths[i])) for i in range(demos.n_episodes)]
     mean, std = float(np.mean(returns)), float(np.std(returns))
     mean_len = float(np.mean(demos.episode_lengths))
@@ -191,7 +199,7 @@ def _record_demos_provenance(
         meta = read_json(meta_path)
     else:
         meta = {"env_id": env_id, "expert": description, "versions": versions()}
-    returns = demos.episode_returns
+    returns = _episode_returns(demos)
     meta["demos"] = {
         "file": output.name,
         "expert": description,

@@ -1,34 +1,88 @@
-"""Loading experts: SB3 model zips of any algorithm, and resolving ``--expert`` to a policy."""
+"""Loading experts: SB3 and sb3-contrib model zips, published RL Zoo agents, and ``--expert`` to a policy.
+
+A model zip says itself which algorithm saved it: ``data`` (the zip's JSON) names the module of its
+policy class, ``stable_baselines3.<algo>.policies`` or ``sb3_contrib.<algo>.policies``. Policies
+shared by several algorithms (PPO's and A2C's ``ActorCriticPolicy``) are resolved by trying them in
+turn; for inference any of them will do.
+
+Published agents (the RL Zoo's ``rl-trained-agents`` repository, the same zips as the Hugging Face
+hub's ``sb3`` organisation) load without a conversion step:
+
+- zips saved by older SB3 pickle gym spaces and Python-3.7 schedules, which do not unpickle here
+  (``No module named 'gym'``). As rl_zoo3's ``enjoy`` does, the schedules are replaced (an expert
+  only predicts); spaces that do not unpickle are taken from the env, after checking the shape the
+  zip records in plain JSON; other training state that does not unpickle is left out;
+- the zoo's folder layout, ``<Env>.zip`` with ``<Env>/config.yml`` and ``<Env>/vecnormalize.pkl``:
+  the expert sees observations normalised with the saved statistics while the demo pool records
+  the env's raw ones (:class:`NormalizedObservationExpert`). The pickle's gym spaces are not needed
+  and are read as placeholders;
+- an agent trained on another version of the env (``Walker2d-v3`` used on ``Walker2d-v5``) is
+  used with a warning: the shapes match, the dynamics may differ.
+"""
 from __future__ import annotations
 
+import base64
 import json
 import os
+import pickle
+import re
+import warnings
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
+import numpy as np
+import yaml
 
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS
 from sb3_cmzdril.io import PathLike
 
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
-def algorithm_classes() -> dict[str, type]:
+#: ``Name-vN``: an env id as the zoo names its files and folders.
+_ENV_ID = re.compile(r"^(?P<name>.+)-v(?P<version>\d+)$")
+#: Schedules are only used for training, and old ones are lambdas that do not unpickle in another
+#: Python: an expert that only predicts gets constants (rl_zoo3's enjoy does the same).
+_SCHEDULES = ("learning_rate", "lr_schedule", "clip_range", "clip_range_vf", "exploration_schedule")
+
+
+def algorithm_classes() -> dict[str, type[BaseAlgorithm]]:
     """SB3 algorithms by the zoo's lowercase names."""
     from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 
     return {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO, "a2c": A2C, "dqn": DQN}
 
 
-def algo_class(algo: str) -> type:
-    """The SB3 class of ``algo`` (case-insensitive); a ValueError listing the known ones."""
-    classes = algorithm_classes()
+def contrib_classes(required_by: str | None = None) -> dict[str, type[BaseAlgorithm]]:
+    """sb3-contrib's algorithms by the name of their subpackage (``tqc``, ``qrdqn``, ``ppo_mask``...).
+
+    :param required_by: what needs them, for the error when sb3-contrib is not installed; None
+        returns an empty table instead.
+    """
+    from sb3_cmzdril.extras import require_extra
+
+    try:
+        contrib = require_extra("sb3_contrib", "contrib", feature=required_by)
+    except ImportError:
+        if required_by is not None:
+            raise
+        return {}
+    classes = (getattr(contrib, name) for name in getattr(contrib, "__all__", ()))
+    return {cls.__module__.split(".")[1]: cls for cls in classes if isinstance(cls, type)}
+
+
+def algo_class(algo: str) -> type[BaseAlgorithm]:
+    """The SB3 (or sb3-contrib) class of ``algo`` (case-insensitive); a ValueError listing the known ones."""
+    classes = {**contrib_classes(), **algorithm_classes()}
     if algo.lower() not in classes:
         raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(classes)}")
     return classes[algo.lower()]
 
 
-def load_sb3_model(algo_cls: type, path: Path, env=None):
+def load_sb3_model(algo_cls: type[BaseAlgorithm], path: Path, env: Any = None) -> BaseAlgorithm:
     """Load an SB3 zip for inference/continuation with a clear error naming the path."""
     path = Path(path)
     if not path.is_file():
@@ -39,8 +93,264 @@ def load_sb3_model(algo_cls: type, path: Path, env=None):
         raise ValueError(f"cannot load {algo_cls.__name__} model from {path} (corrupt or not an SB3 zip?): {e}") from e
 
 
+# -- what a zip and the folder around it say ---------------------------------------------------------
+def read_model_data(path: Path) -> dict[str, Any]:
+    """The JSON ``data`` of an SB3 model zip; a ValueError naming the file when it is not one."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            data = json.loads(zf.read("data").decode("utf-8"))
+    except zipfile.BadZipFile:
+        raise ValueError(f"expert file {path} is not a zip file (an SB3 model is a zip)") from None
+    except KeyError:
+        raise ValueError(f"expert file {path} is a zip but not an SB3 model (it has no 'data' entry)") from None
+    except (ValueError, UnicodeDecodeError, OSError) as e:
+        raise ValueError(f"expert file {path} is corrupt: its 'data' entry is not readable JSON ({e})") from None
+    if not isinstance(data, dict) or "policy_class" not in data:
+        raise ValueError(f"expert file {path} is not an SB3 model: its 'data' names no policy class")
+    return data
+
+
+def _policy_module(data: dict[str, Any]) -> str:
+    policy = data.get("policy_class")
+    return str(policy.get("__module__", "")) if isinstance(policy, dict) else ""
+
+
+def _algorithm_from_data(path: Path, data: dict[str, Any]) -> list[type[BaseAlgorithm]]:
+    """The algorithm classes that may have saved the zip, most likely first."""
+    parts = _policy_module(data).split(".")
+    if parts[0] == "sb3_contrib":
+        contrib = contrib_classes(required_by=f"expert {path} (an sb3-contrib model)")
+        if len(parts) >= 2 and parts[1] in contrib:
+            return [contrib[parts[1]]]
+        return list(contrib.values())
+    sb3 = algorithm_classes()
+    if len(parts) >= 2 and parts[0] == "stable_baselines3" and parts[1] in sb3:
+        return [sb3[parts[1]]]
+    # Shared policies (stable_baselines3.common.policies): the zip's keys tell PPO from A2C.
+    order = ["ppo", "a2c"] if "clip_range" in data else ["a2c", "ppo"]
+    return [sb3[name] for name in order] + [cls for name, cls in sb3.items() if name not in order]
+
+
+def _unpicklable(item: Any) -> Exception | None:
+    """The error unpickling one ``:serialized:`` entry of ``data`` raises, or None if it loads."""
+    try:
+        # SB3 writes these with cloudpickle, whose output plain pickle reads (importing cloudpickle).
+        pickle.loads(base64.b64decode(item[":serialized:"].encode()))
+    except Exception as e:  # a missing module (gym), another Python's code object, ...: all unusable
+        return e
+    return None
+
+
+def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | None) -> dict[str, Any]:
+    """``custom_objects`` for ``load``: constant schedules, the env's spaces where the zip's pickled
+    ones do not unpickle here, and None for any other training state that does not."""
+    custom: dict[str, Any] = {key: (lambda _: 0.0) for key in _SCHEDULES if key in data}
+    if "learning_rate" in custom:
+        custom["learning_rate"] = 0.0
+    for key, item in data.items():
+        if key in custom or not (isinstance(item, dict) and ":serialized:" in item):
+            continue
+        error = _unpicklable(item)
+        if error is None:
+            continue
+        if key == "policy_class":
+            raise ValueError(
+                f"expert file {path}: its policy class does not load here ({type(error).__name__}: {error})"
+            )
+        if key in ("observation_space", "action_space"):
+            if env is None:
+                raise ValueError(
+                    f"expert file {path} pickles its {key} with {type(error).__name__} ({error}); "
+                    "load it with the env it acts in (env=...)"
+                )
+            space = getattr(env, key)
+            recorded = item.get("shape")
+            if recorded is not None and space.shape is not None and tuple(recorded) != tuple(space.shape):
+                raise ValueError(
+                    f"expert file {path} was trained with {key} of shape {tuple(recorded)}, "
+                    f"the env has {tuple(space.shape)}"
+                )
+            custom[key] = space
+        else:
+            custom[key] = None  # training state (last observation, episode buffers): unused by predict
+    return custom
+
+
+@dataclass(frozen=True)
+class ZooFiles:
+    """A model zip and what the RL Zoo keeps beside it (``<Env>/config.yml``, ``vecnormalize.pkl``)."""
+
+    model: Path
+    stats: Path | None = None
+
+    @property
+    def trained_env_id(self) -> str | None:
+        """The env id the agent was trained on: args.yml's ``env``, else the zoo's file names."""
+        args = self.stats / "args.yml" if self.stats is not None else None
+        if args is not None and args.is_file():
+            env = read_zoo_yaml(args).get("env")
+            if isinstance(env, str):
+                return env
+        for name in (self.model.stem, self.stats.name if self.stats is not None else ""):
+            if _ENV_ID.match(name):
+                return name
+        return None
+
+    @property
+    def vecnormalize(self) -> Path | None:
+        path = self.stats / "vecnormalize.pkl" if self.stats is not None else None
+        return path if path is not None and path.is_file() else None
+
+    @property
+    def config(self) -> dict[str, Any]:
+        path = self.stats / "config.yml" if self.stats is not None else None
+        return read_zoo_yaml(path) if path is not None and path.is_file() else {}
+
+
+def _stats_folder(model: Path) -> Path | None:
+    """The zoo's ``<Env>/`` folder beside a model zip (``<Env>.zip`` or ``best_model.zip``), if any."""
+    own = model.parent / model.stem
+    if (own / "config.yml").is_file() or (own / "vecnormalize.pkl").is_file():
+        return own
+    beside = [d for d in sorted(model.parent.iterdir()) if d.is_dir() and (d / "config.yml").is_file()]
+    return beside[0] if len(beside) == 1 else None
+
+
+def find_model_files(path: PathLike) -> ZooFiles:
+    """The model zip a path means and the zoo files beside it.
+
+    A folder: its ``model.zip`` (our experts), else the zoo's ``<Env>.zip`` (the folder holding
+    ``<Env>/config.yml``), else its only zip.
+    """
+    path = Path(path)
+    if path.is_file():
+        return ZooFiles(path, _stats_folder(path))
+    if not path.is_dir():
+        raise FileNotFoundError(f"expert model not found: {path}")
+    if (path / "model.zip").is_file():
+        return ZooFiles(path / "model.zip", _stats_folder(path / "model.zip"))
+    zips = sorted(path.glob("*.zip"))
+    named = [z for z in zips if (path / z.stem).is_dir()]
+    chosen = named if named else zips
+    if len(chosen) != 1:
+        found = ", ".join(z.name for z in zips) or "none"
+        raise FileNotFoundError(
+            f"expert folder {path} has no model.zip and no single zoo agent <Env>.zip (zips: {found}); "
+            "pass the zip itself"
+        )
+    return ZooFiles(chosen[0], _stats_folder(chosen[0]))
+
+
+class _ZooYamlLoader(yaml.SafeLoader):
+    """SafeLoader that also reads the zoo's ``!!python/object/apply:collections.OrderedDict`` files."""
+
+
+def _ordered_dict(loader: Any, node: Any) -> dict[str, Any]:
+    # The zoo dumps OrderedDict(list of [key, value] pairs): the node is a sequence holding that list.
+    (pairs,) = loader.construct_sequence(node, deep=True)
+    return {str(k): v for k, v in pairs}
+
+
+_ZooYamlLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
+
+
+def read_zoo_yaml(path: Path) -> dict[str, Any]:
+    """A zoo ``config.yml`` / ``args.yml`` as a dict; a ValueError naming the file otherwise."""
+    try:
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_ZooYamlLoader)
+    except (yaml.YAMLError, ValueError, OSError) as e:
+        raise ValueError(f"zoo file {path} is not readable YAML: {e}") from None
+    return data if isinstance(data, dict) else {}
+
+
+class _Placeholder:
+    """Stands in for a class of a package that is not installed (old gym spaces in a pickle)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args = args
+
+    def __setstate__(self, state: Any) -> None:
+        self.state = state
+
+
+class _GymTolerantUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        if module.split(".")[0] == "gym":
+            return _Placeholder
+        return super().find_class(module, name)
+
+
+def load_vecnormalize(path: Path) -> Any:
+    """A zoo ``vecnormalize.pkl`` (an SB3 ``VecNormalize`` without its env), gym spaces or not."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    try:
+        with open(path, "rb") as f:
+            stats = _GymTolerantUnpickler(f).load()
+    except Exception as e:  # truncated, or pickled by something else: say which file
+        raise ValueError(f"zoo file {path} is not a readable VecNormalize pickle ({type(e).__name__}: {e})") from None
+    if not isinstance(stats, VecNormalize) or not hasattr(stats, "obs_rms"):
+        raise ValueError(f"zoo file {path} does not hold VecNormalize statistics (it holds {type(stats).__name__})")
+    stats.training = False  # the statistics are the expert's: never update them from our episodes
+    return stats
+
+
+class NormalizedObservationExpert:
+    """A zoo expert trained under ``VecNormalize``: it acts on normalised observations, with the
+    statistics saved beside it, while whoever calls :meth:`predict` passes (and records) raw ones."""
+
+    def __init__(self, model: Any, stats: Any) -> None:
+        self.model = model
+        self.stats = stats
+        self.observation_space = model.observation_space
+        self.action_space = model.action_space
+
+    def normalize(self, observation: np.ndarray) -> np.ndarray:
+        """The observation as the expert saw it in training (clipped like VecNormalize)."""
+        return np.asarray(self.stats.normalize_obs(np.asarray(observation, dtype=np.float64)))
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = False) -> tuple[np.ndarray, Any]:
+        return self.model.predict(
+            self.normalize(observation), state=state, episode_start=episode_start, deterministic=deterministic
+        )
+
+
+def _check_env_version(files: ZooFiles, env: gym.Env | None) -> None:
+    trained = files.trained_env_id
+    target = getattr(getattr(env, "spec", None), "id", None)
+    if trained is None or target is None:
+        return
+    a, b = _ENV_ID.match(trained.rsplit(":", 1)[-1]), _ENV_ID.match(str(target).rsplit(":", 1)[-1])
+    if a and b and a["name"] == b["name"] and a["version"] != b["version"]:
+        warnings.warn(
+            f"expert {files.model} was trained on {trained} and is used on {target}: same shapes, "
+            "but the dynamics or rewards of the two versions may differ",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def _check_zoo_config(files: ZooFiles) -> None:
+    """Refuse zoo settings that change what the expert observes and that we do not reproduce."""
+    config = files.config
+    for key in ("env_wrapper", "frame_stack"):
+        if config.get(key):
+            raise ValueError(
+                f"expert {files.model}: its {files.stats / 'config.yml' if files.stats else 'config'} sets "
+                f"{key}: {config[key]!r}, which changes the observations the expert expects; "
+                "collect-demos does not apply it"
+            )
+    normalize = config.get("normalize")
+    if normalize and files.vecnormalize is None:
+        raise ValueError(
+            f"expert {files.model}: config.yml sets normalize: {normalize!r} but there is no "
+            f"{files.stats}/vecnormalize.pkl with the statistics the expert needs"
+        )
+
+
 def _infer_algo(path: Path) -> str | None:
-    """The algorithm of an SB3 zip: metadata.json beside it, else the policy class's module."""
+    """The algorithm named by a metadata.json beside the zip (our own experts), if any."""
     meta = path.parent / "metadata.json"
     if meta.is_file():
         try:
@@ -49,43 +359,56 @@ def _infer_algo(path: Path) -> str | None:
                 return algo.lower()
         except (OSError, ValueError):
             pass
-    try:
-        with zipfile.ZipFile(path) as zf:
-            data = json.loads(zf.read("data").decode("utf-8"))
-        module = str(data.get("policy_class", {}).get("__module__", ""))
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError, AttributeError) as e:
-        raise ValueError(f"expert file {path} is corrupt or not an SB3 model zip: {e}") from e
-    parts = module.split(".")
-    if len(parts) >= 2 and parts[0] == "stable_baselines3" and parts[1] in algorithm_classes():
-        return parts[1]
     return None
 
 
-def load_expert_model(path: PathLike, algo: str | None = None):
-    """Load an SB3 model zip of any algorithm (``algo`` given, from metadata.json, or tried in turn)."""
-    path = Path(path)
-    if path.is_dir():
-        if not (path / "model.zip").is_file():
-            raise FileNotFoundError(f"expert folder {path} has no model.zip")
-        path = path / "model.zip"
-    if not path.is_file():
-        raise FileNotFoundError(f"expert model not found: {path}")
-    algo = algo or _infer_algo(path)
-    # Inference only: schedules may be lambdas SB3 cannot unpickle in another Python; they are unused.
-    custom = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
-    candidates = [algo] if algo else list(algorithm_classes())
+def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | None = None):
+    """Load an expert from an SB3 or sb3-contrib model zip, a folder holding ``model.zip``, or a zoo
+    agent (its zip or its folder); see the module docstring.
+
+    :param algo: the algorithm's name; default: a ``metadata.json`` beside the zip, else the zip's
+        own data.
+    :param env: the env the expert will act in: its spaces replace pickled ones that do not load,
+        and its id is compared with the one the agent was trained on.
+    :return: the model, or a :class:`NormalizedObservationExpert` around it for a zoo agent trained
+        with normalised observations.
+    """
+    files = find_model_files(path)
+    model_path = files.model
+    data = read_model_data(model_path)
+    _check_zoo_config(files)
+    _check_env_version(files, env)
+    name = algo or _infer_algo(model_path)
+    candidates = [algo_class(name)] if name else _algorithm_from_data(model_path, data)
+    custom = inference_custom_objects(model_path, data, env)
     errors = []
-    for name in candidates:
-        cls = algo_class(name)
+    model = None
+    for cls in candidates:
         try:
-            return cls.load(path, device="cpu", custom_objects=custom)
+            model = cls.load(model_path, device="cpu", custom_objects=custom)
+            break
         except Exception as e:  # wrong algorithm or corrupt file: try the next one
             errors.append(f"{cls.__name__}: {type(e).__name__}: {e}")
-    raise ValueError(f"cannot load expert model {path} (corrupt or not an SB3 zip?): " + "; ".join(errors))
+    if model is None:
+        raise ValueError(f"cannot load expert model {model_path}: " + "; ".join(errors))
+    if env is not None:
+        _check_fits_env(model, env, model_path)
+    stats = load_vecnormalize(files.vecnormalize) if files.vecnormalize is not None else None
+    if stats is not None and getattr(stats, "norm_obs", True):
+        return NormalizedObservationExpert(model, stats)
+    return model
+
+
+def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
+    for key in ("observation_space", "action_space"):
+        ours, theirs = getattr(env, key), getattr(model, key)
+        if type(ours) is not type(theirs) or ours.shape != theirs.shape:
+            raise ValueError(f"expert {path} has {key} {theirs}, the env has {ours}")
 
 
 def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str]:
-    """An object with ``predict`` and a description, from a path, a folder or a scripted name."""
+    """An object with ``predict`` and a description, from a path, a folder, a scripted expert's name
+    or the env id of a shipped expert (``HalfCheetah-v5``)."""
     if hasattr(expert, "predict") and not isinstance(expert, (str, Path)):
         return expert, type(expert).__name__
     name = str(expert)
@@ -93,12 +416,17 @@ def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str
         return SCRIPTED_EXPERTS[name](env), f"scripted:{name}"
     path = Path(name)
     if path.exists():
-        return load_expert_model(path), str(path)
+        return load_expert_model(path, env=env), str(path)
     looks_like_path = (isinstance(expert, Path) or os.sep in name or name.endswith((".zip", ".pkl"))
                        or name.startswith("."))
     if looks_like_path:
         raise FileNotFoundError(f"expert model not found: {path}")
+    from sb3_cmzdril.shipped import shipped_envs, shipped_expert
+
+    if name in shipped_envs():
+        return load_expert_model(shipped_expert(name), env=env), f"shipped:{name}"
     raise ValueError(
-        f"unknown expert {name!r}: no such file or folder, and no scripted expert of that name; "
-        f"scripted experts: {sorted(SCRIPTED_EXPERTS) or 'none registered'}"
+        f"unknown expert {name!r}: no such file or folder, no scripted expert and no shipped expert of that name; "
+        f"scripted experts: {sorted(SCRIPTED_EXPERTS) or 'none registered'}; "
+        f"shipped experts: {', '.join(shipped_envs()) or 'none'}"
     )

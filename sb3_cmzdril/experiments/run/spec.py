@@ -93,8 +93,11 @@ def check_method(method: str) -> str:
 
 
 def default_demos_path(env_id: str, demos_dir: PathLike = "experts") -> Path:
-    """``<demos_dir>/<EnvName>/demos.npz``: where collect-demos puts an env's demo pool."""
-    return Path(demos_dir) / env_name(env_id) / "demos.npz"
+    """``<demos_dir>/<EnvName>/demos.npz`` (where collect-demos puts an env's demo pool); for the
+    default folder, the shipped pool when the working directory has none."""
+    from sb3_cmzdril.shipped import local_or_shipped_demos
+
+    return local_or_shipped_demos(env_id, demos_dir)
 
 
 def default_output_dir(env_id: str, method: str, seed: int, runs_dir: PathLike = "runs") -> Path:

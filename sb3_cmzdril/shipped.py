@@ -1,0 +1,133 @@
+"""Files that come with sb3-cmzdril: the experts' demo pools (``experts/<EnvId>/``) and the
+rl-zoo-style hyperparameter files (``hyperparams/*.yml``).
+
+The repository's top-level ``experts/`` and ``hyperparams/`` folders are the source of truth. A
+source checkout (editable install, or ``PYTHONPATH``) reads them in place; the wheel carries copies
+inside the package (``sb3_cmzdril/_shipped/``, put there by the build step in ``setup.py``), so an
+installed package finds them from any working directory. Only ``pathlib`` here: the command line's
+defaults and ``hyperparams`` use it without importing SB3.
+
+The wheel carries every demo pool with its ``metadata.json``, our own experts' model zips and the
+hyperparameter files (about 15 MB). Third-party experts (the RL Zoo agents behind the Walker2d-v5 and
+Swimmer-v5 pools) are not redistributed: their ``metadata.json`` says where they come from.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+_PACKAGE = Path(__file__).resolve().parent
+#: Where a wheel install holds the shipped files.
+BUNDLED_DIR = _PACKAGE / "_shipped"
+#: Where a source checkout holds them (the repository root).
+CHECKOUT_DIR = _PACKAGE.parent
+
+
+def _roots() -> list[Path]:
+    # The bundled copy first: a wheel installed into a folder that happens to hold an experts/
+    # directory beside site-packages must still read its own files.
+    return [root for root in (BUNDLED_DIR, CHECKOUT_DIR) if (root / "hyperparams").is_dir()]
+
+
+def shipped_file(*parts: str) -> Path | None:
+    """The shipped file at ``parts`` (e.g. ``"experts", "Hopper-v5", "demos.npz"``), or None."""
+    for root in _roots():
+        path = root.joinpath(*parts)
+        if path.is_file():
+            return path
+    return None
+
+
+def _env_folder(env_id: str) -> str:
+    # The folder of ``sb3_cmzdril:WaypointNav-v0`` is ``WaypointNav-v0``.
+    return str(env_id).rsplit(":", 1)[-1]
+
+
+def shipped_envs() -> list[str]:
+    """The env ids that have a shipped demo pool, sorted."""
+    found: set[str] = set()
+    for root in _roots():
+        found.update(p.parent.name for p in (root / "experts").glob("*/demos.npz"))
+    return sorted(found)
+
+
+def shipped_demos(env_id: str) -> Path:
+    """The shipped demo pool of ``env_id`` (``experts/<EnvId>/demos.npz``).
+
+    >>> Demonstrations.load(shipped_demos("HalfCheetah-v5"))  # doctest: +SKIP
+
+    :raises FileNotFoundError: no pool ships for that env; the message lists the envs that have one.
+    """
+    path = shipped_file("experts", _env_folder(env_id), "demos.npz")
+    if path is None:
+        raise FileNotFoundError(
+            f"no shipped demo pool for {env_id!r}; shipped pools: {', '.join(shipped_envs()) or 'none'} "
+            "(record your own with `sb3-cmzdril collect-demos`)"
+        )
+    return path
+
+
+def shipped_expert(env_id: str) -> Path:
+    """The shipped expert model of ``env_id`` (``experts/<EnvId>/model.zip``).
+
+    :raises FileNotFoundError: the env's expert is not a model file here: a third-party agent (its
+        ``metadata.json`` names the repository, path and commit to get it from), a scripted expert,
+        or no shipped expert at all.
+    """
+    folder = _env_folder(env_id)
+    path = shipped_file("experts", folder, "model.zip")
+    if path is not None:
+        return path
+    metadata = shipped_file("experts", folder, "metadata.json")
+    if metadata is None:
+        raise FileNotFoundError(f"no shipped expert for {env_id!r}; shipped experts: {', '.join(shipped_envs())}")
+    import json
+
+    meta = json.loads(metadata.read_text(encoding="utf-8"))
+    source = meta.get("source")
+    if isinstance(source, dict):
+        raise FileNotFoundError(
+            f"the expert of {folder} is not shipped (a third-party agent): get {source.get('path')} from "
+            f"{source.get('repository')} (commit {source.get('commit')})"
+        )
+    raise FileNotFoundError(f"the expert of {folder} is not a model file: it is {meta.get('expert')}")
+
+
+def shipped_hyperparams(name: str) -> Path:
+    """The shipped hyperparameter file ``hyperparams/<name>.yml``.
+
+    :raises FileNotFoundError: no such file; the message lists the shipped ones.
+    """
+    path = shipped_file("hyperparams", f"{name}.yml")
+    if path is None:
+        names = sorted({p.stem for root in _roots() for p in (root / "hyperparams").glob("*.yml")})
+        raise FileNotFoundError(
+            f"no shipped hyperparameter file {name}.yml (shipped: {', '.join(names) or 'none'}); "
+            "pass one explicitly with --hyperparams / hyperparams_path="
+        )
+    return path
+
+
+def local_or_shipped_demos(env_id: str, demos_dir: str | Path = "experts") -> Path:
+    """``<demos_dir>/<EnvId>/demos.npz`` if it exists (a pool the user recorded), else the shipped pool.
+
+    Only the default folder ``experts`` falls back to the shipped pool: a folder the user names is
+    meant, and a pool missing from it must be reported, not replaced. Without either the local path
+    is returned, so the caller's error names where the pool was expected.
+    """
+    local = Path(demos_dir) / _env_folder(env_id) / "demos.npz"
+    if local.is_file() or Path(demos_dir) != Path("experts"):
+        return local
+    shipped = shipped_file("experts", _env_folder(env_id), "demos.npz")
+    return shipped if shipped is not None else local
+
+
+__all__ = [
+    "BUNDLED_DIR",
+    "CHECKOUT_DIR",
+    "local_or_shipped_demos",
+    "shipped_demos",
+    "shipped_envs",
+    "shipped_expert",
+    "shipped_file",
+    "shipped_hyperparams",
+]

@@ -1,0 +1,165 @@
+"""Published experts as users bring them: old SB3 zips pickling gym, sb3-contrib's TQC, and the RL
+Zoo's folder layout with VecNormalize statistics. Every model is built here (tiny, untrained); no network."""
+import base64
+import json
+import sys
+import zipfile
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.experts import collect_demos, load_expert_model
+from sb3_cmzdril.experts.loading import NormalizedObservationExpert, resolve_expert
+from sb3_cmzdril.extras import MissingExtraError
+
+ENV = "Pendulum-v1"
+TINY = dict(policy_kwargs=dict(net_arch=[8, 8]), buffer_size=100, learning_starts=10, device="cpu", seed=0)
+#: A pickle of ``gym.spaces.box.Box()``: what an SB3 1.x zip holds, naming a module not installed here.
+GYM_PICKLE = base64.b64encode(b"\x80\x02cgym.spaces.box\nBox\n)\x81}b.").decode()
+OBSERVATIONS = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0], [-0.6, 0.8, 7.0]], dtype=np.float32)
+
+
+def _actions(model, observations=OBSERVATIONS) -> np.ndarray:
+    return np.stack([model.predict(o, deterministic=True)[0] for o in observations])
+
+
+def _as_old_sb3_zip(source: Path, target: Path, shape=(3,)) -> None:
+    """Copy an SB3 zip, its spaces and schedule replaced by pickles naming the ``gym`` package (as an
+    SB3 1.x zip has them), with the plain-JSON shape SB3 1.x wrote beside them."""
+    with zipfile.ZipFile(source) as zin, zipfile.ZipFile(target, "w") as zout:
+        for item in zin.infolist():
+            payload = zin.read(item.filename)
+            if item.filename == "data":
+                data = json.loads(payload)
+                for key in ("observation_space", "action_space"):
+                    data[key] = {":type:": "<class 'gym.spaces.box.Box'>", ":serialized:": GYM_PICKLE,
+                                 "shape": list(shape if key == "observation_space" else (1,))}
+                data["lr_schedule"] = {":type:": "<class 'function'>", ":serialized:": GYM_PICKLE}
+                payload = json.dumps(data).encode()
+            zout.writestr(item, payload)
+
+
+@pytest.fixture(scope="module")
+def sac(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sac") / "sac.zip"
+    model = SAC("MlpPolicy", ENV, **TINY)
+    model.save(path)
+    return model, path
+
+
+def test_old_zip_pickling_gym_loads_with_the_envs_spaces(sac, tmp_path):
+    model, path = sac
+    old = tmp_path / "old.zip"
+    _as_old_sb3_zip(path, old)
+    with pytest.raises(ModuleNotFoundError, match="gym"):  # what the user saw before
+        SAC.load(old, device="cpu")
+    env = gym.make(ENV)
+    loaded = load_expert_model(old, env=env)
+    assert isinstance(loaded, SAC) and loaded.observation_space == env.observation_space
+    np.testing.assert_allclose(_actions(loaded), _actions(model), rtol=1e-6)
+    with pytest.raises(ValueError, match=r"old.zip pickles its observation_space .*\(env=\.\.\.\)"):
+        load_expert_model(old)
+    _as_old_sb3_zip(path, old, shape=(5,))
+    with pytest.raises(ValueError, match=r"observation_space of shape \(5,\), the env has \(3,\)"):
+        load_expert_model(old, env=env)
+
+
+def test_tqc_is_recognised_from_the_zip_not_its_name(tmp_path, monkeypatch):
+    from sb3_contrib import TQC
+
+    model = TQC("MlpPolicy", ENV, **TINY)
+    path = tmp_path / "expert.zip"
+    model.save(path)
+    loaded = load_expert_model(path)
+    assert isinstance(loaded, TQC)
+    np.testing.assert_allclose(_actions(loaded), _actions(model), rtol=1e-6)
+    monkeypatch.setitem(sys.modules, "sb3_contrib", None)  # as if sb3-contrib were not installed
+    with pytest.raises(MissingExtraError, match=r"expert.zip \(an sb3-contrib model\) needs the 'contrib' extra"):
+        load_expert_model(path)
+
+
+def _zoo_folder(root: Path, model, env_name="Pendulum-v0", config="- - - normalize\n    - true\n") -> Path:
+    """The zoo's layout: ``<algo>/<Env>_1/<Env>.zip`` and ``<Env>/{config,args}.yml, vecnormalize.pkl``."""
+    folder = root / "sac" / f"{env_name}_1"
+    (folder / env_name).mkdir(parents=True)
+    model.save(folder / f"{env_name}.zip")
+    header = "!!python/object/apply:collections.OrderedDict\n"
+    (folder / env_name / "config.yml").write_text(header + config + "  - - policy\n    - MlpPolicy\n")
+    (folder / env_name / "args.yml").write_text(header + f"- - - algo\n    - sac\n  - - env\n    - {env_name}\n")
+    stats = VecNormalize(DummyVecEnv([lambda: gym.make(ENV)]), norm_reward=False)
+    stats.obs_rms.mean = np.array([0.5, -0.5, 1.0])
+    stats.obs_rms.var = np.array([4.0, 0.25, 9.0])
+    stats.save(folder / env_name / "vecnormalize.pkl")
+    return folder
+
+
+def test_zoo_folder_expert_sees_normalised_observations_and_the_pool_records_raw_ones(sac, tmp_path):
+    model, _ = sac
+    folder = _zoo_folder(tmp_path, model)
+    with pytest.warns(UserWarning, match="trained on Pendulum-v0 and is used on Pendulum-v1"):
+        demos = collect_demos(folder, ENV, n_episodes=1, seed=3, verbose=False)
+    env = gym.make(ENV)
+    obs, _ = env.reset(seed=3)
+    raw = [obs]
+    for action in demos.actions[:-1]:
+        raw.append(env.step(action)[0])
+    np.testing.assert_allclose(demos.observations, np.array(raw), rtol=1e-6)  # the env's raw observations
+    normalised = np.clip((demos.observations - [0.5, -0.5, 1.0]) / np.sqrt(np.array([4.0, 0.25, 9.0]) + 1e-8), -10, 10)
+    np.testing.assert_allclose(demos.actions, _actions(model, normalised), rtol=1e-5)
+    assert not np.allclose(demos.actions, _actions(model, demos.observations))  # normalising mattered
+
+
+def test_zoo_vecnormalize_pickling_gym_spaces_loads(sac, tmp_path, monkeypatch):
+    model, _ = sac
+    folder = _zoo_folder(tmp_path, model, env_name=ENV)
+    pkl = folder / ENV / "vecnormalize.pkl"
+    # The pickle's spaces renamed into the gym package (same length, so the pickle's framing holds).
+    original = pkl.read_bytes()
+    assert b"gymnasium.spaces.box" in original
+    pkl.write_bytes(original.replace(b"gymnasium.spaces.box", b"gym.spaces.old_boxes"))
+    with pytest.raises(ModuleNotFoundError):
+        VecNormalize.load(str(pkl), DummyVecEnv([lambda: gym.make(ENV)]))
+    expert = load_expert_model(folder / f"{ENV}.zip", env=gym.make(ENV))
+    assert isinstance(expert, NormalizedObservationExpert)
+    np.testing.assert_allclose(expert.stats.obs_rms.var, [4.0, 0.25, 9.0])
+
+
+def test_zoo_settings_we_do_not_reproduce_and_non_models_are_one_line_errors(sac, tmp_path, capsys):
+    model, _ = sac
+    wrapper = "sb3_contrib.common.wrappers.TimeFeatureWrapper"
+    wrapped = _zoo_folder(tmp_path / "w", model, config=f"- - - env_wrapper\n    - {wrapper}\n")
+    with pytest.raises(ValueError, match=f"config.yml sets env_wrapper: '{wrapper}', which changes the observations"):
+        load_expert_model(wrapped)
+    (wrapped / "Pendulum-v0" / "config.yml").write_text("normalize: true\n")
+    (wrapped / "Pendulum-v0" / "vecnormalize.pkl").write_bytes(b"garbage")
+    with pytest.raises(ValueError, match=r"vecnormalize.pkl is not a readable VecNormalize pickle"):
+        load_expert_model(wrapped)
+    no_zip = tmp_path / "plain.zip"
+    with zipfile.ZipFile(no_zip, "w") as zf:
+        zf.writestr("readme.txt", "hello")
+    not_zip = tmp_path / "model.zip"
+    not_zip.write_bytes(b"not a zip")
+    for path, problem in [(no_zip, "is a zip but not an SB3 model"), (not_zip, "is not a zip file")]:
+        with pytest.raises(ValueError, match=problem):
+            load_expert_model(path)
+        out = tmp_path / "d.npz"
+        assert main(["collect-demos", "--expert", str(path), "--env", ENV, "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(path) in err and problem in err
+        assert not out.exists()
+
+
+def test_shipped_experts_by_env_id():
+    env = gym.make("HalfCheetah-v5")
+    expert, description = resolve_expert("HalfCheetah-v5", env)
+    assert isinstance(expert, SAC) and description == "shipped:HalfCheetah-v5"
+    with pytest.raises(FileNotFoundError, match="WaypointNav-v0 is not a model file: it is scripted:waypoint-reactive"):
+        resolve_expert("WaypointNav-v0", env)
+    with pytest.raises(FileNotFoundError, match=r"Walker2d-v5 is not shipped .* get sac/Walker2d-v3_1/ from "
+                       r"https://github.com/DLR-RM/rl-trained-agents \(commit [0-9a-f]{40}\)"):
+        resolve_expert("Walker2d-v5", env)
