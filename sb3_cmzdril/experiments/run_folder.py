@@ -297,10 +297,7 @@ def check_or_write_config(out: Path, config: dict[str, Any]) -> dict[str, Any]:
 @contextlib.contextmanager
 def locked(out: Path) -> Iterator[None]:
     """One process per run folder: a second one fails at once instead of corrupting the first."""
-    try:
-        lock = lock_output(out)
-    except ValueError:
-        raise ValueError(f"another process is already running in {out} (lock {out / '.lock'})") from None
+    lock = lock_output(out)  # LockHeld (a ValueError) names the folder; the grid tells it from a failure
     try:
         yield
     finally:

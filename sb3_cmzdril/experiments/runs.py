@@ -73,7 +73,7 @@ from sb3_cmzdril.experiments.spec import (
 )
 from sb3_cmzdril.experts import check_env_id
 from sb3_cmzdril.experts.callbacks import ProgressCallback
-from sb3_cmzdril.io import PathLike, atomic_path, remove_stale_temporaries, write_json
+from sb3_cmzdril.io import PathLike, atomic_path, deferred_signals, remove_stale_temporaries, write_json
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -156,14 +156,16 @@ def _run_locked(spec: RunSpec, out: Path, progress_bar: bool, callbacks: list[An
         selector.load(out / LOWEST_U_FILE)
 
     def save(m) -> None:
-        vec_normalize = m.get_vec_normalize_env()
-        if vec_normalize is not None:
-            with atomic_path(vecnorm_path, suffix=".pkl") as tmp:
-                vec_normalize.save(str(tmp))
-        with atomic_path(model_path, suffix=".zip") as tmp:
-            m.save(tmp)
-        selector.save(out / LOWEST_U_FILE)  # with the checkpoint, so a resume continues the same search
-        state.write(m.num_timesteps)
+        # The checkpoint's files belong together: Ctrl-C or SIGTERM waits until all are written.
+        with deferred_signals():
+            vec_normalize = m.get_vec_normalize_env()
+            if vec_normalize is not None:
+                with atomic_path(vecnorm_path, suffix=".pkl") as tmp:
+                    vec_normalize.save(str(tmp))
+            with atomic_path(model_path, suffix=".zip") as tmp:
+                m.save(tmp)
+            selector.save(out / LOWEST_U_FILE)  # with the checkpoint, so a resume continues the same search
+            state.write(m.num_timesteps)
 
     try:
         # Pretraining (BC to convergence, the ensemble fit) takes seconds to minutes: show it.
