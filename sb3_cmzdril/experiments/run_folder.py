@@ -30,9 +30,11 @@ of one folder (:func:`check_or_write_config`, :func:`check_finished`), state.jso
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import hashlib
+import math
 import os
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -87,24 +89,41 @@ _SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command")
 
 
 # -- eval.csv ------------------------------------------------------------------------------------
-def read_eval_csv(path: PathLike) -> dict[str, np.ndarray]:
+def read_eval_csv(path: PathLike, dropped: list[str] | None = None) -> dict[str, np.ndarray]:
     """eval.csv as columns (float arrays, rows sorted by epoch; first row per epoch kept).
 
-    Rows cut short by a killed process (wrong field count, unparsable numbers) are skipped.
+    Rows cut short by a killed process (wrong field count, unparsable numbers) and rows holding a NaN
+    or an infinite value are left out, each kind counted in ``dropped`` when it is given ("1 row(s)
+    with NaN or infinite values"). A file that is no eval.csv (not UTF-8 text, or without its
+    columns) is a ValueError naming it.
     """
     from sb3_cmzdril.metrics import ExpertEvalCallback
 
     columns = ExpertEvalCallback.CSV_COLUMNS
     rows: dict[int, list[float]] = {}
+    left_out: collections.Counter = collections.Counter()
     path = Path(path)
     if path.is_file():
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                try:
-                    values = [float(row[c]) for c in columns]
-                except (TypeError, ValueError, KeyError):
-                    continue
-                rows.setdefault(int(values[0]), values)
+        try:
+            with open(path, newline="", encoding="utf-8") as f:
+                reader = csv.DictReader(f)
+                missing = [c for c in columns if c not in (reader.fieldnames or columns)]  # empty file: no rows
+                if missing:
+                    raise ValueError(f"{path} is not an eval.csv: it has no column {', '.join(missing)}")
+                for row in reader:
+                    try:
+                        values = [float(row[c]) for c in columns]
+                    except (TypeError, ValueError, KeyError):
+                        left_out["cut short or unreadable"] += 1
+                        continue
+                    if not all(map(math.isfinite, values)):
+                        left_out["with NaN or infinite values"] += 1
+                        continue
+                    rows.setdefault(int(values[0]), values)
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{path} is not an eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    if dropped is not None:
+        dropped += [f"{n} row(s) {kind}" for kind, n in left_out.items()]
     ordered = [rows[e] for e in sorted(rows)]
     table = np.asarray(ordered, dtype=np.float64).reshape(len(ordered), len(columns))
     return {c: table[:, i] for i, c in enumerate(columns)}

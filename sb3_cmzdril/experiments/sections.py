@@ -284,10 +284,11 @@ def _commands(records: Sequence[RunRecord], root: Path) -> tuple[list[str], list
 
 
 def status_lines(rep: GridReport) -> list[str]:
-    """Unfinished runs and runs that failed before any evaluation (they must not vanish silently)."""
+    """Unfinished runs, runs that failed before any evaluation and whatever the report left out, with
+    the reason (none of them may vanish silently)."""
     records, root = rep.grid.records, rep.root
     unfinished = [r for r in records if r.status != "done"]
-    listed = {r.path for r in records}
+    listed = {r.path for r in records} | {s.path for s in rep.grid.skipped}
     failed = sorted(p.parent for p in root.rglob(ERROR_FILE)
                     if p.parent not in listed and run_status(p.parent) == "failed")
     parts = []
@@ -298,4 +299,7 @@ def status_lines(rep: GridReport) -> list[str]:
     if failed:
         parts += ["", f"**{rep.label}: {len(failed)} run(s) failed without any evaluation** (see their error.txt): "
                   + ", ".join(f"`{relative(p, root)}`" for p in failed)]
+    if rep.grid.skipped:
+        parts += ["", f"**{rep.label}: left out** (a run counts by its config.json, once per trial): "
+                  + "; ".join(f"`{relative(s.path, root)}` ({s.reason})" for s in rep.grid.skipped)]
     return parts
