@@ -2,6 +2,9 @@
 the same run stopped cleanly at the same checkpoints ends; a killed benchmark leaves no process
 behind; a run another benchmark holds is skipped, not failed.
 
+Why not bit-identical to a run never stopped: a resumed segment reseeds with seed + its first step
+and its env starts a new episode (runs.py), so a clean stop at the same checkpoint is the reference.
+
 The runs are test_experiments' tiny Pendulum runs; the killed ones are real `sb3-cmzdril` processes.
 """
 from __future__ import annotations
@@ -31,7 +34,7 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals a
 
 EPOCH = 64  # n_steps of TINY_YAML, one env
 CHECKPOINT_EVERY = 2
-TIMESTEPS = 12 * EPOCH
+TIMESTEPS = 8 * EPOCH
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -45,19 +48,63 @@ def _env() -> dict[str, str]:
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
 
 
-def _start(paths: dict[str, Path], out: Path, ignore_sigint: bool = False) -> subprocess.Popen:
-    """`sb3-cmzdril train` of the tiny run into ``out``; with ``ignore_sigint`` it starts as under a
-    non-interactive runner, with SIGINT ignored (inherited SIG_IGN)."""
-    command = [sys.executable, "-m", "sb3_cmzdril", "train", "--env", ENV, "--reward", "cmz", "--seed", "0",
-               "--demos", str(paths["pool"]), "--hyperparams", str(paths["hp"]), "--eval-episodes", "1",
-               "--timesteps", str(TIMESTEPS), "--checkpoint-every", str(CHECKPOINT_EVERY), "--no-progress",
-               "-o", str(out)]
+def _run_options(paths: dict[str, Path]) -> list[str]:
+    return ["--env", ENV, "--hyperparams", str(paths["hp"]), "--eval-episodes", "1", "--timesteps", str(TIMESTEPS),
+            "--checkpoint-every", str(CHECKPOINT_EVERY), "--no-progress"]
+
+
+def _train(paths: dict[str, Path], out: Path) -> subprocess.Popen:
+    """`sb3-cmzdril train` of the tiny run into ``out``, started as under a non-interactive runner:
+    with SIGINT ignored (inherited SIG_IGN)."""
+    command = [sys.executable, "-m", "sb3_cmzdril", "train", *_run_options(paths), "--reward", "cmz", "--seed", "0",
+               "--demos", str(paths["pool"]), "-o", str(out)]
 
     def ignore() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-                            preexec_fn=ignore if ignore_sigint else None)
+                            preexec_fn=ignore)
+
+
+def _benchmark(paths: dict[str, Path], runs: Path) -> subprocess.Popen:
+    """`sb3-cmzdril benchmark` of the same run (cmz, trial 0) into ``runs``, one worker, in a session of
+    its own: it, its worker and multiprocessing's helpers share its process group."""
+    command = [sys.executable, "-m", "sb3_cmzdril", "benchmark", *_run_options(paths), "--methods", "cmz",
+               "--trials", "1", "--workers", "1", "--demos-dir", str(paths["demos_dir"]), "-o", str(runs)]
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            start_new_session=True)
+
+
+def _kill_benchmark(child: subprocess.Popen, sig: signal.Signals) -> str:
+    """Send ``sig`` to the benchmark alone; check that its whole process group is gone soon after;
+    return its stderr."""
+    assert len(_process_group(child.pid)) >= 2  # the benchmark and its worker at least
+    try:
+        os.kill(child.pid, sig)
+        _, err = child.communicate(timeout=60)
+        deadline = time.time() + 30
+        while _process_group(child.pid) and time.time() < deadline:
+            time.sleep(0.05)
+        assert _process_group(child.pid) == set(), "the benchmark left processes behind"
+    finally:
+        for pid in _process_group(child.pid):  # only after a failure: leave nothing running either way
+            os.kill(pid, signal.SIGKILL)
+    return err
+
+
+def _process_group(pgid: int) -> set[int]:
+    """The live (not zombie) processes of process group ``pgid``, from /proc."""
+    members = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # it ended while we looked
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            members.add(int(entry.name))
+    return members
 
 
 def _wait_for(condition: Callable[[], bool], child: subprocess.Popen, timeout: float = 120.0) -> None:
@@ -74,6 +121,14 @@ def _checkpoint(out: Path) -> int:
         return int(json.loads((out / "state.json").read_text())["num_timesteps"])
     except (OSError, ValueError, KeyError):
         return 0
+
+
+def _segments(out: Path) -> list[int]:
+    """The step each recorded segment of the run started from (state.json), [] before the first checkpoint."""
+    try:
+        return [int(s["from_timesteps"]) for s in json.loads((out / "state.json").read_text())["segments"]]
+    except (OSError, ValueError, KeyError):
+        return []
 
 
 def _spec(paths: dict[str, Path], out: Path):
@@ -104,41 +159,49 @@ def _flatten(prefix: str, value) -> dict[str, torch.Tensor]:
     return {prefix: torch.tensor(float(value))} if isinstance(value, (int, float)) else {}
 
 
-def test_killed_run_resumes_to_the_result_of_clean_stops_at_its_checkpoints(tiny, tmp_path):
-    out = tmp_path / "killed"
-    # SIGKILL during pretraining: config.json is there, nothing trained; the rerun starts afresh.
-    child = _start(tiny, out)
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
+def test_killed_benchmark_and_train_leave_nothing_behind_and_resume_to_clean_stops(tiny, tmp_path):
+    """One run killed three times (a benchmark's worker with its benchmark, the train command), then
+    finished; it must end exactly as the same run stopped cleanly at the checkpoints it resumed from."""
+    runs = tmp_path / "runs"
+    out = runs / ENV / "cmz" / "trial0"  # the benchmark's folder of the run; train -o uses it too
+    # SIGKILL to a benchmark whose worker is pretraining (config.json is there, nothing trained yet):
+    # the worker dies with it, the rerun starts afresh.
+    child = _benchmark(tiny, runs)
     _wait_for(lambda: (out / "config.json").is_file(), child)
-    child.kill()
-    child.communicate(timeout=60)
-    # SIGINT once two checkpoints are written, in a process that started with SIGINT ignored.
-    child = _start(tiny, out, ignore_sigint=True)
-    _wait_for(lambda: _checkpoint(out) >= 2 * CHECKPOINT_EVERY * EPOCH, child)
+    _kill_benchmark(child, signal.SIGKILL)
+    assert not grid.held_elsewhere(out)  # nobody left holding the run
+    # SIGINT to train once a checkpoint is written: SIGINT works though the process started with it ignored.
+    child = _train(tiny, out)
+    _wait_for(lambda: _checkpoint(out) >= CHECKPOINT_EVERY * EPOCH, child)
     child.send_signal(signal.SIGINT)
     _, err = child.communicate(timeout=60)
     assert child.returncode == 130, err[-2000:]
     assert err.strip().splitlines()[-1] == "sb3-cmzdril train: interrupted; rerun the same command to resume"
-    # SIGTERM between two checkpoints: an evaluation row past the last checkpoint is written.
-    resumed_from = _checkpoint(out)
-    assert 0 < resumed_from < TIMESTEPS
-    child = _start(tiny, out)
-    _wait_for(lambda: EPOCH * (latest_epoch(out) or 0) > resumed_from + EPOCH, child)
-    child.send_signal(signal.SIGTERM)
-    _, err = child.communicate(timeout=60)
+    # SIGTERM to a benchmark whose worker is between two checkpoints: resumed (its first checkpoint, at
+    # the step it resumed from, is in state.json), then evaluated one epoch further.
+    resumed_from, segments = _checkpoint(out), len(_segments(out))
+    assert 0 < resumed_from < TIMESTEPS - CHECKPOINT_EVERY * EPOCH
+    child = _benchmark(tiny, runs)
+    _wait_for(lambda: len(_segments(out)) > segments and EPOCH * (latest_epoch(out) or 0) > resumed_from, child)
+    err = _kill_benchmark(child, signal.SIGTERM)
     assert child.returncode == 143, err[-2000:]
-    assert err.strip().splitlines()[-1] == "sb3-cmzdril train: terminated (SIGTERM); rerun the same command to resume"
+    assert err.strip().splitlines()[-1] == (
+        "sb3-cmzdril benchmark: terminated (SIGTERM); rerun the same command to resume"
+    )
+    assert not grid.held_elsewhere(out) and not (out / "error.txt").exists()  # a rerun resumes it, not "failed"
     assert not any(p.name.endswith(".tmp") or ".tmp." in p.name for p in out.iterdir())  # no write cut short
     run_experiment(_spec(tiny, out))  # the rest of the run
 
     # The same run, stopped cleanly at each checkpoint the killed one resumed from.
-    starts = [s["from_timesteps"] for s in json.loads((out / "state.json").read_text())["segments"]]
+    starts = _segments(out)
     assert starts[0] == 0 and len(starts) >= 3 and starts == sorted(starts), starts
     reference = tmp_path / "reference"
     for at in starts[1:]:
         with pytest.raises(KeyboardInterrupt):
             run_experiment(_spec(tiny, reference), callbacks=[Interrupt(at=at)])
     run_experiment(_spec(tiny, reference))
-    assert [s["from_timesteps"] for s in json.loads((reference / "state.json").read_text())["segments"]] == starts
+    assert _segments(reference) == starts
 
     for name in ("eval.csv", "final_eval.csv"):
         assert (out / name).read_text() == (reference / name).read_text(), name
@@ -150,52 +213,6 @@ def test_killed_run_resumes_to_the_result_of_clean_stops_at_its_checkpoints(tiny
         for key, value in clean.items():
             assert torch.equal(killed[key], value), (name, key)
     assert json.loads((out / "done.json").read_text())["num_timesteps"] == TIMESTEPS
-
-
-def _process_group(pgid: int) -> set[int]:
-    """The live (not zombie) processes of process group ``pgid``, from /proc."""
-    members = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:  # it ended while we looked
-            continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            members.add(int(entry.name))
-    return members
-
-
-@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
-def test_killed_benchmark_leaves_no_process_behind(tiny, tmp_path, sig):
-    runs = tmp_path / "runs"
-    command = [sys.executable, "-m", "sb3_cmzdril", "benchmark", "--env", ENV, "--methods", "cmz", "--trials", "1",
-               "--workers", "1", "--timesteps", "1000000", "--eval-episodes", "1", "--demos-dir",
-               str(tiny["demos_dir"]), "--hyperparams", str(tiny["hp"]), "--no-progress", "-o", str(runs)]
-    # Its own session: the benchmark, its workers and multiprocessing's helpers share its process group.
-    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-                             start_new_session=True)
-    run = runs / ENV / "cmz" / "trial0"
-    try:
-        _wait_for(lambda: (run / "config.json").is_file(), child)  # a worker is inside its run
-        assert len(_process_group(child.pid)) >= 2
-        os.kill(child.pid, sig)
-        _, err = child.communicate(timeout=60)
-        deadline = time.time() + 30
-        while _process_group(child.pid) and time.time() < deadline:
-            time.sleep(0.1)
-        assert _process_group(child.pid) == set()
-    finally:
-        with_leftovers = _process_group(child.pid)
-        for pid in with_leftovers:  # only if the assertion failed: leave nothing running either way
-            os.kill(pid, signal.SIGKILL)
-    if sig == signal.SIGTERM:
-        assert child.returncode == 143, err[-2000:]
-        assert err.strip().splitlines()[-1].startswith("sb3-cmzdril benchmark: terminated (SIGTERM)")
-    assert not grid.held_elsewhere(run)  # a rerun can take the run over: not "another process is running"
-    assert not (run / "error.txt").exists()
 
 
 def test_run_held_by_another_process_is_skipped_not_failed(tiny, tmp_path, capsys):
