@@ -182,6 +182,9 @@ def test_read_final_eval_names_a_malformed_file(tmp_path):
     (tmp_path / "final_eval.csv").write_text("policy,episode,return\nfinal,0,1.0\n")
     with pytest.raises(ValueError, match="final_eval.csv: missing column"):
         read_final_eval(tmp_path / "final_eval.csv")
+    (tmp_path / "final_eval.csv").write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ValueError, match="final_eval.csv is not a final_eval.csv: not UTF-8 text"):
+        read_final_eval(tmp_path / "final_eval.csv")
     assert read_final_eval(tmp_path / "nothing.csv") == {}
 
 

@@ -107,12 +107,15 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         return {}
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
-        rows = list(reader)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+            rows = list(reader)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path} is not a final_eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
     result: dict[str, dict[str, np.ndarray]] = {}
     try:
         for policy in dict.fromkeys(row["policy"] for row in rows):
