@@ -113,8 +113,8 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
         cells = []
         for rep in reports:
             if rep.final:
-                expert = expert_by_env(rep.final).get(env)
-                cells.append("—" if expert is None else f"{fmt_ci(*expert[:3])}, n={expert[3]}")
+                final_expert = expert_by_env(rep.final).get(env)
+                cells.append("—" if final_expert is None else f"{fmt_ci(*final_expert[:3])}, n={final_expert[3]}")
             expert = rep.experts.get(env)
             cells.append("—" if expert is None else f"{fmt_mean_std(*expert[:2])}, n={expert[2]}")
         body.append([env, "Expert (held-out demos)", *cells, *(["—"] if reference is not None else [])])
@@ -188,6 +188,10 @@ def final_sections(rep: GridReport, h: str, figure: Path | None) -> list[str]:
     return parts
 
 
+def _percent(share: float | None) -> str:
+    return "n/a" if share is None else f"{100 * share:.0f}%"
+
+
 def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
     """Table I, the gap closed by CMZ-DRIL and the reward signal of one grid."""
     rows, experts = rep.rows, rep.experts
@@ -215,7 +219,7 @@ def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
         "reward toward env. reward.", "",
         md_table(["Env", "Trials", *(label for _, label, _ in METRICS)],
                  ([env, str(len(trials)),
-                   *(("n/a" if gaps[env][k] is None else f"{100 * gaps[env][k]:.0f}%") for k, _, _ in METRICS)]
+                   *(_percent(gaps[env][k]) for k, _, _ in METRICS)]
                   for env, trials in gap_trials(rows).items())), "",
     ]
     if rep.signal:
