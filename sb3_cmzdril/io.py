@@ -7,7 +7,8 @@ works in a folder.
 Atomic writes go to a temporary file in the destination folder (same filesystem, so the final
 ``os.replace`` is atomic), are flushed to disk, then renamed over the destination. A hard kill can
 leave such a temporary behind; :func:`remove_stale_temporaries` clears them once the folder's
-lock is held.
+lock is held. SIGINT and SIGTERM that arrive during an atomic write are delivered when it ends
+(:func:`deferred_signals`), so Ctrl-C never cuts a write in the middle.
 """
 from __future__ import annotations
 
@@ -18,8 +19,10 @@ import math
 import os
 import platform
 import shlex
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any, Union
@@ -32,6 +35,46 @@ PathLike = Union[str, "os.PathLike[str]"]
 LOCK_FILE = ".lock"
 
 _PROC_STATUS = Path("/proc/self/status")
+
+
+# -- signals ---------------------------------------------------------------------------------------
+#: Signals that :func:`deferred_signals` holds back: Ctrl-C and a polite kill.
+DEFERRED_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back until the block ends, then deliver them to the handlers they had.
+
+    torch.save and zipfile write through Python callbacks: a KeyboardInterrupt raised in one of them
+    comes out of torch as a RuntimeError, with a traceback instead of the command line's one line.
+    Deferring the signal lets a write finish (or fail) on its own; the interruption follows at once.
+    Signal handlers belong to the main thread: in any other thread the block runs as it is. Blocks
+    nest (an inner one hands what it held to the outer one's handler). A signal that is ignored
+    stays ignored.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        pending.append(signum)
+
+    previous: dict[signal.Signals, Any] = {}
+    for sig in DEFERRED_SIGNALS:
+        handler = signal.getsignal(sig)
+        if handler is signal.SIG_IGN or handler is None:  # None: a handler not set from Python
+            continue
+        previous[sig] = handler
+        signal.signal(sig, hold)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for signum in dict.fromkeys(pending):
+            signal.raise_signal(signum)
 
 
 # -- atomic writes ---------------------------------------------------------------------------------
@@ -64,25 +107,26 @@ def atomic_path(path: PathLike, suffix: str = "") -> Iterator[Path]:
 
     ``suffix`` is appended to the temporary name so that writers which insist on an extension
     (``np.savez`` adds ``.npz``, SB3 adds ``.zip`` when there is none) keep the name we chose.
-    On any exception the temporary file is removed and ``path`` is left untouched.
+    On any exception the temporary file is removed and ``path`` is left untouched. SIGINT and
+    SIGTERM wait until the write is over (:func:`deferred_signals`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{suffix}")
-    os.close(fd)
-    tmp = Path(tmp_name)
-    # mkstemp makes 0600 files; results should be readable like any other file the process writes.
-    os.chmod(tmp, 0o666 & ~current_umask())
-
-    try:
-        yield tmp
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
+    with deferred_signals():
+        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{suffix}")
+        os.close(fd)
+        tmp = Path(tmp_name)
+        # mkstemp makes 0600 files; results should be readable like any other file the process writes.
+        os.chmod(tmp, 0o666 & ~current_umask())
+        try:
+            yield tmp
+            with open(tmp, "rb") as f:
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            raise
 
 
 def atomic_write_text(path: PathLike, text: str) -> None:
@@ -151,31 +195,51 @@ def read_json_or_empty(path: PathLike) -> dict[str, Any]:
 
 
 # -- locks -----------------------------------------------------------------------------------------
+class LockHeld(ValueError):
+    """Another process holds the folder's lock (:func:`lock_output`)."""
+
+
 def lock_output(folder: Path, message: str | None = None) -> IO[str] | None:
     """Hold an exclusive lock on ``folder`` (its :data:`LOCK_FILE`) until :func:`unlock_output`.
 
     The lock is the operating system's (``flock``), so it ends with the process, however it ends.
     Returns the open lock file, or None where locking is unsupported (Windows).
 
-    :param message: the ValueError's text when another process holds the lock.
+    :param message: the :class:`LockHeld` error's text when another process holds the lock.
+    :raises LockHeld: another process holds it.
     """
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows: no locking
         return None
     folder = Path(folder)
-    handle = open(folder / LOCK_FILE, "a+")  # held open: it is the lock; unlock_output closes it
-    try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    path = folder / LOCK_FILE
+    while True:
+        handle = open(path, "a+")  # held open: it is the lock; unlock_output closes it
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.close()
+            raise LockHeld(message or f"another process is already running in {folder} (lock {path})") from None
+        # unlock_output removes the file before it lets go. A file opened before that removal and
+        # locked after it is one nobody else will open again, while a newcomer locks the new file at
+        # the path: two holders. Only a lock on the file still at the path counts; else try that one.
+        try:
+            if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
+                return handle
+        except FileNotFoundError:
+            pass
         handle.close()
-        message = message or f"another process is already running in {folder} (lock {folder / LOCK_FILE})"
-        raise ValueError(message) from None
-    return handle
 
 
 def unlock_output(folder: Path, handle: IO[str] | None) -> None:
-    """Release a lock of :func:`lock_output` and remove its file."""
+    """Release a lock of :func:`lock_output` and remove its file.
+
+    The file goes while the lock is still held, never after: removed after the release, it could
+    take with it a lock another process had just acquired on it, and a third would lock a new file
+    beside that one. Removed before, a process that opened the old file in between finds out in
+    :func:`lock_output` and moves on to the new file.
+    """
     if handle is None:
         return
     with contextlib.suppress(OSError):

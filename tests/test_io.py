@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import stat
 import subprocess
 import sys
@@ -115,6 +116,60 @@ def test_lock_is_exclusive_and_released(tmp_path):
     assert not (tmp_path / io.LOCK_FILE).exists()
     io.unlock_output(tmp_path, io.lock_output(tmp_path))  # free again
     io.unlock_output(tmp_path, None)  # where locking is unsupported: nothing to do
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="no flock")
+def test_a_lock_on_a_removed_lock_file_does_not_count(tmp_path, monkeypatch):
+    # B opens .lock while A holds it; A releases (removing the file); C locks a new .lock; only then
+    # does B's flock on the old file succeed. B must not believe it holds the folder beside C.
+    first = io.lock_output(tmp_path)
+    interleaved: dict[str, object] = {}
+
+    def open_then_interleave(path, *args, **kwargs):
+        handle = open(path, *args, **kwargs)
+        if not interleaved:
+            interleaved["done"] = True
+            io.unlock_output(tmp_path, first)
+            interleaved["third"] = io.lock_output(tmp_path)
+        return handle
+
+    monkeypatch.setattr(io, "open", open_then_interleave, raising=False)
+    try:
+        with pytest.raises(io.LockHeld, match="another process is already running"):
+            io.lock_output(tmp_path)
+    finally:
+        monkeypatch.undo()
+        io.unlock_output(tmp_path, interleaved.get("third"))  # type: ignore[arg-type]
+    io.unlock_output(tmp_path, io.lock_output(tmp_path))  # and once C lets go, the folder is free
+
+
+def test_signals_during_an_atomic_write_wait_for_its_end(tmp_path):
+    path = tmp_path / "checkpoint.bin"
+    io.atomic_write_text(path, "previous")
+    with pytest.raises(KeyboardInterrupt):
+        with io.atomic_path(path) as tmp:
+            signal.raise_signal(signal.SIGINT)  # Ctrl-C in the middle of the write
+            tmp.write_text("complete")
+    assert path.read_text() == "complete"  # the write finished, then the interruption came
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.bin"]
+
+
+def test_deferred_signals_nest_and_leave_ignored_signals_ignored(tmp_path):
+    received: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: received.append(signum))
+    try:
+        with io.deferred_signals():
+            with io.deferred_signals():
+                signal.raise_signal(signal.SIGTERM)
+                assert received == []
+            assert received == []  # the inner block hands it to the outer one
+        assert received == [signal.SIGTERM]
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        with io.deferred_signals():
+            assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_provenance():

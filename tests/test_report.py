@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -181,7 +182,71 @@ def test_read_final_eval_names_a_malformed_file(tmp_path):
     (tmp_path / "final_eval.csv").write_text("policy,episode,return\nfinal,0,1.0\n")
     with pytest.raises(ValueError, match="final_eval.csv: missing column"):
         read_final_eval(tmp_path / "final_eval.csv")
+    (tmp_path / "final_eval.csv").write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ValueError, match="final_eval.csv is not a final_eval.csv: not UTF-8 text"):
+        read_final_eval(tmp_path / "final_eval.csv")
     assert read_final_eval(tmp_path / "nothing.csv") == {}
+
+
+# -- what a report counts, and what it says it left out -------------------------------------------------
+def test_a_copied_run_folder_is_the_same_trial_counted_once(main_grid, tmp_path, capsys):
+    assert main(["report", str(main_grid), "-o", str(tmp_path / "before"), "--no-figures"]) == 0
+    capsys.readouterr()
+    shutil.copytree(main_grid / ENV / "cmz" / "trial0", main_grid / ENV / "cmz" / "trial0.bak")
+    # An unfinished second folder of BC trial 1 elsewhere: the finished one counts, wherever it lies.
+    write_run(main_grid / "elsewhere", "bc", 1, [999.0], done=False)
+    assert main(["report", str(main_grid), "-o", str(tmp_path / "after"), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    for name in ("table1.csv", "final_table.csv"):
+        assert (tmp_path / "after" / name).read_text() == (tmp_path / "before" / name).read_text(), name
+    copy = (f"`{ENV}/cmz/trial0.bak` (another folder of {ENV} CMZ-DRIL trial 0 (config.json), counted once, "
+            f"from {ENV}/cmz/trial0)")
+    other = (f"`elsewhere/{ENV}/bc/trial1` (another folder of {ENV} BC trial 1 (config.json), counted once, "
+             f"from {ENV}/bc/trial1)")
+    text = (tmp_path / "after" / "results.md").read_text()
+    assert f"**{main_grid}: left out** (a run counts by its config.json, once per trial): " in text
+    assert copy in text and other in text
+    assert f"{main_grid}: left out {ENV}/cmz/trial0.bak: another folder of {ENV} CMZ-DRIL trial 0" in out
+
+
+def test_runs_the_report_cannot_place_are_named_with_the_reason(main_grid, tmp_path, capsys):
+    write_run(main_grid, "gail", 0, [5.0])  # a method the report does not know
+    nameless = write_run(main_grid, "cmz", 9, [5.0])
+    (nameless / "config.json").unlink()  # which run is it? the folder's name does not say
+    broken = write_run(main_grid, "cmz", 8, [5.0])
+    (broken / "config.json").write_text("[1, 2]")
+    assert main(["report", str(main_grid), "-o", str(tmp_path / "docs"), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    text = (tmp_path / "docs" / "results.md").read_text()
+    for line in (f"`{ENV}/gail/trial0` (method 'gail' in config.json is none of bc, zero, env, dril, cmz)",
+                 f"`{ENV}/cmz/trial9` (no config.json, so not known which run it is)",
+                 f"`{ENV}/cmz/trial8` (config.json is not a JSON object)"):
+        assert line in text
+        path, reason = line[1:-1].split("` (")
+        assert f"left out {path}: {reason}" in out
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 4 |" in text  # still the four trials of the fixture
+
+
+def test_a_nan_row_is_left_out_not_the_method(tmp_path):
+    root = tmp_path / "runs"
+    for trial in (0, 1):
+        write_run(root, "cmz", trial, [100.0, float("nan") if trial else 150.0, 200.0])
+    text = report.write_report(root, tmp_path / "docs", references=(), figures=False).read_text()
+    # Table I: trial 0 (100 + 150 + 200) / 3 = 150, trial 1 (100 + 200) / 2 = 150
+    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 150 (0) |" in text
+    assert (f"`{ENV}/cmz/trial1/eval.csv` (1 row(s) with NaN or infinite values left out; its other rows count)"
+            in text)
+
+
+@pytest.mark.parametrize("content", [b"\x89PNG\r\n\x1a\n\xff\xfe binary", b"time,loss\n1,2\n"],
+                         ids=["binary", "other-csv"])
+def test_a_garbage_eval_csv_is_one_line_naming_it(main_grid, tmp_path, capsys, content):
+    bad = main_grid / ENV / "cmz" / "trial2" / "eval.csv"
+    bad.write_bytes(content)
+    assert main(["report", str(main_grid), "-o", str(tmp_path / "docs"), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"sb3-cmzdril report: error: {bad} is not an eval.csv: ") and err.count("\n") == 1
+    assert not (tmp_path / "docs").exists()
 
 
 def _reference_grid(root: Path) -> Path:

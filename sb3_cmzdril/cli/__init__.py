@@ -15,7 +15,10 @@ Here: the parser of all commands and :func:`main`, the console script ``sb3-cmzd
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+from collections.abc import Iterator
 
 from sb3_cmzdril.cli.evaluate import add_evaluate
 from sb3_cmzdril.cli.experiment import add_benchmark, add_train
@@ -48,6 +51,37 @@ USER_ERRORS = (ValueError, OSError, KeyError, ImportError)
 RESUMABLE = ("train-expert", "train", "benchmark")
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C (a benchmark ends its workers on the way out), but no
+    ``except Exception`` of a run may swallow it."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _signal_handlers() -> Iterator[None]:
+    """Ctrl-C raises KeyboardInterrupt and SIGTERM :class:`Terminated` while a command runs; the
+    previous handlers come back afterwards (``main`` is also called from Python, e.g. tests).
+
+    SIGINT gets Python's default handler even where the process started with it ignored: a
+    non-interactive runner (nohup, some CI shells) hands its children SIG_IGN, and a command that
+    cannot be interrupted would train to the end.
+    """
+    try:
+        previous = {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
+                    signal.SIGTERM: signal.signal(signal.SIGTERM, _terminate)}
+    except ValueError:  # not the main thread: signals are not ours to handle
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
 def _one_line(error: BaseException) -> str:
     # str(KeyError("x")) is "'x'", quoted; its argument is the message.
     text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
@@ -56,7 +90,7 @@ def _one_line(error: BaseException) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; every user error ends here as one line on stderr and exit code 2, an
-    interruption (Ctrl-C) as one line and exit code 130."""
+    interruption as one line and exit code 130 (Ctrl-C, SIGINT) or 143 (SIGTERM)."""
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings
     from sb3_cmzdril.console import show_library_messages
     from sb3_cmzdril.extras import require_extra
@@ -64,18 +98,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     route_mujoco_warnings()
+    again = "resume" if args.command in RESUMABLE else "start again"
     try:
         # Progress displays and tables are rich's: the command line is the experiments extra's tooling.
         require_extra("rich", "experiments", "the sb3-cmzdril command line")
-        with show_library_messages():  # the library logs its notes for a person; the CLI shows them
+        with _signal_handlers(), show_library_messages():  # the CLI shows the library's notes
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        again = "resume" if args.command in RESUMABLE else "start again"
         print(f"sb3-cmzdril {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"sb3-cmzdril {args.command}: terminated (SIGTERM); rerun the same command to {again}", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except USER_ERRORS as e:
         print(f"sb3-cmzdril {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
 
 
-__all__ = ["RESUMABLE", "USER_ERRORS", "build_parser", "main"]
+__all__ = ["RESUMABLE", "USER_ERRORS", "Terminated", "build_parser", "main"]

@@ -15,7 +15,10 @@ def add_report(sub) -> None:
             "by trial against BC and no reward), Table I, the gap closed by CMZ-DRIL, the reward signal, the runs "
             "behind each number and the commands; OUTPUT/table1.csv, final_table.csv and the figures "
             "fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png and fig3_final_eval.png. With --reference-runs a second "
-            "grid (e.g. the paper-faithful one) is reported beside the first (its files end in _reference)."
+            "grid (e.g. the paper-faithful one) is reported beside the first (its files end in _reference). "
+            "A run is known by its config.json (env, method, trial seed), not its folder name: a copied folder "
+            "counts once; whatever is left out (copies, folders without a readable config.json or of an unknown "
+            "method, eval.csv rows holding NaN) is named with the reason, on the output and in results.md."
         ),
     )
     p.add_argument("runs_dir", metavar="RUNS_DIR", help="the benchmark's output folder")

@@ -3,16 +3,18 @@
 A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.experiments.runs`).
 :func:`load_runs` reads, per run: eval.csv (the per-epoch evaluation), final_eval.csv when the run has
 one (the final evaluation on every held-out pool episode; grids made before it existed have none),
-config.json and done.json. :class:`Grid` is one runs folder with its label, so that a report can set
-two grids side by side; :func:`setting_differences` says, from the runs' config.json, how two grids'
-settings differ.
+config.json and done.json. A run is known by its config.json (env, method, trial seed), not by its
+folder's name, so a copied folder is not another trial; whatever is left out is listed with the
+reason (:class:`Skipped`), never dropped silently. :class:`Grid` is one runs folder with its label,
+so that a report can set two grids side by side; :func:`setting_differences` says, from the runs'
+config.json, how two grids' settings differ.
 """
 from __future__ import annotations
 
 import csv
 import dataclasses
 import json
-import re
+import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,7 +31,10 @@ from sb3_cmzdril.experiments.run.run_folder import (
     run_status,
 )
 from sb3_cmzdril.experiments.run.spec import METHODS
-from sb3_cmzdril.io import PathLike, read_json_or_empty
+from sb3_cmzdril.experts import env_name
+from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
+
+logger = logging.getLogger(__name__)
 
 #: How methods are named in tables and legends (the paper's names).
 METHOD_LABELS: dict[str, str] = {
@@ -69,6 +74,17 @@ class RunRecord:
         return relative(self.path, root)
 
 
+@dataclasses.dataclass(frozen=True)
+class Skipped:
+    """What a report leaves out of a runs folder, and why: a run folder, or rows of its eval.csv."""
+
+    path: Path  #: the run folder, or the eval.csv whose rows were left out
+    reason: str
+
+    def text(self, root: Path) -> str:
+        return f"{relative(self.path, root)}: {self.reason}"
+
+
 def label(method: str, policy: str = "final") -> str:
     """``CMZ-DRIL`` for the final policy, ``CMZ-DRIL (lowest u)`` for the lowest-disagreement one."""
     return METHOD_LABELS[method] + ("" if policy == "final" else " (lowest u)")
@@ -82,9 +98,6 @@ def relative(path: Path, root: Path) -> str:
         return str(path)
 
 
-_TRIAL = re.compile(r"^trial(\d+)$")
-
-
 def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     """final_eval.csv as ``policy -> column -> values`` (episode order kept); {} when there is none.
 
@@ -94,12 +107,15 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         return {}
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
-        rows = list(reader)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+            rows = list(reader)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path} is not a final_eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
     result: dict[str, dict[str, np.ndarray]] = {}
     try:
         for policy in dict.fromkeys(row["policy"] for row in rows):
@@ -112,26 +128,78 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     return result
 
 
-def load_runs(runs_dir: PathLike) -> list[RunRecord]:
-    """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial."""
+def run_identity(folder: Path) -> tuple[tuple[str, str, int], dict[str, Any]] | str:
+    """``((env, method, trial), config)`` from the folder's config.json, or why it names no run
+    the report knows (no or a corrupt config.json, an unknown method, no trial seed)."""
+    path = folder / CONFIG_FILE
+    if not path.is_file():
+        return f"no {CONFIG_FILE}, so not known which run it is"
+    try:
+        config = read_json(path)
+    except ValueError as e:
+        return str(e)
+    if not isinstance(config, dict):
+        return f"{CONFIG_FILE} is not a JSON object"
+    env = config.get("env_name") or (env_name(config["env_id"]) if isinstance(config.get("env_id"), str) else None)
+    method, seed = config.get("method"), config.get("seed")
+    if not isinstance(env, str) or not env:
+        return f"{CONFIG_FILE} names no env (env_name, env_id)"
+    if method not in METHODS:
+        return f"method {method!r} in {CONFIG_FILE} is none of {', '.join(METHODS)}"
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        return f"{CONFIG_FILE} has no trial seed (seed: {seed!r})"
+    return (env, method, seed), config
+
+
+def _preference(record: RunRecord) -> tuple[bool, int]:
+    """Which of several folders of one trial a report counts: a finished one, else the furthest."""
+    return record.status == "done", int(record.columns["epoch"].size)
+
+
+def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[RunRecord]:
+    """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial.
+
+    Each trial counts once: of several folders whose config.json name the same env, method and
+    trial (a copy such as ``trial0.bak``), the finished one, else the one with the most evaluations,
+    else the first by path. Appended to ``skipped``: those other folders, folders whose config.json
+    names no run the report knows (:func:`run_identity`), runs without an evaluation yet, and the
+    rows of an eval.csv left out (NaN, cut short: the run's other rows count).
+
+    :raises ValueError: an eval.csv or final_eval.csv that is no such file, naming it.
+    """
     root = Path(runs_dir)
     if not root.is_dir():
         raise FileNotFoundError(f"runs folder not found: {root}")
-    records = []
+    notes: list[Skipped] = []
+    by_trial: dict[tuple[str, str, int], list[RunRecord]] = {}
     for csv_path in sorted(root.rglob(EVAL_CSV)):
         folder = csv_path.parent
-        config = read_json_or_empty(folder / CONFIG_FILE)
-        match = _TRIAL.match(folder.name)
-        env = config.get("env_name") or folder.parent.parent.name
-        method = config.get("method") or folder.parent.name
-        trial = config.get("seed", int(match.group(1)) if match else None)
-        if method not in METHODS or trial is None:
-            continue  # not a run of the grid's layout
-        columns = read_eval_csv(csv_path)
-        if columns["epoch"].size == 0:
+        identity = run_identity(folder)
+        if isinstance(identity, str):
+            notes.append(Skipped(folder, identity))
             continue
-        records.append(RunRecord(env, method, int(trial), folder, columns, run_status(folder), config,
-                                 read_final_eval(folder / FINAL_EVAL_CSV), read_json_or_empty(folder / DONE_FILE)))
+        (env, method, trial), config = identity
+        dropped: list[str] = []
+        columns = read_eval_csv(csv_path, dropped)
+        if dropped:
+            notes.append(Skipped(csv_path, f"{', '.join(dropped)} left out; its other rows count"))
+        if columns["epoch"].size == 0:
+            notes.append(Skipped(folder, "no evaluation yet"))
+            continue
+        by_trial.setdefault((env, method, trial), []).append(
+            RunRecord(env, method, trial, folder, columns, run_status(folder), config,
+                      read_final_eval(folder / FINAL_EVAL_CSV), read_json_or_empty(folder / DONE_FILE)))
+    records = []
+    for (env, method, trial), copies in by_trial.items():
+        kept = max(copies, key=_preference)  # max keeps the first of equals: the first by path
+        records.append(kept)
+        notes += [Skipped(other.path, f"another folder of {env} {METHOD_LABELS[method]} trial {trial} "
+                          f"(config.json), counted once, from {relative(kept.path, root)}")
+                  for other in copies if other is not kept]
+    for note in notes:
+        logger.warning("%s: left out %s", root, note.text(root))
+    if skipped is not None:
+        skipped += notes
     return sorted(records, key=lambda r: (env_key(r.env), METHOD_ORDER.index(r.method), r.trial))
 
 
@@ -155,6 +223,7 @@ class Grid:
     label: str  #: how tables and headings name it
     root: Path
     records: list[RunRecord]
+    skipped: list[Skipped] = dataclasses.field(default_factory=list)  #: what load_runs left out, and why
 
     @property
     def has_final(self) -> bool:
@@ -164,10 +233,14 @@ class Grid:
 def load_grid(runs_dir: PathLike, label: str | None = None) -> Grid:
     """The runs of ``runs_dir`` (ValueError when it has none), labelled by ``label`` or its path."""
     root = Path(runs_dir)
-    records = load_runs(root)
+    skipped: list[Skipped] = []
+    records = load_runs(root, skipped)
     if not records:
-        raise ValueError(f"no runs with evaluations under {root} (expected <EnvName>/<method>/trial<t>/{EVAL_CSV})")
-    return Grid(label or str(runs_dir), root, records)
+        why = f"; left out: {'; '.join(s.text(root) for s in skipped)}" if skipped else ""
+        raise ValueError(
+            f"no runs with evaluations under {root} (expected <EnvName>/<method>/trial<t>/{EVAL_CSV}){why}"
+        )
+    return Grid(label or str(runs_dir), root, records, skipped)
 
 
 #: Top-level config.json settings compared by :func:`setting_differences` (beside hyperparams_values).
@@ -207,10 +280,12 @@ __all__ = [
     "ENV_ORDER",
     "POLICIES",
     "RunRecord",
+    "Skipped",
     "Grid",
     "label",
     "load_runs",
     "load_grid",
+    "run_identity",
     "read_final_eval",
     "setting_differences",
     "env_key",

@@ -113,8 +113,8 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
         cells = []
         for rep in reports:
             if rep.final:
-                expert = expert_by_env(rep.final).get(env)
-                cells.append("—" if expert is None else f"{fmt_ci(*expert[:3])}, n={expert[3]}")
+                final_expert = expert_by_env(rep.final).get(env)
+                cells.append("—" if final_expert is None else f"{fmt_ci(*final_expert[:3])}, n={final_expert[3]}")
             expert = rep.experts.get(env)
             cells.append("—" if expert is None else f"{fmt_mean_std(*expert[:2])}, n={expert[2]}")
         body.append([env, "Expert (held-out demos)", *cells, *(["—"] if reference is not None else [])])
@@ -188,6 +188,10 @@ def final_sections(rep: GridReport, h: str, figure: Path | None) -> list[str]:
     return parts
 
 
+def _percent(share: float | None) -> str:
+    return "n/a" if share is None else f"{100 * share:.0f}%"
+
+
 def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
     """Table I, the gap closed by CMZ-DRIL and the reward signal of one grid."""
     rows, experts = rep.rows, rep.experts
@@ -215,7 +219,7 @@ def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
         "reward toward env. reward.", "",
         md_table(["Env", "Trials", *(label for _, label, _ in METRICS)],
                  ([env, str(len(trials)),
-                   *(("n/a" if gaps[env][k] is None else f"{100 * gaps[env][k]:.0f}%") for k, _, _ in METRICS)]
+                   *(_percent(gaps[env][k]) for k, _, _ in METRICS)]
                   for env, trials in gap_trials(rows).items())), "",
     ]
     if rep.signal:
@@ -284,10 +288,11 @@ def _commands(records: Sequence[RunRecord], root: Path) -> tuple[list[str], list
 
 
 def status_lines(rep: GridReport) -> list[str]:
-    """Unfinished runs and runs that failed before any evaluation (they must not vanish silently)."""
+    """Unfinished runs, runs that failed before any evaluation and whatever the report left out, with
+    the reason (none of them may vanish silently)."""
     records, root = rep.grid.records, rep.root
     unfinished = [r for r in records if r.status != "done"]
-    listed = {r.path for r in records}
+    listed = {r.path for r in records} | {s.path for s in rep.grid.skipped}
     failed = sorted(p.parent for p in root.rglob(ERROR_FILE)
                     if p.parent not in listed and run_status(p.parent) == "failed")
     parts = []
@@ -298,4 +303,7 @@ def status_lines(rep: GridReport) -> list[str]:
     if failed:
         parts += ["", f"**{rep.label}: {len(failed)} run(s) failed without any evaluation** (see their error.txt): "
                   + ", ".join(f"`{relative(p, root)}`" for p in failed)]
+    if rep.grid.skipped:
+        parts += ["", f"**{rep.label}: left out** (a run counts by its config.json, once per trial): "
+                  + "; ".join(f"`{relative(s.path, root)}` ({s.reason})" for s in rep.grid.skipped)]
     return parts

@@ -17,14 +17,27 @@ Both backends execute :func:`execute_run` one run per worker (one CPU and one to
 At most ``workers`` runs are in flight at a time (so "running" in the progress display is exact).
 Finished runs (done.json) are skipped without starting a worker, interrupted ones continue from their
 checkpoint, and a failed run leaves its traceback in ``<run>/error.txt`` without stopping the others.
+A run whose folder another process holds (a second benchmark on the same runs folder) is skipped as
+``busy``: that process goes on with it, and a later invocation finds it finished or resumes it.
+
+Local workers die with the process that started them, however it ends (SIGKILL included): an orphan
+would go on training and hold its run's lock. On Linux the kernel sends them SIGKILL
+(``PR_SET_PDEATHSIG``); everywhere a watchdog thread ends a worker whose parent is gone. An
+interrupted grid (Ctrl-C, SIGTERM) ends its running workers before it returns; their checkpoints
+are atomic, so the next invocation resumes them.
 """
 from __future__ import annotations
 
 import collections
 import concurrent.futures
 import contextlib
+import ctypes
 import json
 import multiprocessing
+import os
+import signal
+import sys
+import threading
 import time
 import traceback
 from collections.abc import Iterable, Sequence
@@ -46,7 +59,7 @@ from sb3_cmzdril.experiments.run.spec import (
     plan_run,
 )
 from sb3_cmzdril.experts import check_env_id, env_name
-from sb3_cmzdril.io import PathLike, atomic_write_text
+from sb3_cmzdril.io import LockHeld, PathLike, atomic_write_text, lock_output, unlock_output
 
 BACKENDS = ("local", "ray")
 #: One line per benchmark invocation in RUNS_DIR (command, grid, outcome): the runs' history.
@@ -123,12 +136,21 @@ def plan_grid(
 
 
 # -- the worker side -------------------------------------------------------------------------------
-def _init_worker() -> None:
+#: prctl option: the signal the kernel sends a process when its parent ends (linux/prctl.h).
+_PR_SET_PDEATHSIG = 1
+#: How often the watchdog looks for the parent (seconds).
+_WATCHDOG_PERIOD_S = 0.5
+
+
+def _init_worker(parent_pid: int | None = None) -> None:
     """One torch thread per run: two single-threaded runs beat one two-threaded run (DESIGN.md).
 
     MuJoCo's warnings go to the run's log.txt, minus known noise, instead of MUJOCO_LOG.TXT in the
-    working directory (see :mod:`sb3_cmzdril._mujoco_log`).
+    working directory (see :mod:`sb3_cmzdril._mujoco_log`). With ``parent_pid`` (the local pool's
+    workers) the worker ends when that process does (:func:`die_with_parent`).
     """
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
     import torch
 
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings
@@ -137,10 +159,49 @@ def _init_worker() -> None:
     route_mujoco_warnings()
 
 
+def die_with_parent(parent_pid: int) -> None:
+    """End this process as soon as ``parent_pid`` (its parent) is gone, however the parent ended.
+
+    Linux: the kernel sends SIGKILL when the parent exits (``prctl(PR_SET_PDEATHSIG)``, through
+    ctypes). Everywhere: a daemon thread checks ``os.getppid()``, which changes to a reaper's pid
+    once the parent is gone, and ends the process. Both, because the first is immediate but
+    Linux-only, and the second also covers a parent that died before the first was set up.
+    """
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if os.getppid() != parent_pid:
+        os._exit(1)  # the parent ended before we were set up
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(_WATCHDOG_PERIOD_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="sb3-cmzdril-parent-watchdog", daemon=True).start()
+
+
+def held_elsewhere(output_dir: PathLike) -> bool:
+    """Whether another process holds the run folder's lock (is running that run) right now."""
+    out = Path(output_dir)
+    if not out.is_dir():
+        return False
+    try:
+        handle = lock_output(out)
+    except LockHeld:
+        return True
+    unlock_output(out, handle)
+    return False
+
+
 def _write_error(spec: RunSpec, text: str) -> None:
     out = Path(spec.output_dir)
     header = f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} {spec.label} failed\n{spec}\n\n"
     atomic_write_text(out / ERROR_FILE, header + text)
+
+
+#: The outcome of a run another process holds.
+BUSY = "busy"
 
 
 def _outcome(spec: RunSpec, status: str, seconds: float, error: str | None = None) -> dict[str, Any]:
@@ -169,6 +230,8 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
             print(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} {spec.label}", flush=True)
             result = run_experiment(spec)
             print(f"=== {result['status']} after {time.time() - t0:.0f} s", flush=True)
+    except LockHeld:  # another process took the folder since run_grid looked: its run, not a failure
+        return _outcome(spec, BUSY, time.time() - t0)
     except Exception as e:  # any failure is this run's alone: record it and let the grid go on
         _write_error(spec, traceback.format_exc())
         return _outcome(spec, "failed", time.time() - t0, f"{type(e).__name__}: {e}")
@@ -177,7 +240,8 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
 
 # -- backends --------------------------------------------------------------------------------------
 class _LocalBackend:
-    """A spawn-context process pool, rebuilt if a worker dies (BrokenProcessPool)."""
+    """A spawn-context process pool, rebuilt if a worker dies (BrokenProcessPool); its workers die
+    with this process (:func:`die_with_parent`)."""
 
     def __init__(self, workers: int) -> None:
         self.workers = workers
@@ -186,7 +250,7 @@ class _LocalBackend:
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=self.context, initializer=_init_worker
+            max_workers=self.workers, mp_context=self.context, initializer=_init_worker, initargs=(os.getpid(),)
         )
 
     def submit(self, spec: RunSpec) -> concurrent.futures.Future:
@@ -205,7 +269,18 @@ class _LocalBackend:
         return handle.result()
 
     def close(self, interrupted: bool = False) -> None:
+        """Shut the pool down; interrupted, end the running workers too (shutdown only cancels the
+        queued runs, and a worker left running would hold its run's lock)."""
+        workers = list((getattr(self.pool, "_processes", None) or {}).values()) if interrupted else []
+        for process in workers:
+            with contextlib.suppress(OSError, ValueError):
+                process.terminate()
         self.pool.shutdown(wait=not interrupted, cancel_futures=interrupted)
+        for process in workers:
+            with contextlib.suppress(OSError, ValueError, AssertionError):
+                process.join(timeout=5)
+                if process.is_alive():
+                    process.kill()
 
 
 class _RayBackend:
@@ -245,7 +320,7 @@ class _RayBackend:
             self.ray.shutdown()
 
 
-def _backend(name: str, workers: int, ray_address: str | None):
+def _backend(name: str, workers: int, ray_address: str | None) -> _LocalBackend | _RayBackend:
     if name == "local":
         if ray_address:
             raise ValueError("--ray-address needs --backend ray")
@@ -266,7 +341,9 @@ def run_grid(
     """Execute the runs, ``workers`` at a time; returns one outcome per spec, in spec order.
 
     Outcome: ``{"label", "run_dir", "status", "seconds", "error"}`` with status ``skipped`` (done
-    before), ``done``, ``stopped`` or ``failed``.
+    before), ``busy`` (another process holds its folder: it goes on with it), ``done``, ``stopped``
+    or ``failed``. An interruption (KeyboardInterrupt, SIGTERM's exception) ends the running workers
+    before it propagates.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
@@ -289,15 +366,22 @@ def run_grid(
             todo.append(spec)
     display = GridProgress(len(specs), enabled=progress)
     display.skipped(skipped)
-    runner = _backend(backend, workers, ray_address) if todo else None
+    runner: _LocalBackend | _RayBackend | None = None  # started with the first run that needs it
     interrupted = True
     try:
         running: dict[Any, RunSpec] = {}
         while todo or running:
             while todo and len(running) < workers:
                 spec = todo.popleft()
+                if held_elsewhere(spec.output_dir):
+                    outcomes[spec.output_dir] = _outcome(spec, BUSY, 0.0)
+                    display.finished(spec, outcomes[spec.output_dir])
+                    continue
+                runner = runner or _backend(backend, workers, ray_address)
                 running[runner.submit(spec)] = spec
                 display.started(spec)
+            if runner is None or not running:
+                continue
             for handle in runner.wait(list(running), timeout=1.0):
                 spec = running.pop(handle)
                 try:
@@ -362,6 +446,11 @@ def summarize_outcomes(outcomes: Iterable[dict[str, Any]]) -> str:
     outcomes = list(outcomes)
     counts = collections.Counter(o["status"] for o in outcomes)
     text = f"{len(outcomes)} runs: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+    busy = [o for o in outcomes if o["status"] == BUSY]
+    if busy:
+        text += f"\n{BUSY} (another process is running them; run this again once it ends): " + ", ".join(
+            o["label"] for o in busy
+        )
     failed = [o for o in outcomes if o["status"] == "failed"]
     if failed:
         text += "\nfailed:\n" + "\n".join(
@@ -372,6 +461,9 @@ def summarize_outcomes(outcomes: Iterable[dict[str, Any]]) -> str:
 
 __all__ = [
     "BACKENDS",
+    "BUSY",
+    "die_with_parent",
+    "held_elsewhere",
     "plan_grid",
     "run_grid",
     "benchmark",

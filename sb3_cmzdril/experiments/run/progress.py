@@ -15,6 +15,7 @@ from typing import Any
 
 from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, latest_epoch
 from sb3_cmzdril.experiments.run.spec import RunSpec
+from sb3_cmzdril.io import LOCK_FILE
 
 
 class GridProgress:
@@ -31,7 +32,7 @@ class GridProgress:
         self.counts: collections.Counter = collections.Counter()
         self.running: dict[str, RunSpec] = {}
         self._progress = None
-        self._task = None
+        self._task: Any = None  #: rich's TaskID of the bar, once there is one
         self._last_line = time.time()
         if enabled and sys.stderr.isatty():
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -94,12 +95,15 @@ class GridProgress:
     def finished(self, spec: RunSpec, result: dict[str, Any]) -> None:
         self.running.pop(spec.label, None)
         self.counts[result["status"]] += 1
+        if result["status"] == "busy":
+            self._line(f"skipped {spec.label}: another process is running it ({Path(spec.output_dir) / LOCK_FILE})")
+            return
         detail = f": {result['error']} (see {Path(spec.output_dir) / ERROR_FILE})" if result.get("error") else ""
         took = f" in {result['seconds']:.0f} s" if result.get("seconds") else ""
         self._line(f"{result['status']} {spec.label}{took}{detail}")
 
     def refresh(self) -> None:
-        if self._progress is not None:
+        if self._progress is not None and self._task is not None:
             self._progress.update(self._task, completed=self.finished_count, description=self._counts_text())
         elif self.enabled and time.time() - self._last_line >= self.heartbeat_s:
             self._line("still working")

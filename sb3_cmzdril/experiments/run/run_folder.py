@@ -31,9 +31,11 @@ checks that keep a run out of a folder that is not its own: someone else's files
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import hashlib
+import math
 import os
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -48,6 +50,7 @@ from sb3_cmzdril.io import (
     LOCK_FILE,
     PathLike,
     atomic_path,
+    deferred_signals,
     jsonable,
     lock_output,
     read_json,
@@ -89,24 +92,41 @@ _BEFORE_CONFIG = (LOG_FILE, ERROR_FILE, LOCK_FILE)
 
 
 # -- eval.csv ------------------------------------------------------------------------------------
-def read_eval_csv(path: PathLike) -> dict[str, np.ndarray]:
+def read_eval_csv(path: PathLike, dropped: list[str] | None = None) -> dict[str, np.ndarray]:
     """eval.csv as columns (float arrays, rows sorted by epoch; first row per epoch kept).
 
-    Rows cut short by a killed process (wrong field count, unparsable numbers) are skipped.
+    Rows cut short by a killed process (wrong field count, unparsable numbers) and rows holding a NaN
+    or an infinite value are left out, each kind counted in ``dropped`` when it is given ("1 row(s)
+    with NaN or infinite values"). A file that is no eval.csv (not UTF-8 text, or without its
+    columns) is a ValueError naming it.
     """
     from sb3_cmzdril.metrics import ExpertEvalCallback
 
     columns = ExpertEvalCallback.CSV_COLUMNS
     rows: dict[int, list[float]] = {}
+    left_out: collections.Counter = collections.Counter()
     path = Path(path)
     if path.is_file():
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                try:
-                    values = [float(row[c]) for c in columns]
-                except (TypeError, ValueError, KeyError):
-                    continue
-                rows.setdefault(int(values[0]), values)
+        try:
+            with open(path, newline="", encoding="utf-8") as f:
+                reader = csv.DictReader(f)
+                missing = [c for c in columns if c not in (reader.fieldnames or columns)]  # empty file: no rows
+                if missing:
+                    raise ValueError(f"{path} is not an eval.csv: it has no column {', '.join(missing)}")
+                for row in reader:
+                    try:
+                        values = [float(row[c]) for c in columns]
+                    except (TypeError, ValueError, KeyError):
+                        left_out["cut short or unreadable"] += 1
+                        continue
+                    if not all(map(math.isfinite, values)):
+                        left_out["with NaN or infinite values"] += 1
+                        continue
+                    rows.setdefault(int(values[0]), values)
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{path} is not an eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    if dropped is not None:
+        dropped += [f"{n} row(s) {kind}" for kind, n in left_out.items()]
     ordered = [rows[e] for e in sorted(rows)]
     table = np.asarray(ordered, dtype=np.float64).reshape(len(ordered), len(columns))
     return {c: table[:, i] for i, c in enumerate(columns)}
@@ -300,10 +320,7 @@ def check_or_write_config(out: Path, config: dict[str, Any]) -> dict[str, Any]:
 @contextlib.contextmanager
 def locked(out: Path) -> Iterator[None]:
     """One process per run folder: a second one fails at once instead of corrupting the first."""
-    try:
-        lock = lock_output(out)
-    except ValueError:
-        raise ValueError(f"another process is already running in {out} (lock {out / '.lock'})") from None
+    lock = lock_output(out)  # LockHeld (a ValueError) names the folder; the grid tells it from a failure
     try:
         yield
     finally:
@@ -420,14 +437,16 @@ class RunFolder:
 
     def checkpoint(self, model: Any, selector: Any, state: RunState) -> None:
         """model.zip, the VecNormalize statistics beside it, the lowest-u search and state.json."""
-        vec_normalize = model.get_vec_normalize_env()
-        if vec_normalize is not None:
-            with atomic_path(self.vecnormalize, suffix=".pkl") as tmp:
-                vec_normalize.save(str(tmp))
-        with atomic_path(self.model, suffix=".zip") as tmp:
-            model.save(tmp)
-        selector.save(self.lowest_u)  # with the checkpoint, so a resume continues the same search
-        state.write(model.num_timesteps)
+        # The checkpoint's files belong together: Ctrl-C or SIGTERM waits until all are written.
+        with deferred_signals():
+            vec_normalize = model.get_vec_normalize_env()
+            if vec_normalize is not None:
+                with atomic_path(self.vecnormalize, suffix=".pkl") as tmp:
+                    vec_normalize.save(str(tmp))
+            with atomic_path(self.model, suffix=".zip") as tmp:
+                model.save(tmp)
+            selector.save(self.lowest_u)  # with the checkpoint, so a resume continues the same search
+            state.write(model.num_timesteps)
 
     def write_pretrain(self, history: Mapping[str, Sequence[float]]) -> None:
         write_pretrain_csv(self.path / PRETRAIN_CSV, history)

@@ -1,0 +1,238 @@
+"""Faults: a run killed (SIGKILL, SIGINT, SIGTERM) at several points and resumed ends exactly where
+the same run stopped cleanly at the same checkpoints ends; a killed benchmark leaves no process
+behind; a run another benchmark holds is skipped, not failed.
+
+Why not bit-identical to a run never stopped: a resumed segment reseeds with seed + its first step
+and its env starts a new episode (runs.py), so a clean stop at the same checkpoint is the reference.
+
+The runs are test_experiments' tiny Pendulum runs; the killed ones are real `sb3-cmzdril` processes.
+"""
+from __future__ import annotations
+
+import io as text_io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import torch
+from test_experiments import ENV, Interrupt
+from test_experiments import setup as _tiny_paths  # noqa: F401  (registers that module's fixture here)
+
+from sb3_cmzdril import io
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.experiments import grid
+from sb3_cmzdril.experiments.runs import latest_epoch, plan_run, run_experiment
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and process groups")
+
+EPOCH = 64  # n_steps of TINY_YAML, one env
+CHECKPOINT_EVERY = 2
+TIMESTEPS = 8 * EPOCH
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def tiny(request) -> dict[str, Path]:
+    """test_experiments' demo pool (<demos_dir>/<EnvName>/demos.npz) and tiny hyperparameters."""
+    return request.getfixturevalue("_tiny_paths")
+
+
+def _env() -> dict[str, str]:
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+
+
+def _run_options(paths: dict[str, Path]) -> list[str]:
+    return ["--env", ENV, "--hyperparams", str(paths["hp"]), "--eval-episodes", "1", "--timesteps", str(TIMESTEPS),
+            "--checkpoint-every", str(CHECKPOINT_EVERY), "--no-progress"]
+
+
+def _train(paths: dict[str, Path], out: Path) -> subprocess.Popen:
+    """`sb3-cmzdril train` of the tiny run into ``out``, started as under a non-interactive runner:
+    with SIGINT ignored (inherited SIG_IGN)."""
+    command = [sys.executable, "-m", "sb3_cmzdril", "train", *_run_options(paths), "--reward", "cmz", "--seed", "0",
+               "--demos", str(paths["pool"]), "-o", str(out)]
+
+    def ignore() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            preexec_fn=ignore)
+
+
+def _benchmark(paths: dict[str, Path], runs: Path) -> subprocess.Popen:
+    """`sb3-cmzdril benchmark` of the same run (cmz, trial 0) into ``runs``, one worker, in a session of
+    its own: it, its worker and multiprocessing's helpers share its process group."""
+    command = [sys.executable, "-m", "sb3_cmzdril", "benchmark", *_run_options(paths), "--methods", "cmz",
+               "--trials", "1", "--workers", "1", "--demos-dir", str(paths["demos_dir"]), "-o", str(runs)]
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            start_new_session=True)
+
+
+def _kill_benchmark(child: subprocess.Popen, sig: signal.Signals) -> str:
+    """Send ``sig`` to the benchmark alone; check that its whole process group is gone soon after;
+    return its stderr."""
+    assert len(_process_group(child.pid)) >= 2  # the benchmark and its worker at least
+    try:
+        os.kill(child.pid, sig)
+        _, err = child.communicate(timeout=60)
+        deadline = time.time() + 30
+        while _process_group(child.pid) and time.time() < deadline:
+            time.sleep(0.05)
+        assert _process_group(child.pid) == set(), "the benchmark left processes behind"
+    finally:
+        for pid in _process_group(child.pid):  # only after a failure: leave nothing running either way
+            os.kill(pid, signal.SIGKILL)
+    return err
+
+
+def _process_group(pgid: int) -> set[int]:
+    """The live (not zombie) processes of process group ``pgid``, from /proc."""
+    members = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # it ended while we looked
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            members.add(int(entry.name))
+    return members
+
+
+def _wait_for(condition: Callable[[], bool], child: subprocess.Popen, timeout: float = 120.0) -> None:
+    deadline = time.time() + timeout
+    while not condition():
+        assert child.poll() is None, f"the process ended first: {child.communicate()[1][-2000:]}"
+        assert time.time() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def _checkpoint(out: Path) -> int:
+    """The step count of the run's last checkpoint (state.json), 0 before the first."""
+    try:
+        return int(json.loads((out / "state.json").read_text())["num_timesteps"])
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
+def _segments(out: Path) -> list[int]:
+    """The step each recorded segment of the run started from (state.json), [] before the first checkpoint."""
+    try:
+        return [int(s["from_timesteps"]) for s in json.loads((out / "state.json").read_text())["segments"]]
+    except (OSError, ValueError, KeyError):
+        return []
+
+
+def _spec(paths: dict[str, Path], out: Path):
+    return plan_run(ENV, "cmz", 0, demos=str(paths["pool"]), n_eval_episodes=1, timesteps=TIMESTEPS,
+                    output_dir=str(out), hyperparams=str(paths["hp"]), checkpoint_every=CHECKPOINT_EVERY)
+
+
+def _tensors(path: Path) -> dict[str, torch.Tensor]:
+    """Every tensor of a model zip's (or a .pt file's) torch files, by file and key."""
+    if path.suffix == ".pt":
+        return _flatten(path.name, torch.load(path, map_location="cpu", weights_only=True))
+    found: dict[str, torch.Tensor] = {}
+    with zipfile.ZipFile(path) as archive:
+        for name in archive.namelist():
+            if name.endswith(".pth"):
+                blob = torch.load(text_io.BytesIO(archive.read(name)), map_location="cpu", weights_only=True)
+                found.update(_flatten(name, blob))
+    return found
+
+
+def _flatten(prefix: str, value) -> dict[str, torch.Tensor]:
+    if isinstance(value, torch.Tensor):
+        return {prefix: value}
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in _flatten(f"{prefix}/{key}", item).items()}
+    if isinstance(value, (list, tuple)):
+        return {k: v for i, item in enumerate(value) for k, v in _flatten(f"{prefix}/{i}", item).items()}
+    return {prefix: torch.tensor(float(value))} if isinstance(value, (int, float)) else {}
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
+def test_killed_benchmark_and_train_leave_nothing_behind_and_resume_to_clean_stops(tiny, tmp_path):
+    """One run killed three times (a benchmark's worker with its benchmark, the train command), then
+    finished; it must end exactly as the same run stopped cleanly at the checkpoints it resumed from."""
+    runs = tmp_path / "runs"
+    out = runs / ENV / "cmz" / "trial0"  # the benchmark's folder of the run; train -o uses it too
+    # SIGKILL to a benchmark whose worker is pretraining (config.json is there, nothing trained yet):
+    # the worker dies with it, the rerun starts afresh.
+    child = _benchmark(tiny, runs)
+    _wait_for(lambda: (out / "config.json").is_file(), child)
+    _kill_benchmark(child, signal.SIGKILL)
+    assert not grid.held_elsewhere(out)  # nobody left holding the run
+    # SIGINT to train once a checkpoint is written: SIGINT works though the process started with it ignored.
+    child = _train(tiny, out)
+    _wait_for(lambda: _checkpoint(out) >= CHECKPOINT_EVERY * EPOCH, child)
+    child.send_signal(signal.SIGINT)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 130, err[-2000:]
+    assert err.strip().splitlines()[-1] == "sb3-cmzdril train: interrupted; rerun the same command to resume"
+    # SIGTERM to a benchmark whose worker is between two checkpoints: resumed (its first checkpoint, at
+    # the step it resumed from, is in state.json), then evaluated one epoch further.
+    resumed_from, segments = _checkpoint(out), len(_segments(out))
+    assert 0 < resumed_from < TIMESTEPS - CHECKPOINT_EVERY * EPOCH
+    child = _benchmark(tiny, runs)
+    _wait_for(lambda: len(_segments(out)) > segments and EPOCH * (latest_epoch(out) or 0) > resumed_from, child)
+    err = _kill_benchmark(child, signal.SIGTERM)
+    assert child.returncode == 143, err[-2000:]
+    assert err.strip().splitlines()[-1] == (
+        "sb3-cmzdril benchmark: terminated (SIGTERM); rerun the same command to resume"
+    )
+    assert not grid.held_elsewhere(out) and not (out / "error.txt").exists()  # a rerun resumes it, not "failed"
+    assert not any(p.name.endswith(".tmp") or ".tmp." in p.name for p in out.iterdir())  # no write cut short
+    run_experiment(_spec(tiny, out))  # the rest of the run
+
+    # The same run, stopped cleanly at each checkpoint the killed one resumed from.
+    starts = _segments(out)
+    assert starts[0] == 0 and len(starts) >= 3 and starts == sorted(starts), starts
+    reference = tmp_path / "reference"
+    for at in starts[1:]:
+        with pytest.raises(KeyboardInterrupt):
+            run_experiment(_spec(tiny, reference), callbacks=[Interrupt(at=at)])
+    run_experiment(_spec(tiny, reference))
+    assert _segments(reference) == starts
+
+    for name in ("eval.csv", "final_eval.csv"):
+        assert (out / name).read_text() == (reference / name).read_text(), name
+    rows = (out / "eval.csv").read_text().splitlines()
+    assert int(rows[-1].split(",")[1]) == TIMESTEPS
+    for name in ("model.zip", "lowest_u.pt"):
+        killed, clean = _tensors(out / name), _tensors(reference / name)
+        assert set(killed) == set(clean) and len(killed) > 5, name
+        for key, value in clean.items():
+            assert torch.equal(killed[key], value), (name, key)
+    assert json.loads((out / "done.json").read_text())["num_timesteps"] == TIMESTEPS
+
+
+def test_run_held_by_another_process_is_skipped_not_failed(tiny, tmp_path, capsys):
+    runs = tmp_path / "runs"
+    run = runs / ENV / "cmz" / "trial0"
+    run.mkdir(parents=True)
+    held = io.lock_output(run)  # as another benchmark working on that run holds it
+    try:
+        args = ["benchmark", "--env", ENV, "--methods", "cmz", "--trials", "1", "--timesteps", str(TIMESTEPS),
+                "--demos-dir", str(tiny["demos_dir"]), "--hyperparams", str(tiny["hp"]), "-o", str(runs)]
+        assert main(args) == 0
+        out = capsys.readouterr().out
+        assert f"] skipped {ENV}/cmz/trial0: another process is running it ({run / '.lock'}) | " in out
+        assert out.endswith("1 runs: 1 busy\nbusy (another process is running them; run this again once it ends): "
+                            f"{ENV}/cmz/trial0\n")
+        assert sorted(p.name for p in run.iterdir()) == [".lock"]  # nothing written into its folder
+        # A worker that finds the folder taken after the grid looked: busy too, no error.txt.
+        spec = grid.plan_grid(ENV, "cmz", 1, runs, timesteps=TIMESTEPS, demos_dir=tiny["demos_dir"],
+                              hyperparams=tiny["hp"])[0]
+        assert grid.execute_run(spec)["status"] == grid.BUSY
+        assert not (run / "error.txt").exists()
+    finally:
+        io.unlock_output(run, held)
