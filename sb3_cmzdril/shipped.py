@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sb3_cmzdril.io import PathLike
+
 _PACKAGE = Path(__file__).resolve().parent
 #: Where a wheel install holds the shipped files.
 BUNDLED_DIR = _PACKAGE / "_shipped"
@@ -107,7 +109,7 @@ def shipped_hyperparams(name: str) -> Path:
     return path
 
 
-def local_or_shipped_demos(env_id: str, demos_dir: str | Path = "experts") -> Path:
+def local_or_shipped_demos(env_id: str, demos_dir: PathLike = "experts") -> Path:
     """``<demos_dir>/<EnvId>/demos.npz`` if it exists (a pool the user recorded), else the shipped pool.
 
     Only the default folder ``experts`` falls back to the shipped pool: a folder the user names is

@@ -102,9 +102,9 @@ def plot_figure(
                     ax.axhline(mean, color=color, linestyle="--", label=name)
                     ax.axhspan(mean - std, mean + std, color=color, alpha=0.12, linewidth=0)
                     continue
-                epochs, mean, std = _smoothed_band(runs, column, sigma)
-                ax.plot(epochs, mean, color=color, label=name)
-                ax.fill_between(epochs, mean - std, mean + std, color=color, alpha=0.2, linewidth=0)
+                epochs, band_mean, band_std = _smoothed_band(runs, column, sigma)
+                ax.plot(epochs, band_mean, color=color, label=name)
+                ax.fill_between(epochs, band_mean - band_std, band_mean + band_std, color=color, alpha=0.2, linewidth=0)
             ax.set_xlim(0, max(1, xmax))
             ax.set_xlabel("epoch (PPO update)")
             ax.set_title(f"{env}: {label}", fontsize=10)

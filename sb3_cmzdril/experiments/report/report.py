@@ -239,8 +239,10 @@ def write_report(
             atomic_write_text(out / f"final_table{rep.suffix}.csv", final_csv(rep.final, rep.root))
             written.add(f"final_table{rep.suffix}.csv")
             if figures:
-                final_figures[rep.suffix] = plot_final(rep.final, out / figure_name, f"Final evaluation: {rep.label}")
-                written.add(figure_name)
+                figure = plot_final(rep.final, out / figure_name, f"Final evaluation: {rep.label}")
+                if figure is not None:  # rep.final has rows, so there is one
+                    final_figures[rep.suffix] = figure
+                    written.add(figure_name)
     curves = []
     for filename, title, methods in FIGURES if figures else ():
         path = plot_figure(reports[0].grid.records, methods, out / filename, title, sigma)

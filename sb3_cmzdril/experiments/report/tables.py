@@ -171,9 +171,9 @@ def _progress_log(record: RunRecord) -> dict[str, np.ndarray]:
     resumed from. {} without logs."""
     segments = []
     for path in (record.path / "logs").glob("progress_*.csv"):
-        start = path.stem.split("_")[-1]
-        if start.isdigit():
-            segments.append((int(start), path))
+        suffix = path.stem.split("_")[-1]
+        if suffix.isdigit():
+            segments.append((int(suffix), path))
     rows: list[dict[str, str]] = []
     for start, path in sorted(segments):
         rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
