@@ -18,6 +18,7 @@ again; ``load(..., demonstrations=...)`` replaces them.
 """
 from __future__ import annotations
 
+import logging
 import time
 import warnings
 from collections.abc import Sequence
@@ -25,7 +26,6 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -36,15 +36,12 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
-from sb3_cmzdril.policies import (
-    DemoStandardizer,
-    floor_log_std,
-    mean_log_std,
-    observation_statistics,
-    standardizing_policy_kwargs,
-)
+from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
 from sb3_cmzdril.scoring import RolloutScorer
+from sb3_cmzdril.spaces import check_action_space
+
+logger = logging.getLogger(__name__)
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
@@ -202,6 +199,8 @@ class CMZDRIL(PPO):
         #: an evaluation without the statistics can be refused instead of silently wrong)
         self.vecnormalize_obs = False
         self._imitation_ready = False
+        #: how a Dict space's demo observations are packed into one saved tensor (None: not a dict)
+        self._demo_obs_layout: list | None = None
         super().__init__(
             policy,
             env,
@@ -235,11 +234,16 @@ class CMZDRIL(PPO):
 
     # -- model construction and persistence --------------------------------------------------
     def _setup_model(self) -> None:
+        check_action_space(self.action_space)
         if self.standardize_observations:
-            self.policy_kwargs = standardizing_policy_kwargs(self.policy_class, self.policy_kwargs)
+            self.policy_kwargs, note = standardizing_policy_kwargs(
+                self.policy_class, self.policy_kwargs, self.observation_space
+            )
+            if note is not None:
+                logger.info(note)
+                if self.verbose >= 1:
+                    print(note)
         super()._setup_model()
-        if not isinstance(self.action_space, (spaces.Box, spaces.Discrete)):
-            raise ValueError(f"CMZDRIL supports Box and Discrete action spaces, got {self.action_space}")
         # seed=None: draw from the global RNG, which SB3's set_random_seed (or the user) controls.
         seed = int(np.random.randint(0, 2**31 - 1)) if self.seed is None else int(self.seed)
         self.ensemble_hidden = tuple(self.ensemble_hidden)  # a loaded model gets a JSON list back
@@ -262,7 +266,7 @@ class CMZDRIL(PPO):
         """Save like PPO, plus ensemble, BC optimiser, demonstrations and reward-rule state."""
         demos = self.demonstrations
         if demos is not None:
-            self._saved_demo_obs = th.as_tensor(demos.observations)
+            self._saved_demo_obs, self._demo_obs_layout = _pack_observations(demos.observations)
             self._saved_demo_actions = th.as_tensor(demos.actions)
             self._saved_demo_lengths = th.as_tensor(demos.episode_lengths)
             self._saved_demo_seeds = th.as_tensor(demos.seeds)
@@ -300,7 +304,7 @@ class CMZDRIL(PPO):
             self.demonstrations = demonstrations
         elif self._saved_demo_obs.numel():
             self.demonstrations = Demonstrations(
-                self._saved_demo_obs.cpu().numpy(),
+                _unpack_observations(self._saved_demo_obs.cpu().numpy(), getattr(self, "_demo_obs_layout", None)),
                 self._saved_demo_actions.cpu().numpy(),
                 self._saved_demo_lengths.cpu().numpy(),
                 seeds=self._saved_demo_seeds.cpu().numpy(),
@@ -335,9 +339,9 @@ class CMZDRIL(PPO):
             return vec_normalize.normalize_obs
         return None
 
-    def _standardizer(self) -> DemoStandardizer | None:
-        extractors = [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
-        return extractors[0] if extractors else None
+    def _standardizers(self) -> list[DemoStandardizer]:
+        # Two with share_features_extractor=False (the actor's and the critic's).
+        return [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
 
     def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the policy's input standardisation, pretrain the policy by NLL
@@ -354,8 +358,8 @@ class CMZDRIL(PPO):
         if self._imitation_ready:
             return self.pretrain_info
         transform = self._demo_obs_transform()
-        standardizer = self._standardizer()
-        if standardizer is not None:
+        standardizers = self._standardizers()
+        if standardizers:
             if transform is not None:
                 warnings.warn(
                     "VecNormalize normalises the observations already: the demo standardisation of the policy "
@@ -364,7 +368,8 @@ class CMZDRIL(PPO):
                     stacklevel=2,
                 )
             else:
-                standardizer.set_statistics(*observation_statistics(self.demonstrations.observations))
+                for standardizer in standardizers:
+                    standardizer.fit(self.demonstrations.observations)
         start = time.perf_counter()
         nll_before = self.bc.nll(transform)
         stopping = self.bc.train_early_stopping(
@@ -469,6 +474,20 @@ class CMZDRIL(PPO):
             progress_bar=progress_bar,
         )
 
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        # learn() has done both already; a caller driving collect_rollouts itself after _setup_learn
+        # (as SB3's own tests do) gets a model that is just as ready (both calls are idempotent).
+        self.pretrain(progress_bar=progress_bar)
+        self._wrap_training_env()
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
         user = super()._init_callback(callback, progress_bar)
@@ -484,3 +503,24 @@ class CMZDRIL(PPO):
             for _ in range(self.bc_epochs_per_update):
                 nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+def _pack_observations(obs: np.ndarray | dict[str, np.ndarray]) -> tuple[th.Tensor, list | None]:
+    """A tensor for the zip and, for dict observations, the layout that unpacks it: SB3 saves extra
+    variables as single tensors, so a dict's arrays travel as one byte tensor."""
+    if not isinstance(obs, dict):
+        return th.as_tensor(obs), None
+    layout = [[key, value.dtype.str, list(value.shape)] for key, value in obs.items()]
+    packed = np.concatenate([np.ascontiguousarray(value).view(np.uint8).reshape(-1) for value in obs.values()])
+    return th.as_tensor(packed), layout
+
+
+def _unpack_observations(saved: np.ndarray, layout: list | None) -> np.ndarray | dict[str, np.ndarray]:
+    if layout is None:
+        return saved
+    out, offset = {}, 0
+    for key, dtype, shape in layout:
+        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        out[key] = saved[offset : offset + size].view(np.dtype(dtype)).reshape(shape)
+        offset += size
+    return out

@@ -23,9 +23,40 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_cmzdril.io import PathLike, atomic_path
+from sb3_cmzdril.spaces import check_action_space, concatenate, match_observations, n_steps, take
 
 FORMAT_VERSION = 1
 UNKNOWN_SEED = -1
+
+
+def _observation_arrays(observations: Any) -> np.ndarray | dict[str, np.ndarray]:
+    """Observations as float32 (floats) or integer arrays, checked; a dict (Dict spaces) key by key."""
+    if isinstance(observations, Mapping):
+        if not observations:
+            raise ValueError("dict observations have no entries")
+        arrays: dict[str, np.ndarray] = {}
+        for key, value in observations.items():
+            if isinstance(value, Mapping):
+                raise ValueError(f"nested dict observations (key {key!r}) are not supported, as in SB3")
+            arrays[str(key)] = _observation_arrays(value)  # type: ignore[assignment]
+        if len({len(v) for v in arrays.values()}) > 1:
+            raise ValueError("the entries of the dict observations differ in their number of steps")
+        return arrays
+    obs = np.asarray(observations)
+    if obs.ndim < 1:
+        raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
+    if obs.dtype.kind not in "fiub":
+        raise ValueError(f"observations and actions must be numeric; got {obs.dtype}")
+    obs = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+    if obs.dtype.kind == "b":
+        obs = obs.astype(np.int8)
+    _finite("observations", obs)
+    return obs
+
+
+def _obs_shape(obs: np.ndarray | dict[str, np.ndarray]) -> Any:
+    """Shape of one observation (a dict of shapes for dict observations)."""
+    return {k: v.shape[1:] for k, v in obs.items()} if isinstance(obs, dict) else obs.shape[1:]
 
 
 def _finite(name: str, array: np.ndarray) -> None:
@@ -52,26 +83,24 @@ class Demonstrations:
         rewards: np.ndarray | None = None,
         seeds: Sequence[int] | None = None,
     ) -> None:
-        obs = np.asarray(observations)
+        obs_in = _observation_arrays(observations)
+        obs = next(iter(obs_in.values())) if isinstance(obs_in, dict) else obs_in
         act = np.asarray(actions)
         lengths = np.asarray(episode_lengths, dtype=np.int64).reshape(-1)
         if lengths.size == 0 or obs.size == 0 or len(obs) == 0:
             raise ValueError("demonstrations are empty: at least one episode with one step is needed")
         if np.any(lengths <= 0):
             raise ValueError(f"every episode needs at least one step; got lengths {lengths.tolist()}")
-        if obs.ndim < 2:
-            raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
         if len(act) != len(obs):
             with_final = len(obs) == len(act) + lengths.size
             hint = " (observations include the final observation? drop it)" if with_final else ""
             raise ValueError(f"observations and actions differ in length: {len(obs)} vs {len(act)} steps{hint}")
         if int(lengths.sum()) != len(obs):
             raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
-        if obs.dtype.kind not in "fiu" or act.dtype.kind not in "fiu":
+        if act.dtype.kind not in "fiu":
             raise ValueError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
-        self.observations = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+        self.observations: np.ndarray | dict[str, np.ndarray] = obs_in
         self.actions = act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
-        _finite("observations", self.observations)
         _finite("actions", self.actions)
         if rewards is not None:
             rew = np.asarray(rewards, dtype=np.float32).reshape(-1)
@@ -101,9 +130,9 @@ class Demonstrations:
             missing = {"observations", "actions"} - set(ep)
             if missing:
                 raise ValueError(f"episode {i} lacks {sorted(missing)}")
-            if len(ep["observations"]) != len(ep["actions"]):
+            if n_steps(ep["observations"]) != len(ep["actions"]):
                 raise ValueError(
-                    f"episode {i}: {len(ep['observations'])} observations but {len(ep['actions'])} actions"
+                    f"episode {i}: {n_steps(ep['observations'])} observations but {len(ep['actions'])} actions"
                 )
             if len(ep["actions"]) == 0:
                 raise ValueError(f"episode {i} is empty")
@@ -112,7 +141,7 @@ class Demonstrations:
             raise ValueError("rewards must be given for every episode or for none")
         rewards = [np.asarray(ep["rewards"]).reshape(-1) for ep in episodes] if all(with_rewards) else None
         return cls(
-            observations=np.concatenate([np.asarray(ep["observations"]) for ep in episodes]),
+            observations=concatenate([ep["observations"] for ep in episodes]),
             actions=np.concatenate([np.asarray(ep["actions"]) for ep in episodes]),
             episode_lengths=[len(ep["actions"]) for ep in episodes],
             rewards=None if rewards is None else np.concatenate(rewards),
@@ -153,6 +182,10 @@ class Demonstrations:
                 arrays = {k: data[k] for k in data.files}
         except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
             raise ValueError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
+        # Dict observations are saved one array per key, as "observations.<key>".
+        dict_obs = {k.partition(".")[2]: v for k, v in arrays.items() if k.startswith("observations.")}
+        if dict_obs:
+            arrays["observations"] = dict_obs  # type: ignore[assignment]
         missing = {"observations", "actions", "episode_lengths"} - set(arrays)
         if missing:
             raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
@@ -169,9 +202,10 @@ class Demonstrations:
 
     def save(self, path: PathLike) -> None:
         """Write a compressed npz atomically (temp file + rename)."""
+        obs = self.observations
         arrays: dict[str, np.ndarray] = {
             "format_version": np.asarray(FORMAT_VERSION),
-            "observations": self.observations,
+            **({f"observations.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"observations": obs}),
             "actions": self.actions,
             "episode_lengths": self.episode_lengths,
             "seeds": self.seeds,
@@ -183,7 +217,7 @@ class Demonstrations:
 
     # -- views --------------------------------------------------------------------------------
     def __len__(self) -> int:
-        return len(self.observations)
+        return n_steps(self.observations)
 
     @property
     def n_episodes(self) -> int:
@@ -209,7 +243,7 @@ class Demonstrations:
         start = int(self.episode_starts[index])
         sl = slice(start, start + int(self.episode_lengths[index]))
         return {
-            "observations": self.observations[sl],
+            "observations": take(self.observations, sl),
             "actions": self.actions[sl],
             "rewards": None if self.rewards is None else self.rewards[sl],
             "seed": int(self.seeds[index]),
@@ -228,7 +262,7 @@ class Demonstrations:
     def __repr__(self) -> str:
         return (
             f"Demonstrations(n_episodes={self.n_episodes}, n_steps={len(self)}, "
-            f"obs_shape={self.observations.shape[1:]}, action_shape={self.actions.shape[1:]})"
+            f"obs_shape={_obs_shape(self.observations)}, action_shape={self.actions.shape[1:]})"
         )
 
     # -- validation ---------------------------------------------------------------------------
@@ -236,15 +270,14 @@ class Demonstrations:
         """Check the demos against an env's spaces; return the demos to train on.
 
         Raises ``ValueError`` naming the mismatch (unsupported space, observation or action shape,
-        Discrete action out of range or not an integer). Box actions outside the bounds are clipped
+        Discrete / MultiDiscrete / MultiBinary action out of range or not an integer). Channel-last
+        image observations are transposed for a channel-first space (SB3's VecTransposeImage). Box actions outside the bounds are clipped
         with a ``UserWarning``; the returned object is then a clipped copy, otherwise ``self``.
         """
-        if not isinstance(observation_space, spaces.Box):
-            raise ValueError(f"only Box observation spaces are supported, got {observation_space}")
-        if self.observations.shape[1:] != observation_space.shape:
-            raise ValueError(
-                f"observation shape {self.observations.shape[1:]} of the demonstrations does not match "
-                f"the observation space shape {observation_space.shape}"
+        obs = match_observations(self.observations, observation_space)
+        if obs is not self.observations:
+            return Demonstrations(obs, self.actions, self.episode_lengths, self.rewards, self.seeds).check_spaces(
+                observation_space, action_space
             )
         if isinstance(action_space, spaces.Discrete):
             acts = self.actions.reshape(len(self.actions), -1)
@@ -264,8 +297,10 @@ class Demonstrations:
                 as_int = acts[:, 0].astype(np.int64)
                 return Demonstrations(self.observations, as_int, self.episode_lengths, self.rewards, self.seeds)
             return self
+        if isinstance(action_space, (spaces.MultiDiscrete, spaces.MultiBinary)):
+            return self._check_multi_actions(action_space)
         if not isinstance(action_space, spaces.Box):
-            raise ValueError(f"only Box and Discrete action spaces are supported, got {action_space}")
+            check_action_space(action_space)
         if self.actions.shape[1:] != action_space.shape:
             raise ValueError(
                 f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
@@ -285,6 +320,31 @@ class Demonstrations:
         )
         clipped = np.clip(self.actions, low, high)
         return Demonstrations(self.observations, clipped, self.episode_lengths, self.rewards, self.seeds)
+
+
+    def _check_multi_actions(self, action_space: spaces.MultiDiscrete | spaces.MultiBinary) -> Demonstrations:
+        shape = tuple(action_space.shape)
+        if self.actions.shape[1:] != shape:
+            raise ValueError(
+                f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
+                f"the action space shape {shape}"
+            )
+        if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
+            raise ValueError(f"{type(action_space).__name__} actions must be integers; the demonstrations hold fractions")
+        acts = self.actions.astype(np.int64)
+        if isinstance(action_space, spaces.MultiBinary):
+            low, high = np.zeros(shape, np.int64), np.ones(shape, np.int64)
+        else:
+            low = np.asarray(action_space.start, np.int64)
+            high = low + np.asarray(action_space.nvec, np.int64) - 1
+        if np.any(acts < low) or np.any(acts > high):
+            raise ValueError(
+                f"demonstration actions span [{acts.min()}, {acts.max()}], outside the {type(action_space).__name__} "
+                f"space's [{low.min()}, {high.max()}] in some component"
+            )
+        if acts.dtype == self.actions.dtype:
+            return self
+        return Demonstrations(self.observations, acts, self.episode_lengths, self.rewards, self.seeds)
 
 
 def as_demonstrations(demos: Demonstrations | PathLike | list[Mapping[str, Any]]) -> Demonstrations:
