@@ -68,7 +68,8 @@ def _finite(name: str, array: np.ndarray) -> None:
 class Demonstrations:
     """Expert episodes stored as flat step arrays with episode boundaries.
 
-    :param observations: (N, *obs_shape) observations the expert acted on.
+    :param observations: (N, *obs_shape) observations the expert acted on; for a Dict observation
+        space, a dict of such arrays.
     :param actions: (N, *act_shape) expert actions (integers (N,) for a Discrete space).
     :param episode_lengths: (n_episodes,) positive lengths summing to N.
     :param rewards: optional (N,) environment rewards.
@@ -77,7 +78,7 @@ class Demonstrations:
 
     def __init__(
         self,
-        observations: np.ndarray,
+        observations: np.ndarray | Mapping[str, np.ndarray],
         actions: np.ndarray,
         episode_lengths: Sequence[int],
         rewards: np.ndarray | None = None,
@@ -185,7 +186,7 @@ class Demonstrations:
         # Dict observations are saved one array per key, as "observations.<key>".
         dict_obs = {k.partition(".")[2]: v for k, v in arrays.items() if k.startswith("observations.")}
         if dict_obs:
-            arrays["observations"] = dict_obs  # type: ignore[assignment]
+            arrays["observations"] = dict_obs
         missing = {"observations", "actions", "episode_lengths"} - set(arrays)
         if missing:
             raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
@@ -271,8 +272,9 @@ class Demonstrations:
 
         Raises ``ValueError`` naming the mismatch (unsupported space, observation or action shape,
         Discrete / MultiDiscrete / MultiBinary action out of range or not an integer). Channel-last
-        image observations are transposed for a channel-first space (SB3's VecTransposeImage). Box actions outside the bounds are clipped
-        with a ``UserWarning``; the returned object is then a clipped copy, otherwise ``self``.
+        image observations are transposed for a channel-first space (SB3's VecTransposeImage). Box
+        actions outside the bounds are clipped with a ``UserWarning``. The returned object is then a
+        new one, otherwise ``self``.
         """
         obs = match_observations(self.observations, observation_space)
         if obs is not self.observations:
@@ -330,7 +332,8 @@ class Demonstrations:
                 f"the action space shape {shape}"
             )
         if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
-            raise ValueError(f"{type(action_space).__name__} actions must be integers; the demonstrations hold fractions")
+            name = type(action_space).__name__
+            raise ValueError(f"{name} actions must be integers; the demonstrations hold fractions")
         acts = self.actions.astype(np.int64)
         if isinstance(action_space, spaces.MultiBinary):
             low, high = np.zeros(shape, np.int64), np.ones(shape, np.int64)

@@ -56,6 +56,7 @@ from sb3_cmzdril.spaces import (
     categorical_starts,
     check_action_space,
     indices_as_actions,
+    shape_of,
     space_from_config,
     space_to_config,
     take,
@@ -115,6 +116,12 @@ class BCEnsemble(nn.Module):
     :param image_features: output width of the shared CNN trunk of each image part.
     """
 
+    obs_mean: th.Tensor
+    obs_std: th.Tensor
+    action_low: th.Tensor
+    action_high: th.Tensor
+    fitted: th.Tensor
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -150,13 +157,15 @@ class BCEnsemble(nn.Module):
             else "categorical"
         )  # fmt: skip
         self.discrete = self.action_kind == "categorical"
-        if isinstance(action_space, spaces.Discrete):
-            self.segments: tuple[int, ...] = (int(action_space.n),)
-        elif isinstance(action_space, spaces.MultiDiscrete):
-            self.segments = tuple(int(n) for n in np.asarray(action_space.nvec).reshape(-1))
-        else:
-            self.segments = ()
-        self.out_dim = sum(self.segments) if self.segments else int(np.prod(action_space.shape))
+        self.action_shape = shape_of(action_space)
+        #: the categorical components' sizes (Discrete: one; MultiDiscrete: nvec; otherwise none)
+        self.segments: list[int] = []
+        self._starts = np.zeros(0, np.int64)
+        if isinstance(action_space, (spaces.Discrete, spaces.MultiDiscrete)):
+            nvec = [action_space.n] if isinstance(action_space, spaces.Discrete) else action_space.nvec
+            self.segments = [int(n) for n in np.asarray(nvec).reshape(-1)]
+            self._starts = categorical_starts(action_space)
+        self.out_dim = sum(self.segments) if self.segments else int(np.prod(self.action_shape))
         self.obs_dim = encoder.flat_dim
 
         gen = th.Generator().manual_seed(self.seed)
@@ -364,7 +373,8 @@ class BCEnsemble(nn.Module):
         with th.inference_mode():
             for start in range(0, max(len(x), 1), _TORCH_CHUNK):
                 rows = slice(start, start + _TORCH_CHUNK)
-                out = self(th.as_tensor(x[rows], device=device), [th.as_tensor(img[rows], device=device) for img in images])
+                imgs = [th.as_tensor(img[rows], device=device) for img in images]
+                out = self(th.as_tensor(x[rows], device=device), imgs)
                 if self.action_kind == "categorical":
                     out = th.cat([th.softmax(seg, dim=2) for seg in th.split(out, self.segments, dim=2)], dim=2)
                 elif self.action_kind == "binary":
@@ -383,13 +393,15 @@ class BCEnsemble(nn.Module):
             idx = np.stack([seg.argmax(axis=1) for seg in np.split(out, np.cumsum(self.segments)[:-1], axis=1)], 1)
             return indices_as_actions(idx, self.action_space)
         if self.action_kind == "binary":
-            return (out > 0.5).astype(self.action_space.dtype).reshape((len(out), *self.action_space.shape))
-        return out.reshape((len(out), *self.action_space.shape))
+            return (out > 0.5).astype(self.action_space.dtype).reshape((len(out), *self.action_shape))
+        return out.reshape((len(out), *self.action_shape))
 
     @property
     def needs_actions(self) -> bool:
         """Whether :meth:`disagreement` uses the agent's actions."""
-        return self.action_kind == "categorical" or (self.action_kind == "box" and self.disagreement_form == "quadratic")
+        if self.action_kind == "box":
+            return self.disagreement_form == "quadratic"
+        return self.action_kind == "categorical"
 
     def disagreement(self, obs: Observations, actions: np.ndarray | None = None) -> np.ndarray:
         """Disagreement ``u`` for each observation, (B,) float64 (see the module docstring).
@@ -434,7 +446,7 @@ class BCEnsemble(nn.Module):
                 raise ValueError(f"actions have {idx.shape[1]} components, the action space {len(self.segments)}")
             high = np.asarray(self.segments) - 1
             if idx.min() < 0 or np.any(idx.max(axis=0) > high):
-                ranges = [f"[{lo}, {lo + hi}]" for lo, hi in zip(categorical_starts(self.action_space), high, strict=True)]
+                ranges = [f"[{lo}, {lo + hi}]" for lo, hi in zip(self._starts, high, strict=True)]
                 raise ValueError(f"discrete actions must lie in {', '.join(ranges)}")
         start = 0
         for j, n in enumerate(self.segments):

@@ -58,7 +58,8 @@ class DemoStandardizer(BaseFeaturesExtractor):
     """``(obs - mean) / std`` on the Box parts of the observation with fixed statistics (identity
     until they are set), then the features extractor it wraps: SB3's FlattenExtractor by default,
     or the policy's own (CombinedExtractor for Dict observations, a user's extractor). Image and
-    discrete parts pass through unchanged.
+    discrete parts pass through unchanged. Attributes of the wrapped extractor are reachable on the
+    wrapper (``policy.features_extractor.batch_norm``).
 
     :param observation_space: the policy's observation space.
     :param features_extractor_class: the extractor that gets the standardised observations.
@@ -80,9 +81,19 @@ class DemoStandardizer(BaseFeaturesExtractor):
         self.keys = keys
         for i, key in enumerate(keys):
             sub = observation_space if key is None else observation_space[key]  # type: ignore[index]
-            n = int(np.prod(sub.shape))
+            n = int(np.prod(sub.shape or ()))
             self.register_buffer(self._buffer("obs_mean", i), th.zeros(n))
             self.register_buffer(self._buffer("obs_std", i), th.ones(n))
+
+    def __getattr__(self, name: str) -> Any:
+        # The wrapped extractor's attributes stay reachable where users look for them
+        # (policy.features_extractor.<their layer>).
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            if name == "extractor":
+                raise
+            return getattr(super().__getattr__("extractor"), name)
 
     def _buffer(self, name: str, i: int) -> str:
         # A plain Box keeps the names models saved before Dict support used.
@@ -109,7 +120,7 @@ class DemoStandardizer(BaseFeaturesExtractor):
     def fit(self, observations: np.ndarray | dict[str, np.ndarray]) -> None:
         """Set every part's statistics from demonstration observations (an array, or a dict)."""
         for key in self.keys:
-            part = observations if key is None else observations[key]  # type: ignore[index]
+            part = observations[key] if isinstance(observations, dict) and key is not None else observations
             self.set_statistics(*observation_statistics(np.asarray(part)), key=key)
 
     def forward(self, observations: Any) -> th.Tensor:
@@ -142,7 +153,7 @@ def standardizing_policy_kwargs(
     if inner is DemoStandardizer:  # already set up (a loaded model)
         return kwargs, None
     if inner is None:
-        default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
+        default = inspect.signature(policy_class).parameters.get("features_extractor_class")
         inner = default.default if default is not None else FlattenExtractor
     if not standardized_keys(observation_space):
         return kwargs, (
@@ -154,7 +165,8 @@ def standardizing_policy_kwargs(
     kwargs["features_extractor_kwargs"] = {"features_extractor_class": inner, "features_extractor_kwargs": inner_kwargs}
     note = None
     if inner is not FlattenExtractor:
-        parts = ", ".join(str(k) for k in standardized_keys(observation_space) if k is not None) or "the Box observation"
+        keys = [str(k) for k in standardized_keys(observation_space) if k is not None]
+        parts = ", ".join(keys) or "the Box observation"
         note = (
             f"standardize_observations: {parts} standardised with the demonstrations' statistics before "
             f"{getattr(inner, '__name__', inner)}; other parts pass unchanged"

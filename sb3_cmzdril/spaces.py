@@ -27,6 +27,11 @@ ACTION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.Multi
 _LEAF_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
 
 
+def shape_of(space: spaces.Space) -> tuple[int, ...]:
+    """The shape of one sample of ``space`` (``()`` for Discrete)."""
+    return tuple(int(s) for s in (space.shape or ()))
+
+
 def check_action_space(space: spaces.Space) -> None:
     """ValueError naming an action space PPO (and so CMZDRIL) cannot act in."""
     if not isinstance(space, ACTION_SPACES):
@@ -41,10 +46,10 @@ def action_dim(space: spaces.Space) -> int:
         return 1
     if isinstance(space, spaces.MultiDiscrete):
         return int(space.nvec.size)
-    return int(np.prod(space.shape))
+    return int(np.prod(shape_of(space)))
 
 
-def categorical_starts(space: spaces.Space) -> np.ndarray:
+def categorical_starts(space: spaces.Discrete | spaces.MultiDiscrete) -> np.ndarray:
     """The ``start`` of each categorical component (Discrete: one; MultiDiscrete: one per entry)."""
     return np.asarray(space.start, dtype=np.int64).reshape(-1)
 
@@ -94,8 +99,8 @@ def reshape_rows(obs: Observations, shape: tuple[int, ...], space: spaces.Space)
     """Reshape the leading dimensions of a batch (e.g. a rollout's (T, n_envs) to (T * n_envs,))."""
     if isinstance(obs, Mapping):
         assert isinstance(space, spaces.Dict)
-        return {k: np.asarray(v).reshape(shape + tuple(space[k].shape)) for k, v in obs.items()}
-    return np.asarray(obs).reshape(shape + tuple(space.shape))
+        return {k: np.asarray(v).reshape(shape + shape_of(space[k])) for k, v in obs.items()}
+    return np.asarray(obs).reshape(shape + shape_of(space))
 
 
 def space_to_config(space: spaces.Space) -> dict[str, Any]:
@@ -169,7 +174,7 @@ def _match_leaf(arr: np.ndarray, space: spaces.Space, key: str | None) -> np.nda
             f"unsupported observation space {space}{where}: Box, Discrete, MultiDiscrete, MultiBinary "
             "or a Dict of them are supported"
         )
-    shape, want = arr.shape[1:], tuple(space.shape)
+    shape, want = arr.shape[1:], shape_of(space)
     if shape == want:
         return arr
     if isinstance(space, spaces.Discrete) and shape == (1,):
@@ -239,7 +244,7 @@ class ObsEncoder:
 
     def image_shape(self, part: _Part) -> tuple[int, int, int]:
         """(C, H, W) of an image part, whichever layout its space has."""
-        shape = tuple(int(s) for s in part.space.shape)
+        shape = shape_of(part.space)
         if is_image_space_channels_first(part.space):  # type: ignore[arg-type]
             return (shape[0], shape[1], shape[2])
         return (shape[2], shape[0], shape[1])
@@ -264,13 +269,15 @@ class ObsEncoder:
     def _rows(self, arr: np.ndarray, part: _Part, single: bool) -> np.ndarray:
         if single:
             arr = arr[None]
-        shape = tuple(part.space.shape)
+        shape = shape_of(part.space)
         if arr.shape[1:] != shape:
             # A Discrete batch may come as (B, 1), as SB3's rollout buffer keeps it.
             if part.kind == "discrete" and arr.shape[1:] == (1,):
                 return arr.reshape(-1)
             where = f" (key {part.key!r})" if part.key is not None else ""
-            raise ValueError(f"observations of shape {arr.shape[1:]}{where} do not match the observation space's {shape}")
+            raise ValueError(
+                f"observations of shape {arr.shape[1:]}{where} do not match the observation space's {shape}"
+            )
         return arr
 
     def flat(self, obs: Observations) -> np.ndarray:
@@ -285,20 +292,21 @@ class ObsEncoder:
         out = np.zeros((rows, self.flat_dim), np.float32)
         col = 0
         for part in self.flat_parts:
-            arr = np.asarray(obs[part.key] if isinstance(obs, Mapping) else obs)
+            arr = _part_array(obs, part)
             block = out[:, col : col + part.width]
-            if part.kind in ("box", "multibinary"):
+            space = part.space
+            if isinstance(space, spaces.Discrete):
+                _one_hot(arr.reshape(rows) - int(space.start), int(space.n), block, 0)
+            elif isinstance(space, spaces.MultiDiscrete):
+                nvec = np.asarray(space.nvec, np.int64)
+                offsets = np.concatenate([[0], np.cumsum(nvec)[:-1]])
+                values = arr.reshape(rows, -1).astype(np.int64) - categorical_starts(space)
+                for j in range(len(nvec)):
+                    _one_hot(values[:, j], int(nvec[j]), block, int(offsets[j]))
+            else:
                 block[:] = arr.reshape(rows, -1)
                 if part.kind == "box" and not np.isfinite(block).all():
                     raise ValueError("observations contain NaN or inf")
-            elif part.kind == "discrete":
-                _one_hot(arr.reshape(rows) - int(part.space.start), int(part.space.n), block, 0)
-            else:
-                nvec = np.asarray(part.space.nvec, np.int64)
-                offsets = np.concatenate([[0], np.cumsum(nvec)[:-1]])
-                values = arr.reshape(rows, -1).astype(np.int64) - categorical_starts(part.space)
-                for j in range(len(nvec)):
-                    _one_hot(values[:, j], int(nvec[j]), block, int(offsets[j]))
             col += part.width
         return out
 
@@ -306,11 +314,18 @@ class ObsEncoder:
         """Each image part of a batch as (B, C, H, W) float32 in [0, 1], as SB3 scales it."""
         out = []
         for part in self.image_parts:
-            arr = np.asarray(obs[part.key] if isinstance(obs, Mapping) else obs, dtype=np.float32)
+            arr = _part_array(obs, part).astype(np.float32)
             if not is_image_space_channels_first(part.space):  # type: ignore[arg-type]
                 arr = arr.transpose(0, 3, 1, 2)
             out.append(np.ascontiguousarray(arr) / np.float32(255.0))
         return out
+
+
+def _part_array(obs: Observations, part: _Part) -> np.ndarray:
+    if isinstance(obs, Mapping):
+        assert part.key is not None, "a dict batch for a space that is not a Dict"
+        return np.asarray(obs[part.key])
+    return np.asarray(obs)
 
 
 def _one_hot(values: np.ndarray, n: int, out: np.ndarray, offset: int) -> None:

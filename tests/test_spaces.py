@@ -164,7 +164,8 @@ def test_the_ensemble_encodes_observations_as_sb3_preprocesses_them(name):
     encoder = ObsEncoder(space)
     space.seed(0)
     batch = [space.sample() for _ in range(6)]
-    obs: Any = {k: np.stack([b[k] for b in batch]) for k in batch[0]} if isinstance(space, spaces.Dict) else np.stack(batch)
+    dict_space = isinstance(space, spaces.Dict)
+    obs: Any = {k: np.stack([b[k] for b in batch]) for k in batch[0]} if dict_space else np.stack(batch)
     tensors: Any = {k: th.as_tensor(v) for k, v in obs.items()} if isinstance(obs, dict) else th.as_tensor(obs)
     sb3 = preprocess_obs(tensors, space)
     if name == "image":
@@ -218,6 +219,21 @@ def test_cmzdril_learns_saves_and_loads_in_every_observation_space(name, tmp_pat
     np.testing.assert_array_equal(loaded.ensemble.disagreement(obs), model.ensemble.disagreement(obs))
     assert len(loaded.demonstrations) == len(demos)
     loaded.learn(32, reset_num_timesteps=False)
+
+
+def test_dict_demonstrations_save_load_and_select(tmp_path):
+    demos = record(SpacesEnv(OBS_SPACES["dict"], ACTION_SPACES["multidiscrete"]))
+    demos.save(tmp_path / "d.npz")
+    back = Demonstrations.load(tmp_path / "d.npz")
+    assert set(back.observations) == {"mode", "pos"} and len(back) == len(demos) == 64
+    np.testing.assert_array_equal(back.observations["pos"], demos.observations["pos"])
+    one = back.select([1])
+    np.testing.assert_array_equal(one.observations["mode"], demos.observations["mode"][16:32])
+    assert back.check_spaces(OBS_SPACES["dict"], ACTION_SPACES["multidiscrete"]) is back
+    with pytest.raises(ValueError, match=r"lack the keys \['x'\]"):
+        back.check_spaces(spaces.Dict({"mode": spaces.Discrete(3), "pos": VEC, "x": VEC}), ACTION_SPACES["box"])
+    with pytest.raises(ValueError, match="outside the MultiDiscrete"):
+        back.check_spaces(OBS_SPACES["dict"], spaces.MultiDiscrete([2, 2]))
 
 
 def test_dict_observations_standardise_their_box_entries_only():
@@ -311,7 +327,7 @@ def test_batch_norm_is_in_eval_mode_except_while_training(pendulum_demos):
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer) and isinstance(ext.extractor, BatchNormExtractor)  # composed
     model.learn(64)
-    bn = ext.extractor.net[2]
+    bn = ext.net[2]  # the wrapped extractor's attributes are reachable on the wrapper
     assert not model.policy.training
     stats = bn.running_mean.clone()
     model.predict(pendulum_demos.observations[:10])
