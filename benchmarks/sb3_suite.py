@@ -99,8 +99,8 @@ def pytest_configure(config: Any) -> None:
 
 
 def _is_ppo_case(item: Any) -> bool:
-    params = item.nodeid.partition("[")[2]
-    if "PPO" in item.nodeid or "ppo" in params.lower():
+    params = item.nodeid.partition("[")[2].rstrip("]")
+    if "ppo" in [p.lower() for p in params.split("-")]:  # [PPO], [True-PPO], test_tensorboard's [ppo]
         return True
     if any(algo in params for algo in _OTHER_ALGOS):
         return False
@@ -142,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     env["PYTHONPATH"] = os.pathsep.join([here, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env.setdefault("PYTHONHASHSEED", "0")
     env.setdefault("OMP_NUM_THREADS", "1")
-    cmd = [sys.executable, "-m", "pytest", str(tests), "-p", "sb3_suite", "-q", "-p", "no:cacheprovider", "--continue-on-collection-errors"]
+    cmd = [sys.executable, "-m", "pytest", str(tests), "-p", "sb3_suite", "-q", "-p", "no:cacheprovider"]
+    # Modules whose optional dependencies are missing (ale_py for test_utils.py) hold no PPO case.
+    cmd.append("--continue-on-collection-errors")
     if args.by_design:
         cmd.append("--sb3-by-design")
     return subprocess.call(cmd + extra, cwd=args.checkout, env=env)
