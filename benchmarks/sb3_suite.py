@@ -142,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     env["PYTHONPATH"] = os.pathsep.join([here, env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env.setdefault("PYTHONHASHSEED", "0")
     env.setdefault("OMP_NUM_THREADS", "1")
-    cmd = [sys.executable, "-m", "pytest", str(tests), "-p", "sb3_suite", "-q", "-p", "no:cacheprovider"]
+    # Node ids among the pytest arguments (tests/test_x.py::case) replace the whole tests/ folder.
+    targets = [] if any(not a.startswith("-") for a in extra) else [str(tests)]
+    cmd = [sys.executable, "-m", "pytest", *targets, "-p", "sb3_suite", "-q", "-p", "no:cacheprovider"]
     # Modules whose optional dependencies are missing (ale_py for test_utils.py) hold no PPO case.
     cmd.append("--continue-on-collection-errors")
     if args.by_design:

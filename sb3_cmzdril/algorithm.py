@@ -381,16 +381,7 @@ class CMZDRIL(PPO):
             floor_log_std(self.policy, self.log_std_floor)
         bc_seconds = time.perf_counter() - start
         start = time.perf_counter()
-        self.ensemble.fit(
-            self.demonstrations,
-            self.ensemble_epochs,
-            self.ensemble_batch_size,
-            self.ensemble_learning_rate,
-            progress_bar,
-        )
-        if self.reward == "dril":
-            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
-        self.reward_rule = self._make_rule()
+        self._prepare_scoring(progress_bar)
         self._imitation_ready = True
         self.pretrain_history = {"train_nll": stopping.train_nll, "validation_nll": stopping.validation_nll}
         self.pretrain_info = {
@@ -417,6 +408,22 @@ class CMZDRIL(PPO):
                 + (f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else "")
             )
         return self.pretrain_info
+
+    def _prepare_scoring(self, progress_bar: bool = False) -> None:
+        """Fit the ensemble (once) and make the reward rule: what scoring a rollout needs."""
+        assert self.demonstrations is not None
+        if not self.ensemble.is_fitted:
+            self.ensemble.fit(
+                self.demonstrations,
+                self.ensemble_epochs,
+                self.ensemble_batch_size,
+                self.ensemble_learning_rate,
+                progress_bar,
+            )
+        if self.reward == "dril" and self.dril_threshold is None:
+            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        if self.reward_rule is None:
+            self.reward_rule = self._make_rule()
 
     def reward_wrapper(self) -> DisagreementReward | None:
         """The per-step DisagreementReward in the training env, or None (the default scores rollouts
@@ -482,9 +489,16 @@ class CMZDRIL(PPO):
         tb_log_name: str = "run",
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
-        # learn() has done both already; a caller driving collect_rollouts itself after _setup_learn
-        # (as SB3's own tests do) gets a model that is just as ready (both calls are idempotent).
-        self.pretrain(progress_bar=progress_bar)
+        # learn() has pretrained already. A caller driving collect_rollouts itself after _setup_learn
+        # (as SB3's own tests do) gets what scoring needs, the fitted ensemble and the reward rule,
+        # and a policy left as it is (pretraining belongs to learn() or pretrain()).
+        if self.reward_rule is None:
+            if self.demonstrations is None:
+                self.pretrain()  # refuses, naming the missing demonstrations
+            assert self.demonstrations is not None
+            self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
+            self.bc.set_demonstrations(self.demonstrations)
+            self._prepare_scoring(progress_bar)
         self._wrap_training_env()
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 

@@ -20,7 +20,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.preprocessing import is_image_space
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor, NatureCNN
 
 #: Floor of the per-dimension std: a demo dimension that never varies (a constant sensor, a one-hot
 #: that the expert never switched) would otherwise be divided by ~0 and blow up off the demos.
@@ -155,12 +155,20 @@ def standardizing_policy_kwargs(
     if inner is None:
         default = inspect.signature(policy_class).parameters.get("features_extractor_class")
         inner = default.default if default is not None else FlattenExtractor
+    if isinstance(inner, type) and issubclass(inner, NatureCNN):
+        return kwargs, (
+            f"standardize_observations: {inner.__name__} takes the observation for an image (SB3 scales "
+            "images, or they come normalised); the policy sees it unchanged"
+        )
     if not standardized_keys(observation_space):
         return kwargs, (
             f"standardize_observations: the observation space {observation_space} has no Box part to "
             "standardise (SB3 scales images and one-hot encodes discrete parts); the policy sees them unchanged"
         )
-    inner_kwargs = kwargs.pop("features_extractor_kwargs", None)
+    inner_kwargs = dict(kwargs.pop("features_extractor_kwargs", None) or {})
+    if kwargs.get("normalize_images") is False and isinstance(inner, type) and issubclass(inner, CombinedExtractor):
+        # What SB3's policy does for its own CombinedExtractor, which it no longer sees behind the wrapper.
+        inner_kwargs["normalized_image"] = True
     kwargs["features_extractor_class"] = DemoStandardizer
     kwargs["features_extractor_kwargs"] = {"features_extractor_class": inner, "features_extractor_kwargs": inner_kwargs}
     note = None
