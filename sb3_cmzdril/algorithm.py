@@ -20,6 +20,7 @@ again; ``load(..., demonstrations=...)`` replaces them.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 import warnings
@@ -28,7 +29,6 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import RolloutBuffer
@@ -48,15 +48,12 @@ from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
 from sb3_cmzdril.io import PathLike
-from sb3_cmzdril.policies import (
-    DemoStandardizer,
-    floor_log_std,
-    mean_log_std,
-    observation_statistics,
-    standardizing_policy_kwargs,
-)
+from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
 from sb3_cmzdril.scoring import RolloutScorer
+from sb3_cmzdril.spaces import check_action_space
+
+logger = logging.getLogger(__name__)
 
 REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
@@ -227,6 +224,8 @@ class CMZDRIL(PPO):
         if isinstance(env, str):
             with mujoco_warnings_routed():  # e.g. HalfCheetah's settotalmass notice at model compile
                 env = maybe_make_env(env, verbose)
+        #: how a Dict space's demo observations are packed into one saved tensor (None: not a dict)
+        self._demo_obs_layout: list | None = None
         super().__init__(
             policy,
             env,
@@ -272,20 +271,25 @@ class CMZDRIL(PPO):
         ``model.policy.load_state_dict(...)``) to skip pretraining; set it to False to pretrain and
         refit from scratch at the next ``learn()``.
         """
-        return self._policy_pretrained and bool(self.ensemble.fitted)
+        return self._policy_pretrained and self.ensemble.is_fitted
 
     @pretrained.setter
     def pretrained(self, value: bool) -> None:
         self._policy_pretrained = bool(value)
-        th.Tensor.fill_(self.ensemble.fitted, bool(value))  # type: ignore[arg-type]  # a registered buffer
+        self.ensemble.fitted.fill_(float(bool(value)))
         self._imitation_ready = False  # the rule (and DRIL threshold) is remade for the ensemble at learn()
 
     def _setup_model(self) -> None:
+        check_action_space(self.action_space)
         if self.standardize_observations:
-            self.policy_kwargs = standardizing_policy_kwargs(self.policy_class, self.policy_kwargs)
+            self.policy_kwargs, note = standardizing_policy_kwargs(
+                self.policy_class, self.policy_kwargs, self.observation_space
+            )
+            if note is not None:
+                logger.info(note)
+                if self.verbose >= 1:
+                    print(note)
         super()._setup_model()
-        if not isinstance(self.action_space, (spaces.Box, spaces.Discrete)):
-            raise ValueError(f"CMZDRIL supports Box and Discrete action spaces, got {self.action_space}")
         # seed=None: draw from the global RNG, which SB3's set_random_seed (or the user) controls.
         seed = int(np.random.randint(0, 2**31 - 1)) if self.seed is None else int(self.seed)
         self.ensemble_hidden = tuple(self.ensemble_hidden)  # a loaded model gets a JSON list back
@@ -310,7 +314,7 @@ class CMZDRIL(PPO):
         """Save like PPO, plus ensemble, BC optimiser, demonstrations and reward-rule state."""
         demos = self.demonstrations
         if demos is not None:
-            self._saved_demo_obs = th.as_tensor(demos.observations)
+            self._saved_demo_obs, self._demo_obs_layout = _pack_observations(demos.observations)
             self._saved_demo_actions = th.as_tensor(demos.actions)
             self._saved_demo_lengths = th.as_tensor(demos.episode_lengths)
             self._saved_demo_seeds = th.as_tensor(demos.seeds)
@@ -369,7 +373,7 @@ class CMZDRIL(PPO):
             self.demonstrations = demonstrations
         elif self._saved_demo_obs.numel():
             self.demonstrations = Demonstrations(
-                self._saved_demo_obs.cpu().numpy(),
+                _unpack_observations(self._saved_demo_obs.cpu().numpy(), getattr(self, "_demo_obs_layout", None)),
                 self._saved_demo_actions.cpu().numpy(),
                 self._saved_demo_lengths.cpu().numpy(),
                 seeds=self._saved_demo_seeds.cpu().numpy(),
@@ -404,9 +408,9 @@ class CMZDRIL(PPO):
             return vec_normalize.normalize_obs
         return None
 
-    def _standardizer(self) -> DemoStandardizer | None:
-        extractors = [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
-        return extractors[0] if extractors else None
+    def _standardizers(self) -> list[DemoStandardizer]:
+        # Two with share_features_extractor=False (the actor's and the critic's).
+        return [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
 
     def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the policy's input standardisation, pretrain the policy by NLL
@@ -426,21 +430,7 @@ class CMZDRIL(PPO):
         info: dict[str, float] = {}
         if not self._policy_pretrained:
             info.update(self._pretrain_policy(progress_bar))
-        if not bool(self.ensemble.fitted):
-            start = time.perf_counter()
-            self.ensemble.fit(
-                self.demonstrations,
-                self.ensemble_epochs,
-                self.ensemble_batch_size,
-                self.ensemble_learning_rate,
-                progress_bar,
-            )
-            assert self.ensemble.train_loss_ is not None  # set by fit()
-            info["ensemble_loss"] = float(np.mean(self.ensemble.train_loss_))
-            info["ensemble_seconds"] = time.perf_counter() - start
-        if self.reward == "dril":
-            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
-        self.reward_rule = self._make_rule()
+        info.update(self._prepare_scoring(progress_bar, remake_rule=True))
         self._imitation_ready = True
         self._ensemble_replaced = False
         if info:
@@ -454,8 +444,8 @@ class CMZDRIL(PPO):
         """Set the policy's input standardisation and clone the demos by NLL; the statistics of it."""
         assert self.demonstrations is not None
         transform = self._demo_obs_transform()
-        standardizer = self._standardizer()
-        if standardizer is not None:
+        standardizers = self._standardizers()
+        if standardizers:
             if transform is not None:
                 warnings.warn(
                     "VecNormalize normalises the observations already: the demo standardisation of the policy "
@@ -464,7 +454,8 @@ class CMZDRIL(PPO):
                     stacklevel=3,
                 )
             else:
-                standardizer.set_statistics(*observation_statistics(self.demonstrations.observations))
+                for standardizer in standardizers:
+                    standardizer.fit(self.demonstrations.observations)
         start = time.perf_counter()
         nll_before = self.bc.nll(transform)
         stopping = self.bc.train_early_stopping(
@@ -502,6 +493,30 @@ class CMZDRIL(PPO):
             fit = "ensemble kept as loaded"
         threshold = f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else ""
         return f"CMZDRIL pretraining: {bc}; {fit}{threshold}"
+
+    def _prepare_scoring(self, progress_bar: bool = False, remake_rule: bool = False) -> dict[str, float]:
+        """Fit the ensemble (unless fitted or loaded) and make the reward rule (and DRIL threshold):
+        what scoring a rollout needs. ``remake_rule``: for an ensemble that may be new. Returns the
+        fit's loss and time, {} when the ensemble was kept."""
+        assert self.demonstrations is not None
+        info: dict[str, float] = {}
+        if not self.ensemble.is_fitted:
+            start = time.perf_counter()
+            self.ensemble.fit(
+                self.demonstrations,
+                self.ensemble_epochs,
+                self.ensemble_batch_size,
+                self.ensemble_learning_rate,
+                progress_bar,
+            )
+            assert self.ensemble.train_loss_ is not None  # set by fit()
+            info["ensemble_loss"] = float(np.mean(self.ensemble.train_loss_))
+            info["ensemble_seconds"] = time.perf_counter() - start
+        if self.reward == "dril" and (remake_rule or self.dril_threshold is None):
+            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        if remake_rule or self.reward_rule is None:
+            self.reward_rule = self._make_rule()
+        return info
 
     def reward_wrapper(self) -> DisagreementReward | None:
         """The per-step DisagreementReward in the training env, or None (the default scores rollouts
@@ -562,8 +577,26 @@ class CMZDRIL(PPO):
                 progress_bar=progress_bar,
             )
 
-    def _setup_learn(self, *args: Any, **kwargs: Any) -> tuple[int, BaseCallback]:
-        result = super()._setup_learn(*args, **kwargs)
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        # learn() has pretrained already. A caller driving collect_rollouts itself after _setup_learn
+        # (as SB3's own tests do) gets what scoring needs, the fitted ensemble and the reward rule,
+        # and a policy left as it is (pretraining belongs to learn() or pretrain()).
+        if self.reward_rule is None:
+            if self.demonstrations is None:
+                self.pretrain()  # refuses, naming the missing demonstrations
+            assert self.demonstrations is not None
+            self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
+            self.bc.set_demonstrations(self.demonstrations)
+            self._prepare_scoring(progress_bar)
+        self._wrap_training_env()
+        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         # learn()'s logger (TensorBoard included) exists only from here: pretraining ran before it.
         if self._pretrain_log_pending:
             for key, value in self.pretrain_info.items():
@@ -599,3 +632,24 @@ class _WholeRolloutsProgressBar(ProgressBarCallback):
         remaining = self.locals["total_timesteps"] - self.model.num_timesteps
         rollout = self.model.n_steps * self.training_env.num_envs  # type: ignore[attr-defined]
         self.pbar = tqdm(total=max(0, math.ceil(remaining / rollout) * rollout))
+
+
+def _pack_observations(obs: np.ndarray | dict[str, np.ndarray]) -> tuple[th.Tensor, list | None]:
+    """A tensor for the zip and, for dict observations, the layout that unpacks it: SB3 saves extra
+    variables as single tensors, so a dict's arrays travel as one byte tensor."""
+    if not isinstance(obs, dict):
+        return th.as_tensor(obs), None
+    layout = [[key, value.dtype.str, list(value.shape)] for key, value in obs.items()]
+    packed = np.concatenate([np.ascontiguousarray(value).view(np.uint8).reshape(-1) for value in obs.values()])
+    return th.as_tensor(packed), layout
+
+
+def _unpack_observations(saved: np.ndarray, layout: list | None) -> np.ndarray | dict[str, np.ndarray]:
+    if layout is None:
+        return saved
+    out, offset = {}, 0
+    for key, dtype, shape in layout:
+        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        out[key] = saved[offset : offset + size].view(np.dtype(dtype)).reshape(shape)
+        offset += size
+    return out

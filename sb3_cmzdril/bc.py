@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.spaces import actions_as_indices
 
-ObsTransform = Callable[[np.ndarray], np.ndarray]
+ObsTransform = Callable[[Any], Any]
+TensorObs = th.Tensor | dict[str, th.Tensor]
 
 
 class BehaviourCloner:
@@ -52,10 +56,14 @@ class BehaviourCloner:
         self.demos: Demonstrations | None = None
 
     def set_demonstrations(self, demos: Demonstrations) -> None:
+        """The demos to clone, already checked against the policy's spaces (``check_spaces``)."""
         self.demos = demos
         self._raw_obs = demos.observations
-        dtype = th.long if demos.actions.dtype.kind in "iu" else th.float32
-        self._actions = th.as_tensor(demos.actions, dtype=dtype, device=self.policy.device)
+        space = self.policy.action_space
+        # As SB3's distributions take them: 0-based indices (a Discrete start is subtracted), flat floats.
+        actions = actions_as_indices(demos.actions, space)
+        dtype = th.long if isinstance(space, (spaces.Discrete, spaces.MultiDiscrete)) else th.float32
+        self._actions = th.as_tensor(actions, dtype=dtype, device=self.policy.device)
 
     def nll(self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None) -> float:
         """Mean NLL of the expert actions (of the steps ``indices``, default all) under the current
@@ -64,7 +72,7 @@ class BehaviourCloner:
         actions = self._actions
         if indices is not None:
             idx = th.as_tensor(np.asarray(indices), device=self.policy.device)
-            obs, actions = obs[idx], actions[idx]
+            obs, actions = _rows(obs, idx), actions[idx]
         with th.no_grad():
             return float(-self.policy.get_distribution(obs).log_prob(actions).mean())
 
@@ -72,13 +80,13 @@ class BehaviourCloner:
         """One pass over the demos (or the steps ``indices``) in shuffled minibatches; returns the
         mean NLL over the pass."""
         obs = self._observations(obs_transform)
-        rows = np.arange(len(obs)) if indices is None else np.asarray(indices)
+        rows = np.arange(len(self._actions)) if indices is None else np.asarray(indices)
         self.policy.set_training_mode(True)
         order = th.as_tensor(self.rng.permutation(rows), device=self.policy.device)
         total = 0.0
         for start in range(0, len(order), self.batch_size):
             idx = order[start : start + self.batch_size]
-            loss = -self.policy.get_distribution(obs[idx]).log_prob(self._actions[idx]).mean()
+            loss = -self.policy.get_distribution(_rows(obs, idx)).log_prob(self._actions[idx]).mean()
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
@@ -113,7 +121,8 @@ class BehaviourCloner:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {validation_fraction}")
         if int(max_epochs) < 0 or int(patience) < 1:
             raise ValueError(f"need max_epochs >= 0 and patience >= 1, got {max_epochs} and {patience}")
-        n = len(self._observations(obs_transform))
+        self._observations(obs_transform)  # refuses a cloner without demonstrations
+        n = len(self._actions)
         n_val = int(round(validation_fraction * n))
         result = EarlyStopping()
         if n_val == 0 or n_val == n:
@@ -142,12 +151,25 @@ class BehaviourCloner:
         self.optimizer.state.clear()
         return result
 
-    def _observations(self, obs_transform: ObsTransform | None) -> th.Tensor:
+    def _observations(self, obs_transform: ObsTransform | None) -> TensorObs:
         if self.demos is None:
             raise RuntimeError("BehaviourCloner has no demonstrations: call set_demonstrations() first")
         # VecNormalize statistics move during training, so demo observations are normalised afresh.
         obs = self._raw_obs if obs_transform is None else obs_transform(self._raw_obs)
-        return th.as_tensor(np.asarray(obs, dtype=np.float32), device=self.policy.device)
+        if isinstance(obs, dict):
+            return {k: _tensor(v, self.policy.device) for k, v in obs.items()}
+        return _tensor(obs, self.policy.device)
+
+
+def _tensor(array: np.ndarray, device: th.device) -> th.Tensor:
+    # Floats as float32; integers (images, discrete observations) as they are: SB3's preprocess_obs
+    # scales and one-hot encodes them inside the policy.
+    array = np.asarray(array)
+    return th.as_tensor(array.astype(np.float32, copy=False) if array.dtype.kind == "f" else array, device=device)
+
+
+def _rows(obs: TensorObs, idx: th.Tensor) -> TensorObs:
+    return {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
 
 
 @dataclasses.dataclass

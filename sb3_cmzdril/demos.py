@@ -23,9 +23,40 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_cmzdril.io import PathLike, atomic_path
+from sb3_cmzdril.spaces import check_action_space, concatenate, match_observations, n_steps, take
 
 FORMAT_VERSION = 1
 UNKNOWN_SEED = -1
+
+
+def _observation_arrays(observations: Any) -> np.ndarray | dict[str, np.ndarray]:
+    """Observations as float32 (floats) or integer arrays, checked; a dict (Dict spaces) key by key."""
+    if isinstance(observations, Mapping):
+        if not observations:
+            raise ValueError("dict observations have no entries")
+        arrays: dict[str, np.ndarray] = {}
+        for key, value in observations.items():
+            if isinstance(value, Mapping):
+                raise ValueError(f"nested dict observations (key {key!r}) are not supported, as in SB3")
+            arrays[str(key)] = _observation_arrays(value)  # type: ignore[assignment]
+        if len({len(v) for v in arrays.values()}) > 1:
+            raise ValueError("the entries of the dict observations differ in their number of steps")
+        return arrays
+    obs = np.asarray(observations)
+    if obs.ndim < 1:
+        raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
+    if obs.dtype.kind not in "fiub":
+        raise ValueError(f"observations and actions must be numeric; got {obs.dtype}")
+    obs = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+    if obs.dtype.kind == "b":
+        obs = obs.astype(np.int8)
+    _finite("observations", obs)
+    return obs
+
+
+def _obs_shape(obs: np.ndarray | dict[str, np.ndarray]) -> Any:
+    """Shape of one observation (a dict of shapes for dict observations)."""
+    return {k: v.shape[1:] for k, v in obs.items()} if isinstance(obs, dict) else obs.shape[1:]
 
 
 def _finite(name: str, array: np.ndarray) -> None:
@@ -37,7 +68,8 @@ def _finite(name: str, array: np.ndarray) -> None:
 class Demonstrations:
     """Expert episodes stored as flat step arrays with episode boundaries.
 
-    :param observations: (N, *obs_shape) observations the expert acted on.
+    :param observations: (N, *obs_shape) observations the expert acted on; for a Dict observation
+        space, a dict of such arrays.
     :param actions: (N, *act_shape) expert actions (integers (N,) for a Discrete space).
     :param episode_lengths: (n_episodes,) positive lengths summing to N.
     :param rewards: optional (N,) environment rewards.
@@ -46,34 +78,32 @@ class Demonstrations:
 
     def __init__(
         self,
-        observations: np.ndarray,
+        observations: np.ndarray | Mapping[str, np.ndarray],
         actions: np.ndarray,
         episode_lengths: Sequence[int] | np.ndarray,
         rewards: np.ndarray | None = None,
         seeds: Sequence[int] | np.ndarray | None = None,
     ) -> None:
-        obs = np.asarray(observations)
+        obs_in = _observation_arrays(observations)
+        obs = next(iter(obs_in.values())) if isinstance(obs_in, dict) else obs_in
         act = np.asarray(actions)
         lengths = np.asarray(episode_lengths, dtype=np.int64).reshape(-1)
         if lengths.size == 0 or obs.size == 0 or len(obs) == 0:
             raise ValueError("demonstrations are empty: at least one episode with one step is needed")
         if np.any(lengths <= 0):
             raise ValueError(f"every episode needs at least one step; got lengths {lengths.tolist()}")
-        if obs.ndim < 2:
-            raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
         if len(act) != len(obs):
             with_final = len(obs) == len(act) + lengths.size
             hint = " (observations include the final observation? drop it)" if with_final else ""
             raise ValueError(f"observations and actions differ in length: {len(obs)} vs {len(act)} steps{hint}")
         if int(lengths.sum()) != len(obs):
             raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
-        if obs.dtype.kind not in "fiu" or act.dtype.kind not in "fiu":
+        if act.dtype.kind not in "fiu":
             raise ValueError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
-        self.observations: np.ndarray = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
+        self.observations: np.ndarray | dict[str, np.ndarray] = obs_in
         self.actions: np.ndarray = (
             act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
         )
-        _finite("observations", self.observations)
         _finite("actions", self.actions)
         if rewards is not None:
             rew = np.asarray(rewards, dtype=np.float32).reshape(-1)
@@ -103,9 +133,9 @@ class Demonstrations:
             missing = {"observations", "actions"} - set(ep)
             if missing:
                 raise ValueError(f"episode {i} lacks {sorted(missing)}")
-            if len(ep["observations"]) != len(ep["actions"]):
+            if n_steps(ep["observations"]) != len(ep["actions"]):
                 raise ValueError(
-                    f"episode {i}: {len(ep['observations'])} observations but {len(ep['actions'])} actions"
+                    f"episode {i}: {n_steps(ep['observations'])} observations but {len(ep['actions'])} actions"
                 )
             if len(ep["actions"]) == 0:
                 raise ValueError(f"episode {i} is empty")
@@ -114,7 +144,7 @@ class Demonstrations:
             raise ValueError("rewards must be given for every episode or for none")
         rewards = [np.asarray(ep["rewards"]).reshape(-1) for ep in episodes] if all(with_rewards) else None
         return cls(
-            observations=np.concatenate([np.asarray(ep["observations"]) for ep in episodes]),
+            observations=concatenate([ep["observations"] for ep in episodes]),
             actions=np.concatenate([np.asarray(ep["actions"]) for ep in episodes]),
             episode_lengths=[len(ep["actions"]) for ep in episodes],
             rewards=None if rewards is None else np.concatenate(rewards),
@@ -156,6 +186,10 @@ class Demonstrations:
         except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
             raise ValueError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
         _check_format_version(path, arrays.get("format_version"))
+        # Dict observations are saved one array per key, as "observations.<key>".
+        dict_obs = {k.partition(".")[2]: v for k, v in arrays.items() if k.startswith("observations.")}
+        if dict_obs:
+            arrays["observations"] = dict_obs
         missing = {"observations", "actions", "episode_lengths"} - set(arrays)
         if missing:
             raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
@@ -172,11 +206,12 @@ class Demonstrations:
 
     def save(self, path: PathLike) -> None:
         """Write a compressed npz atomically (temp file + rename)."""
+        obs = self.observations
         # Values typed Any, not np.ndarray: mypy would match a dict of arrays against the stub's
         # `allow_pickle: bool` keyword, which none of these keys is.
         arrays: dict[str, Any] = {
             "format_version": np.asarray(FORMAT_VERSION),
-            "observations": self.observations,
+            **({f"observations.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"observations": obs}),
             "actions": self.actions,
             "episode_lengths": self.episode_lengths,
             "seeds": self.seeds,
@@ -188,7 +223,7 @@ class Demonstrations:
 
     # -- views --------------------------------------------------------------------------------
     def __len__(self) -> int:
-        return len(self.observations)
+        return n_steps(self.observations)
 
     @property
     def n_episodes(self) -> int:
@@ -214,7 +249,7 @@ class Demonstrations:
         start = int(self.episode_starts[index])
         sl = slice(start, start + int(self.episode_lengths[index]))
         return {
-            "observations": self.observations[sl],
+            "observations": take(self.observations, sl),
             "actions": self.actions[sl],
             "rewards": None if self.rewards is None else self.rewards[sl],
             "seed": int(self.seeds[index]),
@@ -233,7 +268,7 @@ class Demonstrations:
     def __repr__(self) -> str:
         return (
             f"Demonstrations(n_episodes={self.n_episodes}, n_steps={len(self)}, "
-            f"obs_shape={self.observations.shape[1:]}, action_shape={self.actions.shape[1:]})"
+            f"obs_shape={_obs_shape(self.observations)}, action_shape={self.actions.shape[1:]})"
         )
 
     # -- validation ---------------------------------------------------------------------------
@@ -241,15 +276,15 @@ class Demonstrations:
         """Check the demos against an env's spaces; return the demos to train on.
 
         Raises ``ValueError`` naming the mismatch (unsupported space, observation or action shape,
-        Discrete action out of range or not an integer). Box actions outside the bounds are clipped
-        with a ``UserWarning``; the returned object is then a clipped copy, otherwise ``self``.
+        Discrete / MultiDiscrete / MultiBinary action out of range or not an integer). Channel-last
+        image observations are transposed for a channel-first space (SB3's VecTransposeImage). Box
+        actions outside the bounds are clipped with a ``UserWarning``. The returned object is then a
+        new one, otherwise ``self``.
         """
-        if not isinstance(observation_space, spaces.Box):
-            raise ValueError(f"only Box observation spaces are supported, got {observation_space}")
-        if self.observations.shape[1:] != observation_space.shape:
-            raise ValueError(
-                f"observation shape {self.observations.shape[1:]} of the demonstrations does not match "
-                f"the observation space shape {observation_space.shape}"
+        obs = match_observations(self.observations, observation_space)
+        if obs is not self.observations:
+            return Demonstrations(obs, self.actions, self.episode_lengths, self.rewards, self.seeds).check_spaces(
+                observation_space, action_space
             )
         if isinstance(action_space, spaces.Discrete):
             acts = self.actions.reshape(len(self.actions), -1)
@@ -269,8 +304,11 @@ class Demonstrations:
                 as_int = acts[:, 0].astype(np.int64)
                 return Demonstrations(self.observations, as_int, self.episode_lengths, self.rewards, self.seeds)
             return self
+        if isinstance(action_space, (spaces.MultiDiscrete, spaces.MultiBinary)):
+            return self._check_multi_actions(action_space)
         if not isinstance(action_space, spaces.Box):
-            raise ValueError(f"only Box and Discrete action spaces are supported, got {action_space}")
+            check_action_space(action_space)  # refuses, naming it: the supported others are handled above
+        assert isinstance(action_space, spaces.Box)
         if self.actions.shape[1:] != action_space.shape:
             raise ValueError(
                 f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
@@ -290,6 +328,32 @@ class Demonstrations:
         )
         clipped = np.clip(self.actions, low, high)
         return Demonstrations(self.observations, clipped, self.episode_lengths, self.rewards, self.seeds)
+
+
+    def _check_multi_actions(self, action_space: spaces.MultiDiscrete | spaces.MultiBinary) -> Demonstrations:
+        shape = tuple(action_space.shape)
+        if self.actions.shape[1:] != shape:
+            raise ValueError(
+                f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
+                f"the action space shape {shape}"
+            )
+        if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
+            name = type(action_space).__name__
+            raise ValueError(f"{name} actions must be integers; the demonstrations hold fractions")
+        acts = self.actions.astype(np.int64)
+        if isinstance(action_space, spaces.MultiBinary):
+            low, high = np.zeros(shape, np.int64), np.ones(shape, np.int64)
+        else:
+            low = np.asarray(action_space.start, np.int64)
+            high = low + np.asarray(action_space.nvec, np.int64) - 1
+        if np.any(acts < low) or np.any(acts > high):
+            raise ValueError(
+                f"demonstration actions span [{acts.min()}, {acts.max()}], outside the {type(action_space).__name__} "
+                f"space's [{low.min()}, {high.max()}] in some component"
+            )
+        if acts.dtype == self.actions.dtype:
+            return self
+        return Demonstrations(self.observations, acts, self.episode_lengths, self.rewards, self.seeds)
 
 
 def _check_format_version(path: Path, version: np.ndarray | None) -> None:

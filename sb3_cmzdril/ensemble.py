@@ -1,24 +1,38 @@
-"""BCEnsemble: a bootstrap ensemble of behaviour-cloning MLPs held as one batched network.
+"""BCEnsemble: a bootstrap ensemble of behaviour-cloning policies held as one batched network.
 
 The E members share one set of tensors per layer (weights ``[E, out, in]``, biases ``[E, out]``), so a
-forward pass for all members is one ``baddbmm`` per layer during fitting. Each member is fitted on its
-own bootstrap resample of the demonstration steps (drawn once, as DRIL does), from its own random
-initialisation; the spread of the members' predictions is the disagreement ``u``.
+forward pass for all members is one ``baddbmm`` per layer. Each member is fitted on its own bootstrap
+resample of the demonstration steps (drawn once, as DRIL does), from its own random initialisation;
+the spread of the members' predictions is the disagreement ``u``.
 
-Scoring happens once per environment step inside the reward wrapper, usually on a batch of one
-observation, where torch's per-operator overhead dominates. Inference therefore runs on cached numpy
-copies of the weights with preallocated buffers (see :meth:`BCEnsemble.disagreement`); torch is used
-only to fit.
+Inputs are built as SB3 builds a policy's (:mod:`sb3_cmzdril.spaces`): Box parts as floats
+(standardised with the demos' mean and std), Discrete / MultiDiscrete parts one-hot, MultiBinary as
+0/1, a Dict key by key, concatenated into one flat vector. Image parts (uint8 Boxes, scaled by 1/255)
+go through a CNN trunk shared by all members (as DRIL's ``PolicyEnsembleCNN``: one trunk, batched
+heads), whose features join the flat vector; the members' heads stay one batched forward.
 
-Disagreement forms (``disagreement=``):
+Scoring happens once per environment step inside the reward wrapper, or once per rollout from the
+buffer. For flat inputs on small batches, where torch's per-operator overhead dominates, inference
+runs on cached numpy copies of the weights with preallocated buffers (see :meth:`BCEnsemble.disagreement`);
+larger batches and images use torch.
 
-* ``"std"`` (default, CMZ-DRIL's "ensemble standard deviation"): Box: mean over action dimensions of
-  the standard deviation (population, ddof=0) across members of their predicted actions, clipped to
-  the action bounds; Discrete: standard deviation across members of the probability each assigns to
-  the agent's action (needs the actions; without them, the mean over all actions).
-* ``"quadratic"`` (DRIL's original form): ``a^T Cov a`` with the agent's clipped action ``a`` and the
-  covariance across members of their predicted actions (Box only; Discrete uses the same
-  probability-variance as DRIL's Atari code, i.e. the square of the "std" form).
+Disagreement forms (``disagreement=``), per action space:
+
+* ``"std"`` (default, CMZ-DRIL's "ensemble standard deviation"):
+
+  - Box (any shape, flattened): mean over action dimensions of the standard deviation (population,
+    ddof=0) across members of their predicted actions, clipped to the action bounds;
+  - Discrete (any ``start``): standard deviation across members of the probability each assigns to
+    the agent's action (needs the actions; without them, the mean over all actions);
+  - MultiDiscrete: the Discrete form for each component, summed over the components;
+  - MultiBinary: standard deviation across members of the probability of each bit, summed over the
+    bits (the probability of the agent's bit, ``p`` or ``1 - p``, has the same spread, so no actions
+    are needed).
+
+* ``"quadratic"`` (DRIL's original form): Box: ``a^T Cov a`` with the agent's clipped action ``a``
+  and the covariance across members of their predicted actions; the categorical and binary spaces
+  use the variance across members of the same probabilities (the square of each component's "std"
+  form, summed), as DRIL's Atari code does.
 """
 from __future__ import annotations
 
@@ -35,25 +49,78 @@ from torch import nn
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.io import PathLike, atomic_path
 from sb3_cmzdril.policies import observation_statistics
+from sb3_cmzdril.spaces import (
+    ObsEncoder,
+    Observations,
+    actions_as_indices,
+    categorical_starts,
+    check_action_space,
+    indices_as_actions,
+    shape_of,
+    space_from_config,
+    space_to_config,
+    take,
+)
 
 DISAGREEMENT_FORMS = ("std", "quadratic")
 # Up to this batch size numpy (no dispatch overhead) is faster; above it torch's batched matmul
 # is (numpy's float32 matmul ran at ~1 GFLOP/s here: 40 ms per layer for 2048 observations,
 # against 2.5 ms for torch.bmm).
 _NUMPY_MAX_BATCH = 32
+# Rows per torch forward when scoring many image observations: bounds the trunk's activations.
+_TORCH_CHUNK = 4096
+
+
+class ImageTrunk(nn.Module):
+    """SB3's NatureCNN (conv 32x8/4, 64x4/2, 64x3/1, then a linear layer) for images of at least
+    36 pixels a side; smaller images get two 3x3 stride-2 convolutions, which fit any size."""
+
+    def __init__(self, shape: tuple[int, int, int], features_dim: int) -> None:
+        super().__init__()
+        channels, height, width = shape
+        if min(height, width) >= 36:
+            layers: list[nn.Module] = [
+                nn.Conv2d(channels, 32, 8, stride=4), nn.ReLU(),
+                nn.Conv2d(32, 64, 4, stride=2), nn.ReLU(),
+                nn.Conv2d(64, 64, 3, stride=1), nn.ReLU(),
+            ]  # fmt: skip
+        else:
+            layers = [
+                nn.Conv2d(channels, 16, 3, stride=2, padding=1), nn.ReLU(),
+                nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(),
+            ]  # fmt: skip
+        self.cnn = nn.Sequential(*layers, nn.Flatten())
+        with th.no_grad():
+            n_flat = int(self.cnn(th.zeros(1, channels, height, width)).shape[1])
+        self.linear = nn.Sequential(nn.Linear(n_flat, features_dim), nn.ReLU())
+        self.features_dim = int(features_dim)
+
+    def forward(self, images: th.Tensor) -> th.Tensor:
+        """(..., C, H, W) in [0, 1] -> (..., features_dim)."""
+        lead = images.shape[:-3]
+        out = self.linear(self.cnn(images.reshape(-1, *images.shape[-3:])))
+        return out.reshape(*lead, self.features_dim)
 
 
 class BCEnsemble(nn.Module):
-    """E behaviour-cloning MLPs fitted on bootstrap resamples of the demonstrations.
+    """E behaviour-cloning policies fitted on bootstrap resamples of the demonstrations.
 
-    :param observation_space: Box observation space.
-    :param action_space: Box or Discrete action space.
+    :param observation_space: any observation space PPO takes (Box of any shape, images, Discrete,
+        MultiDiscrete, MultiBinary, Dict of those).
+    :param action_space: Box (any shape), Discrete (any start), MultiDiscrete or MultiBinary.
     :param n_members: ensemble size E (DRIL and the paper use 5).
-    :param hidden_sizes: hidden layer widths (ReLU). DRIL used 512 units; 64x64 keeps per-step
-        scoring cheap (see the README's performance section) and fits 1,000 demo steps easily.
+    :param hidden_sizes: hidden layer widths (ReLU) of each member's head. DRIL used 512 units; 64x64
+        keeps per-step scoring cheap (see the README's performance section) and fits 1,000 demo steps.
     :param disagreement: ``"std"`` or ``"quadratic"`` (see module docstring).
     :param seed: seeds initialisation, bootstrap draws and minibatch order.
+    :param image_features: output width of the shared CNN trunk of each image part.
     """
+
+    obs_mean: th.Tensor
+    obs_std: th.Tensor
+    action_low: th.Tensor
+    action_high: th.Tensor
+    fitted: th.Tensor
 
     def __init__(
         self,
@@ -63,12 +130,11 @@ class BCEnsemble(nn.Module):
         hidden_sizes: Sequence[int] = (64, 64),
         disagreement: str = "std",
         seed: int = 0,
+        image_features: int = 128,
     ) -> None:
         super().__init__()
-        if not isinstance(observation_space, spaces.Box):
-            raise ValueError(f"BCEnsemble needs a Box observation space, got {observation_space}")
-        if not isinstance(action_space, (spaces.Box, spaces.Discrete)):
-            raise ValueError(f"BCEnsemble supports Box and Discrete action spaces, got {action_space}")
+        encoder = ObsEncoder(observation_space)
+        check_action_space(action_space)
         if int(n_members) < 2:
             raise ValueError(f"an ensemble needs at least 2 members to disagree; got n_members={n_members}")
         if disagreement not in DISAGREEMENT_FORMS:
@@ -78,17 +144,37 @@ class BCEnsemble(nn.Module):
             raise ValueError(f"hidden sizes must be positive, got {hidden_sizes}")
         self.observation_space = observation_space
         self.action_space = action_space
+        self.encoder = encoder
         self.n_members = int(n_members)
         self.hidden_sizes = hidden_sizes
         self.disagreement_form = disagreement
         self.seed = int(seed)
-        self.discrete = isinstance(action_space, spaces.Discrete)
-        self.obs_shape = tuple(observation_space.shape)
-        self.obs_dim = int(np.prod(self.obs_shape))
-        self.out_dim = int(action_space.n) if self.discrete else int(np.prod(action_space.shape))
+        self.image_features = int(image_features)
+        #: "box", "categorical" (Discrete, MultiDiscrete) or "binary" (MultiBinary)
+        self.action_kind = (
+            "box" if isinstance(action_space, spaces.Box)
+            else "binary" if isinstance(action_space, spaces.MultiBinary)
+            else "categorical"
+        )  # fmt: skip
+        self.discrete = self.action_kind == "categorical"
+        self.action_shape = shape_of(action_space)
+        #: the categorical components' sizes (Discrete: one; MultiDiscrete: nvec; otherwise none)
+        self.segments: list[int] = []
+        self._starts = np.zeros(0, np.int64)
+        if isinstance(action_space, (spaces.Discrete, spaces.MultiDiscrete)):
+            nvec = [action_space.n] if isinstance(action_space, spaces.Discrete) else action_space.nvec
+            self.segments = [int(n) for n in np.asarray(nvec).reshape(-1)]
+            self._starts = categorical_starts(action_space)
+        self.out_dim = sum(self.segments) if self.segments else int(np.prod(self.action_shape))
+        self.obs_dim = encoder.flat_dim
 
         gen = th.Generator().manual_seed(self.seed)
-        sizes = [self.obs_dim, *hidden_sizes, self.out_dim]
+        with th.random.fork_rng(devices=[]):
+            th.manual_seed(self.seed)  # the trunks' default initialisation, reproducibly
+            self.trunks = nn.ModuleList(
+                [ImageTrunk(encoder.image_shape(p), self.image_features) for p in encoder.image_parts]
+            )
+        sizes = [encoder.flat_dim + self.image_features * len(self.trunks), *hidden_sizes, self.out_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
         for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
@@ -98,29 +184,54 @@ class BCEnsemble(nn.Module):
             self.biases.append(nn.Parameter((th.rand(self.n_members, fan_out, generator=gen) * 2 - 1) * bound))
         self.register_buffer("obs_mean", th.zeros(self.obs_dim))
         self.register_buffer("obs_std", th.ones(self.obs_dim))
-        if self.discrete:
-            low, high = np.zeros(1, np.float32), np.zeros(1, np.float32)
-        else:
+        if isinstance(action_space, spaces.Box):
             low = np.asarray(action_space.low, np.float32).reshape(-1)
             high = np.asarray(action_space.high, np.float32).reshape(-1)
-        self.register_buffer("action_low", th.as_tensor(low))
-        self.register_buffer("action_high", th.as_tensor(high))
-        self.register_buffer("fitted", th.zeros((), dtype=th.bool))
+        else:
+            low, high = np.zeros(1, np.float32), np.zeros(1, np.float32)
+        # Copies: as_tensor would share memory with the space's own bounds, and loading a state dict
+        # (set_parameters) would then rewrite the env's action space.
+        self.register_buffer("action_low", th.tensor(low))
+        self.register_buffer("action_high", th.tensor(high))
+        # A float flag, not a bool: SB3's set_parameters and its users treat every saved tensor as numeric.
+        self.register_buffer("fitted", th.zeros(()))
         self.train_loss_: np.ndarray | None = None
         self._np_cache: dict[str, Any] | None = None
 
+    @property
+    def is_fitted(self) -> bool:
+        return float(self.fitted) != 0.0
+
     # -- torch forward (fitting) -------------------------------------------------------------
-    def forward(self, obs: th.Tensor) -> th.Tensor:
-        """Raw outputs for every member: ``obs`` (E, B, obs_dim) or (B, obs_dim) -> (E, B, out_dim)."""
-        if obs.dim() == 2:
-            obs = obs.unsqueeze(0).expand(self.n_members, -1, -1)
+    def forward(self, obs: th.Tensor, images: Sequence[th.Tensor] = ()) -> th.Tensor:
+        """Raw outputs of every member: ``obs`` the flat encoding, (E, B, obs_dim) or (B, obs_dim),
+        ``images`` one (E, B, C, H, W) or (B, C, H, W) tensor per image part -> (E, B, out_dim)."""
         h = (obs - self.obs_mean) / self.obs_std
+        if len(self.trunks):
+            h = th.cat([h, *(trunk(img) for trunk, img in zip(self.trunks, images, strict=True))], dim=-1)
+        if h.dim() == 2:
+            h = h.unsqueeze(0).expand(self.n_members, -1, -1)
         last = len(self.weights) - 1
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             h = th.baddbmm(b.unsqueeze(1), h, w.transpose(1, 2))
             if i < last:
                 h = th.relu(h)
         return h
+
+    def _loss(self, out: th.Tensor, targets: th.Tensor) -> th.Tensor:
+        """Each member's loss, (E,): MSE (Box), cross-entropy summed over components (categorical),
+        binary cross-entropy (MultiBinary)."""
+        if self.action_kind == "box":
+            return ((out - targets) ** 2).mean(dim=(1, 2))
+        if self.action_kind == "binary":
+            return nn.functional.binary_cross_entropy_with_logits(out, targets, reduction="none").mean(dim=(1, 2))
+        total = out.new_zeros(self.n_members)
+        for j, logits in enumerate(th.split(out, self.segments, dim=2)):
+            ce = nn.functional.cross_entropy(
+                logits.reshape(-1, logits.shape[-1]), targets[..., j].reshape(-1), reduction="none"
+            )
+            total = total + ce.view(self.n_members, -1).mean(1)
+        return total
 
     def fit(
         self,
@@ -130,9 +241,8 @@ class BCEnsemble(nn.Module):
         learning_rate: float = 1e-3,
         progress_bar: bool = False,
     ) -> BCEnsemble:
-        """Fit every member on its own bootstrap resample of the demo steps (MSE on clipped actions
-        for Box, cross-entropy for Discrete). Returns ``self``; ``train_loss_`` holds each member's
-        loss over the last epoch."""
+        """Fit every member on its own bootstrap resample of the demo steps (see :meth:`_loss`).
+        Returns ``self``; ``train_loss_`` holds each member's loss over the last epoch."""
         demos = demos.check_spaces(self.observation_space, self.action_space)
         if n_epochs < 1 or batch_size < 1 or learning_rate <= 0:
             raise ValueError(
@@ -140,16 +250,18 @@ class BCEnsemble(nn.Module):
                 f"got {n_epochs}, {batch_size}, {learning_rate}"
             )
         device = self.obs_mean.device  # fit where the module lives (SB3's device="auto" may be CUDA)
-        mean, std = observation_statistics(demos.observations)
+        batch = self.encoder.batch(demos.observations)
+        flat = self.encoder.flat(batch)
+        mean, std = observation_statistics(flat)
+        # Only Box columns are standardised; one-hot and binary columns stay as SB3 feeds them.
+        box = self.encoder.box_columns
+        mean, std = np.where(box, mean, 0.0), np.where(box, std, 1.0)
         with th.no_grad():
             self.obs_mean.copy_(th.as_tensor(mean))
             self.obs_std.copy_(th.as_tensor(std))
-        obs = th.as_tensor(demos.observations.reshape(len(demos), -1), dtype=th.float32, device=device)
-        if self.discrete:
-            targets = th.as_tensor(demos.actions, dtype=th.long, device=device)
-        else:
-            targets = th.as_tensor(demos.actions.reshape(len(demos), -1), dtype=th.float32, device=device)
-            targets = th.max(th.min(targets, self.action_high), self.action_low)
+        obs = th.as_tensor(flat, device=device)
+        images = [th.as_tensor(img, device=device) for img in self.encoder.images(batch)]
+        targets = self._targets(demos.actions, device)
 
         rng = np.random.default_rng(self.seed)
         n = len(demos)
@@ -157,7 +269,7 @@ class BCEnsemble(nn.Module):
         boot = rng.integers(0, n, size=(self.n_members, n))
         members = np.arange(self.n_members)[:, None]
         optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
-        epochs = range(n_epochs)
+        epochs: Any = range(n_epochs)
         if progress_bar:
             from sb3_cmzdril.extras import require_extra
 
@@ -171,33 +283,33 @@ class BCEnsemble(nn.Module):
             epoch_loss[:] = 0.0
             for start in range(0, n, batch_size):
                 idx = th.as_tensor(order[:, start : start + batch_size], device=device)
-                out = self(obs[idx])
-                if self.discrete:
-                    per_member = (
-                        nn.functional.cross_entropy(
-                            out.reshape(-1, self.out_dim), targets[idx].reshape(-1), reduction="none"
-                        )
-                        .view(self.n_members, -1)
-                        .mean(1)
-                    )
-                else:
-                    per_member = ((out - targets[idx]) ** 2).mean(dim=(1, 2))
+                per_member = self._loss(self(obs[idx], [img[idx] for img in images]), targets[idx])
                 optimizer.zero_grad(set_to_none=True)
-                # Members are independent, so summing their losses trains each on its own loss.
+                # Members are independent (the shared trunk learns from all), so summing their losses
+                # trains each head on its own loss.
                 per_member.sum().backward()
                 optimizer.step()
                 epoch_loss += per_member.detach().cpu().numpy() * idx.shape[1]
         self.eval()
         self.train_loss_ = epoch_loss / n
         with th.no_grad():
-            self.fitted.fill_(True)
+            self.fitted.fill_(1.0)
         self._np_cache = None
         return self
 
-    # -- numpy inference (scoring) -----------------------------------------------------------
+    def _targets(self, actions: np.ndarray, device: th.device) -> th.Tensor:
+        if self.action_kind == "categorical":
+            idx = actions_as_indices(actions, self.action_space).reshape(len(actions), -1)
+            return th.as_tensor(idx, dtype=th.long, device=device)
+        targets = th.as_tensor(actions_as_indices(actions, self.action_space), device=device)
+        if self.action_kind == "box":
+            targets = th.max(th.min(targets, self.action_high), self.action_low)
+        return targets
+
+    # -- inference (scoring) -----------------------------------------------------------------
     def _numpy_params(self) -> dict[str, Any]:
         if self._np_cache is None:
-            if not bool(self.fitted):
+            if not self.is_fitted:
                 raise RuntimeError("BCEnsemble is not fitted: call fit(demonstrations) first")
             self._np_cache = {
                 # [E, in, out] so that h @ W needs no transpose per call.
@@ -211,23 +323,15 @@ class BCEnsemble(nn.Module):
             }
         return self._np_cache
 
-    def _check_obs(self, obs: np.ndarray) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float32)
-        if obs.shape == self.obs_shape:
-            obs = obs[None]
-        if obs.shape[1:] != self.obs_shape:
-            raise ValueError(f"observations of shape {obs.shape[1:]} do not match the ensemble's {self.obs_shape}")
-        if not np.isfinite(obs).all():
-            raise ValueError("observations contain NaN or inf")
-        return obs.reshape(len(obs), self.obs_dim)
-
-    def member_outputs(self, obs: np.ndarray) -> np.ndarray:
-        """Each member's output on a batch: (E, B, act_dim) clipped actions for Box, (E, B, n)
-        probabilities for Discrete. The returned array may be a reused buffer: copy it to keep it."""
+    def member_outputs(self, obs: Observations) -> np.ndarray:
+        """Each member's output on a batch (or a single observation): (E, B, out_dim) clipped actions
+        (Box, flattened), probabilities of each component's actions (Discrete, MultiDiscrete) or of
+        each bit (MultiBinary). The returned array may be a reused buffer: copy it to keep it."""
         p = self._numpy_params()
-        x = self._check_obs(obs)
-        if len(x) > _NUMPY_MAX_BATCH:
-            return self._torch_outputs(x)
+        batch = self.encoder.batch(obs)
+        x = self.encoder.flat(batch)
+        if len(x) > _NUMPY_MAX_BATCH or len(self.trunks):
+            return self._torch_outputs(x, self.encoder.images(batch))
         bufs = p["bufs"].get(len(x))
         if bufs is None:
             sizes = [*self.hidden_sizes, self.out_dim]
@@ -245,51 +349,70 @@ class BCEnsemble(nn.Module):
             if i < last:
                 np.maximum(out, 0.0, out=out)
             h = out
-        if self.discrete:
-            np.subtract(h, h.max(axis=2, keepdims=True), out=h)
+        if self.action_kind == "categorical":
+            start = 0
+            for n in self.segments:
+                seg = h[..., start : start + n]
+                np.subtract(seg, seg.max(axis=2, keepdims=True), out=seg)
+                np.exp(seg, out=seg)
+                np.divide(seg, seg.sum(axis=2, keepdims=True), out=seg)
+                start += n
+        elif self.action_kind == "binary":
+            np.negative(h, out=h)
             np.exp(h, out=h)
-            np.divide(h, h.sum(axis=2, keepdims=True), out=h)
+            np.add(h, 1.0, out=h)
+            np.reciprocal(h, out=h)
         else:
             np.minimum(h, p["high"], out=h)
             np.maximum(h, p["low"], out=h)
         return h
 
-    def _torch_outputs(self, x: np.ndarray) -> np.ndarray:
+    def _torch_outputs(self, x: np.ndarray, images: list[np.ndarray]) -> np.ndarray:
+        device = self.obs_mean.device
+        chunks = []
         with th.inference_mode():
-            out = self(th.as_tensor(x, device=self.obs_mean.device))
-            if self.discrete:
-                out = th.softmax(out, dim=2)
-            else:
-                out = th.max(th.min(out, self.action_high), self.action_low)
-            return out.cpu().numpy()
+            for start in range(0, max(len(x), 1), _TORCH_CHUNK):
+                rows = slice(start, start + _TORCH_CHUNK)
+                imgs = [th.as_tensor(img[rows], device=device) for img in images]
+                out = self(th.as_tensor(x[rows], device=device), imgs)
+                if self.action_kind == "categorical":
+                    out = th.cat([th.softmax(seg, dim=2) for seg in th.split(out, self.segments, dim=2)], dim=2)
+                elif self.action_kind == "binary":
+                    out = th.sigmoid(out)
+                else:
+                    out = th.max(th.min(out, self.action_high), self.action_low)
+                chunks.append(out.cpu().numpy())
+        return chunks[0] if len(chunks) == 1 else np.concatenate(chunks, axis=1)
 
-    def predict(self, obs: np.ndarray) -> np.ndarray:
-        """The ensemble's mean action (Box, clipped) or most probable action (Discrete), (B, ...)."""
+    def predict(self, obs: Observations) -> np.ndarray:
+        """The ensemble's action for each observation, shaped as the action space's samples (batched):
+        the mean action (Box, clipped), each component's most probable action (Discrete,
+        MultiDiscrete, start included), each bit's more probable value (MultiBinary)."""
         out = self.member_outputs(obs).mean(axis=0)
-        if self.discrete:
-            return out.argmax(axis=1)
-        return out.reshape((len(out),) + tuple(self.action_space.shape))
+        if self.action_kind == "categorical":
+            idx = np.stack([seg.argmax(axis=1) for seg in np.split(out, np.cumsum(self.segments)[:-1], axis=1)], 1)
+            return indices_as_actions(idx, self.action_space)
+        if self.action_kind == "binary":
+            return (out > 0.5).astype(self.action_space.dtype).reshape((len(out), *self.action_shape))
+        return out.reshape((len(out), *self.action_shape))
 
     @property
     def needs_actions(self) -> bool:
         """Whether :meth:`disagreement` uses the agent's actions."""
-        return self.discrete or self.disagreement_form == "quadratic"
+        if self.action_kind == "box":
+            return self.disagreement_form == "quadratic"
+        return self.action_kind == "categorical"
 
-    def disagreement(self, obs: np.ndarray, actions: np.ndarray | None = None) -> np.ndarray:
-        """Disagreement ``u`` for each observation, (B,) float64 (see the module docstring)."""
+    def disagreement(self, obs: Observations, actions: np.ndarray | None = None) -> np.ndarray:
+        """Disagreement ``u`` for each observation, (B,) float64 (see the module docstring).
+        ``actions`` are the space's own (Discrete/MultiDiscrete: with their ``start``)."""
         out = self.member_outputs(obs)
         batch = out.shape[1]
-        if self.discrete:
-            if actions is None:
-                return out.std(axis=0).mean(axis=1).astype(np.float64)
-            a = np.asarray(actions).reshape(-1).astype(np.int64)
-            if a.shape[0] != batch:
-                raise ValueError(f"{a.shape[0]} actions given for {batch} observations")
-            if a.min() < 0 or a.max() >= self.out_dim:
-                raise ValueError(f"discrete actions must lie in [0, {self.out_dim - 1}]")
-            probs = out[:, np.arange(batch), a]  # (E, B)
-            u = probs.std(axis=0).astype(np.float64)
-            return u * u if self.disagreement_form == "quadratic" else u
+        if self.action_kind == "categorical":
+            return self._categorical_disagreement(out, actions)
+        if self.action_kind == "binary":
+            spread = out.var(axis=0) if self.disagreement_form == "quadratic" else out.std(axis=0)
+            return spread.sum(axis=1).astype(np.float64)
         # Deviations from member 0 (a shifted variance): exactly 0 when the members agree, where
         # deviations from the float32 mean would leave rounding noise.
         dev = out[1:] - out[0]
@@ -314,6 +437,28 @@ class BCEnsemble(nn.Module):
         mean_proj = proj.sum(axis=0) / self.n_members
         return np.maximum((proj * proj).sum(axis=0) / self.n_members - mean_proj * mean_proj, 0.0)
 
+    def _categorical_disagreement(self, out: np.ndarray, actions: np.ndarray | None) -> np.ndarray:
+        batch = out.shape[1]
+        u = np.zeros(batch, np.float64)
+        if actions is not None:
+            idx = actions_as_indices(np.asarray(actions).reshape(batch, -1), self.action_space).reshape(batch, -1)
+            if idx.shape[1] != len(self.segments):
+                raise ValueError(f"actions have {idx.shape[1]} components, the action space {len(self.segments)}")
+            high = np.asarray(self.segments) - 1
+            if idx.min() < 0 or np.any(idx.max(axis=0) > high):
+                ranges = [f"[{lo}, {lo + hi}]" for lo, hi in zip(self._starts, high, strict=True)]
+                raise ValueError(f"discrete actions must lie in {', '.join(ranges)}")
+        start = 0
+        for j, n in enumerate(self.segments):
+            seg = out[:, :, start : start + n]
+            start += n
+            if actions is None:
+                spread = seg.std(axis=0).mean(axis=1)
+            else:
+                spread = seg[:, np.arange(batch), idx[:, j]].std(axis=0)
+            u += spread * spread if self.disagreement_form == "quadratic" else spread
+        return u
+
     # -- persistence ---------------------------------------------------------------------------
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
         result = super().load_state_dict(state_dict, strict=strict, assign=assign)
@@ -321,19 +466,14 @@ class BCEnsemble(nn.Module):
         return result
 
     def _config(self) -> dict[str, Any]:
-        act = self.action_space
         return {
-            "obs_shape": list(self.obs_shape),
-            "obs_low": np.asarray(self.observation_space.low, np.float64).reshape(-1).tolist(),
-            "obs_high": np.asarray(self.observation_space.high, np.float64).reshape(-1).tolist(),
-            "discrete_n": int(act.n) if self.discrete else 0,
-            "act_shape": [] if self.discrete else list(act.shape),
-            "act_low": [] if self.discrete else np.asarray(act.low, np.float64).reshape(-1).tolist(),
-            "act_high": [] if self.discrete else np.asarray(act.high, np.float64).reshape(-1).tolist(),
+            "observation_space": space_to_config(self.observation_space),
+            "action_space": space_to_config(self.action_space),
             "n_members": self.n_members,
             "hidden_sizes": list(self.hidden_sizes),
             "disagreement": self.disagreement_form,
             "seed": self.seed,
+            "image_features": self.image_features,
         }
 
     def save(self, path: PathLike) -> None:
@@ -350,28 +490,44 @@ class BCEnsemble(nn.Module):
         try:
             blob = th.load(path, map_location="cpu", weights_only=True)
             cfg = blob["config"]
+            obs_space, act_space = _config_spaces(cfg)
         except Exception as e:  # torch raises several types for a damaged file
             raise ValueError(f"ensemble file {path} is corrupt or not a BCEnsemble file: {e}") from e
-        obs_space = spaces.Box(
-            np.asarray(cfg["obs_low"], np.float32).reshape(cfg["obs_shape"]),
-            np.asarray(cfg["obs_high"], np.float32).reshape(cfg["obs_shape"]),
+        ens = cls(
+            obs_space,
+            act_space,
+            cfg["n_members"],
+            cfg["hidden_sizes"],
+            cfg["disagreement"],
+            cfg["seed"],
+            cfg.get("image_features", 128),
         )
-        if cfg["discrete_n"]:
-            act_space: spaces.Space = spaces.Discrete(cfg["discrete_n"])
-        else:
-            act_space = spaces.Box(
-                np.asarray(cfg["act_low"], np.float32).reshape(cfg["act_shape"]),
-                np.asarray(cfg["act_high"], np.float32).reshape(cfg["act_shape"]),
-            )
-        ens = cls(obs_space, act_space, cfg["n_members"], cfg["hidden_sizes"], cfg["disagreement"], cfg["seed"])
         ens.load_state_dict(blob["state_dict"])
         return ens
 
     def extra_repr(self) -> str:
         return (
             f"n_members={self.n_members}, hidden_sizes={self.hidden_sizes}, obs_dim={self.obs_dim}, "
-            f"out_dim={self.out_dim}, discrete={self.discrete}, disagreement={self.disagreement_form!r}"
+            f"images={len(self.trunks)}, out_dim={self.out_dim}, actions={self.action_kind!r}, "
+            f"disagreement={self.disagreement_form!r}"
         )
+
+
+def _config_spaces(cfg: dict[str, Any]) -> tuple[spaces.Space, spaces.Space]:
+    if "observation_space" in cfg:
+        return space_from_config(cfg["observation_space"]), space_from_config(cfg["action_space"])
+    # Files from before Dict and multi-discrete support: a Box observation, Box or Discrete actions.
+    obs_space = spaces.Box(
+        np.asarray(cfg["obs_low"], np.float32).reshape(cfg["obs_shape"]),
+        np.asarray(cfg["obs_high"], np.float32).reshape(cfg["obs_shape"]),
+    )
+    if cfg["discrete_n"]:
+        return obs_space, spaces.Discrete(cfg["discrete_n"])
+    act_space = spaces.Box(
+        np.asarray(cfg["act_low"], np.float32).reshape(cfg["act_shape"]),
+        np.asarray(cfg["act_high"], np.float32).reshape(cfg["act_shape"]),
+    )
+    return obs_space, act_space
 
 
 def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> float:
@@ -380,7 +536,7 @@ def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> 
         raise ValueError(f"quantile q must lie in (0, 1], got {q}")
     u = np.concatenate(
         [
-            ensemble.disagreement(demos.observations[i : i + 4096], demos.actions[i : i + 4096])
+            ensemble.disagreement(take(demos.observations, slice(i, i + 4096)), demos.actions[i : i + 4096])
             for i in range(0, len(demos), 4096)
         ]
     )

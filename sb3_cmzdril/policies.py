@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
+from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor, NatureCNN
 
 #: Floor of the per-dimension std: a demo dimension that never varies (a constant sensor, a one-hot
 #: that the expert never switched) would otherwise be divided by ~0 and blow up off the demos.
@@ -34,68 +35,151 @@ def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_ST
     obs = np.asarray(observations, dtype=np.float64)
     if len(obs) == 0:
         raise ValueError("cannot compute observation statistics of zero observations")
-    obs = obs.reshape(len(obs), -1)
+    obs = obs.reshape(len(obs), int(np.prod(obs.shape[1:])))
     mean = obs.mean(axis=0)
     std = np.maximum(obs.std(axis=0), float(min_std))
     return mean.astype(np.float32), std.astype(np.float32)
 
 
-class DemoStandardizer(BaseFeaturesExtractor):
-    """Flatten, then ``(obs - mean) / std`` with fixed statistics (identity until they are set).
+def standardized_keys(observation_space: spaces.Space) -> list[str | None]:
+    """The parts of an observation worth standardising: a non-image Box (``[None]``), or the
+    non-image Box entries of a Dict (their keys). Images are scaled by SB3 and discrete parts are
+    one-hot or binary, so they are left alone."""
+    if isinstance(observation_space, spaces.Dict):
+        return [k for k, sub in observation_space.spaces.items() if _standardizable(sub)]
+    return [None] if _standardizable(observation_space) else []
 
-    :param observation_space: a Box observation space.
+
+def _standardizable(space: spaces.Space) -> bool:
+    return isinstance(space, spaces.Box) and not is_image_space(space, check_channels=False)
+
+
+class DemoStandardizer(BaseFeaturesExtractor):
+    """``(obs - mean) / std`` on the Box parts of the observation with fixed statistics (identity
+    until they are set), then the features extractor it wraps: SB3's FlattenExtractor by default,
+    or the policy's own (CombinedExtractor for Dict observations, a user's extractor). Image and
+    discrete parts pass through unchanged. Attributes of the wrapped extractor are reachable on the
+    wrapper (``policy.features_extractor.batch_norm``).
+
+    :param observation_space: the policy's observation space.
+    :param features_extractor_class: the extractor that gets the standardised observations.
+    :param features_extractor_kwargs: its keyword arguments.
     """
 
-    def __init__(self, observation_space: spaces.Box) -> None:
-        if not isinstance(observation_space, spaces.Box):
-            raise ValueError(f"DemoStandardizer needs a Box observation space, got {observation_space}")
-        n = int(np.prod(observation_space.shape))
-        super().__init__(observation_space, features_dim=n)
-        self.flatten = th.nn.Flatten()
-        self.register_buffer("obs_mean", th.zeros(n))
-        self.register_buffer("obs_std", th.ones(n))
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        keys = standardized_keys(observation_space)
+        if not keys:
+            raise ValueError(f"DemoStandardizer needs a Box part in the observation space, got {observation_space}")
+        inner = features_extractor_class(observation_space, **(features_extractor_kwargs or {}))
+        super().__init__(observation_space, features_dim=inner.features_dim)
+        self.extractor = inner
+        self.keys = keys
+        for i, key in enumerate(keys):
+            sub = observation_space if key is None else observation_space[key]  # type: ignore[index]
+            n = int(np.prod(sub.shape or ()))
+            self.register_buffer(self._buffer("obs_mean", i), th.zeros(n))
+            self.register_buffer(self._buffer("obs_std", i), th.ones(n))
 
-    def set_statistics(self, mean: np.ndarray, std: np.ndarray) -> None:
-        """Set the statistics (in place, on the module's device)."""
+    def __getattr__(self, name: str) -> Any:
+        # The wrapped extractor's attributes stay reachable where users look for them
+        # (policy.features_extractor.<their layer>).
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            if name == "extractor":
+                raise
+            return getattr(super().__getattr__("extractor"), name)
+
+    def _buffer(self, name: str, i: int) -> str:
+        # A plain Box keeps the names models saved before Dict support used.
+        return name if self.keys == [None] else f"{name}_{i}"
+
+    def set_statistics(self, mean: np.ndarray, std: np.ndarray, key: str | None = None) -> None:
+        """Set the statistics of one part (``key``: a Dict entry; None for a Box space), in place."""
+        if key not in self.keys:
+            raise ValueError(f"no standardised observation part {key!r}; the parts are {self.keys}")
+        i = self.keys.index(key)
+        obs_mean, obs_std = getattr(self, self._buffer("obs_mean", i)), getattr(self, self._buffer("obs_std", i))
         mean = np.asarray(mean, dtype=np.float32).reshape(-1)
         std = np.asarray(std, dtype=np.float32).reshape(-1)
-        if mean.shape != self.obs_mean.shape or std.shape != self.obs_std.shape:
+        if mean.shape != obs_mean.shape or std.shape != obs_std.shape:
             raise ValueError(
-                f"statistics of shape {mean.shape}/{std.shape} for {self.obs_mean.shape[0]} observation dimensions"
+                f"statistics of shape {mean.shape}/{std.shape} for {obs_mean.shape[0]} observation dimensions"
             )
         if not (np.isfinite(mean).all() and np.isfinite(std).all() and (std > 0).all()):
             raise ValueError("observation statistics must be finite with a positive std")
         with th.no_grad():
-            self.obs_mean.copy_(th.as_tensor(mean))
-            self.obs_std.copy_(th.as_tensor(std))
+            obs_mean.copy_(th.as_tensor(mean))
+            obs_std.copy_(th.as_tensor(std))
 
-    def forward(self, observations: th.Tensor) -> th.Tensor:
-        return (self.flatten(observations) - self.obs_mean) / self.obs_std
+    def fit(self, observations: np.ndarray | dict[str, np.ndarray]) -> None:
+        """Set every part's statistics from demonstration observations (an array, or a dict)."""
+        for key in self.keys:
+            part = observations[key] if isinstance(observations, dict) and key is not None else observations
+            self.set_statistics(*observation_statistics(np.asarray(part)), key=key)
+
+    def forward(self, observations: Any) -> th.Tensor:
+        if self.keys == [None]:
+            observations = self._standardize(observations, 0)
+        else:
+            observations = dict(observations)
+            for i, key in enumerate(self.keys):
+                observations[key] = self._standardize(observations[key], i)
+        return self.extractor(observations)
+
+    def _standardize(self, x: th.Tensor, i: int) -> th.Tensor:
+        flat = x.reshape(len(x), -1)
+        out = (flat - getattr(self, self._buffer("obs_mean", i))) / getattr(self, self._buffer("obs_std", i))
+        return out.reshape(x.shape)
 
 
-def standardizing_policy_kwargs(policy_class: type, policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
-    """``policy_kwargs`` with :class:`DemoStandardizer` as the features extractor.
+def standardizing_policy_kwargs(
+    policy_class: type, policy_kwargs: dict[str, Any] | None, observation_space: spaces.Space
+) -> tuple[dict[str, Any], str | None]:
+    """``policy_kwargs`` with :class:`DemoStandardizer` wrapping the policy's features extractor,
+    and a note for the log when that is not plain flattening (or nothing is standardised).
 
-    Refuses (ValueError) a features extractor of the user's, and a policy whose default extractor is
-    not the flat one (e.g. ``CnnPolicy``): standardisation replaces the extractor, which would
-    silently drop theirs.
+    The wrapped extractor is the user's ``features_extractor_class`` if given, else the policy's
+    default (FlattenExtractor for MlpPolicy, CombinedExtractor for MultiInputPolicy). An observation
+    without a non-image Box part (images, discrete) is left as it is.
     """
     kwargs = dict(policy_kwargs or {})
-    current = kwargs.get("features_extractor_class")
-    if current not in (None, DemoStandardizer):
-        raise ValueError(
-            f"standardize_observations=True puts DemoStandardizer in place of the features extractor, but "
-            f"policy_kwargs asks for {getattr(current, '__name__', current)}; "
-            f"pass standardize_observations=False to keep yours"
+    inner = kwargs.get("features_extractor_class")
+    if inner is DemoStandardizer:  # already set up (a loaded model)
+        return kwargs, None
+    if inner is None:
+        default = inspect.signature(policy_class).parameters.get("features_extractor_class")
+        inner = default.default if default is not None else FlattenExtractor
+    if isinstance(inner, type) and issubclass(inner, NatureCNN):
+        return kwargs, (
+            f"standardize_observations: {inner.__name__} takes the observation for an image (SB3 scales "
+            "images, or they come normalised); the policy sees it unchanged"
         )
-    default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
-    if current is None and (default is None or default.default is not FlattenExtractor):
-        raise ValueError(
-            f"standardize_observations=True needs a flat-input policy (MlpPolicy); {policy_class.__name__} "
-            "has its own features extractor: pass standardize_observations=False"
+    if not standardized_keys(observation_space):
+        return kwargs, (
+            f"standardize_observations: the observation space {observation_space} has no Box part to "
+            "standardise (SB3 scales images and one-hot encodes discrete parts); the policy sees them unchanged"
         )
+    inner_kwargs = dict(kwargs.pop("features_extractor_kwargs", None) or {})
+    if kwargs.get("normalize_images") is False and isinstance(inner, type) and issubclass(inner, CombinedExtractor):
+        # What SB3's policy does for its own CombinedExtractor, which it no longer sees behind the wrapper.
+        inner_kwargs["normalized_image"] = True
     kwargs["features_extractor_class"] = DemoStandardizer
-    return kwargs
+    kwargs["features_extractor_kwargs"] = {"features_extractor_class": inner, "features_extractor_kwargs": inner_kwargs}
+    note = None
+    if inner is not FlattenExtractor:
+        keys = [str(k) for k in standardized_keys(observation_space) if k is not None]
+        parts = ", ".join(keys) or "the Box observation"
+        note = (
+            f"standardize_observations: {parts} standardised with the demonstrations' statistics before "
+            f"{getattr(inner, '__name__', inner)}; other parts pass unchanged"
+        )
+    return kwargs, note
 
 
 def _gaussian_log_std(policy: Any) -> th.Tensor | None:
@@ -123,6 +207,7 @@ __all__ = [
     "mean_log_std",
     "floor_log_std",
     "observation_statistics",
+    "standardized_keys",
     "standardizing_policy_kwargs",
     "MIN_OBS_STD",
 ]

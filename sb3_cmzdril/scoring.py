@@ -18,11 +18,16 @@ env stack: a reward-normalising VecNormalize (it must see the shaped reward as i
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_cmzdril.spaces import concatenate, indices_as_actions, reshape_rows
+
+if TYPE_CHECKING:
+    from sb3_cmzdril.algorithm import CMZDRIL
 
 
 class RolloutScorer(BaseCallback):
@@ -35,38 +40,43 @@ class RolloutScorer(BaseCallback):
         super().__init__()
         self.rescore = bool(rescore)
         self._env_rewards: np.ndarray | None = None
-        self._raw_obs: np.ndarray | None = None
+        self._raw_obs: list[Any] | None = None
         self._vec_normalize: Any = None
         self._t = 0
+
+    @property
+    def cmz(self) -> CMZDRIL:
+        # Only CMZDRIL._init_callback installs the scorer, so its model is always a CMZDRIL.
+        return cast("CMZDRIL", self.model)
 
     def _on_rollout_start(self) -> None:
         self._t = 0
         if not self.rescore:
             return
-        buffer = self.model.rollout_buffer
+        buffer = self.cmz.rollout_buffer
         self._env_rewards = np.zeros((buffer.buffer_size, buffer.n_envs), np.float32)
         vec_normalize = self.model.get_vec_normalize_env()
         # The buffer holds what the policy saw; the ensemble needs raw observations.
         self._vec_normalize = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
-        if self._vec_normalize is not None:
-            self._raw_obs = np.zeros((buffer.buffer_size, buffer.n_envs, *buffer.obs_shape), np.float32)
-            self._raw_obs[0] = self._vec_normalize.get_original_obs()
+        self._raw_obs = [_copy(self._vec_normalize.get_original_obs())] if self._vec_normalize is not None else None
 
     def _on_step(self) -> bool:
         if self.rescore:
             t = self._t
+            assert self._env_rewards is not None
             # A copy: collect_rollouts adds the truncation bootstrap to this array in place afterwards.
             self._env_rewards[t] = self.locals["rewards"]
-            if self._vec_normalize is not None and t + 1 < len(self._raw_obs):
+            if self._raw_obs is not None and t + 1 < self.cmz.rollout_buffer.buffer_size:
                 # What VecNormalize returned last is the raw form of the next observation acted on.
-                self._raw_obs[t + 1] = self._vec_normalize.get_original_obs()
+                self._raw_obs.append(_copy(self._vec_normalize.get_original_obs()))
         self._t += 1
         return True
 
     def _on_rollout_end(self) -> None:
-        model = self.model
+        model = self.cmz
         if not self.rescore:
-            stats = model.reward_wrapper().pop_stats() if model.reward_wrapper() is not None else {}
+            wrapper = model.reward_wrapper()
+            stats = wrapper.pop_stats() if wrapper is not None else {}
         else:
             stats = self._rescore(model.rollout_buffer)
         for key, value in stats.items():
@@ -77,19 +87,16 @@ class RolloutScorer(BaseCallback):
             model.logger.record("rollout/ubar_mean", float(state.mean()))
 
     def _rescore(self, buffer: Any) -> dict:
-        model = self.model
+        model = self.cmz
         steps, n_envs = buffer.buffer_size, buffer.n_envs
-        obs = buffer.observations if self._raw_obs is None else self._raw_obs
-        flat_obs = obs.reshape((steps * n_envs, *buffer.obs_shape))
+        obs = buffer.observations if self._raw_obs is None else concatenate([_row(o) for o in self._raw_obs])
+        flat_obs = reshape_rows(obs, (steps * n_envs,), model.observation_space)
         actions = None
         if getattr(model.ensemble, "needs_actions", True):
-            actions = buffer.actions.reshape(steps * n_envs, -1)
-            if isinstance(model.action_space, spaces.Box):
-                actions = np.clip(actions, model.action_space.low.reshape(-1), model.action_space.high.reshape(-1))
-            else:
-                actions = actions.reshape(-1).astype(np.int64)
+            actions = buffer_actions(buffer.actions.reshape(steps * n_envs, -1), model.action_space)
         u = model.ensemble.disagreement(flat_obs, actions).reshape(steps, n_envs)
         env_rewards = self._env_rewards
+        assert env_rewards is not None and model.reward_rule is not None
         shaped = model.reward_rule.sequence(u, env_rewards)
         if model.reward != "env":
             # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.
@@ -99,4 +106,24 @@ class RolloutScorer(BaseCallback):
         return {"disagreement_mean": float(u.mean()), "shaped_reward_mean": float(shaped.mean())}
 
 
-__all__ = ["RolloutScorer"]
+def buffer_actions(actions: np.ndarray, space: spaces.Space) -> np.ndarray:
+    """The rollout buffer's actions (what the policy output, flattened) as the space's actions:
+    Box clipped to its bounds as SB3 clips them before the env sees them; Discrete and MultiDiscrete
+    indices shifted by the space's ``start``."""
+    if isinstance(space, spaces.Box):
+        return np.clip(actions, space.low.reshape(-1), space.high.reshape(-1))
+    if isinstance(space, (spaces.Discrete, spaces.MultiDiscrete)):
+        return indices_as_actions(actions, space)
+    return actions
+
+
+def _copy(obs: Any) -> Any:
+    return {k: np.array(v) for k, v in obs.items()} if isinstance(obs, dict) else np.array(obs)
+
+
+def _row(obs: Any) -> Any:
+    # One step of every env as a batch of one step: (1, n_envs, ...).
+    return {k: v[None] for k, v in obs.items()} if isinstance(obs, dict) else obs[None]
+
+
+__all__ = ["RolloutScorer", "buffer_actions"]

@@ -179,19 +179,6 @@ def test_errors(pendulum_demos, cartpole_demos, tmp_path):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=cartpole_demos, **TINY).learn(64)
     with pytest.raises(FileNotFoundError, match="missing.npz"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=str(tmp_path / "missing.npz"))
-    with pytest.raises(ValueError, match="Box and Discrete action"):
-        CMZDRIL("MlpPolicy", MultiDiscreteEnv())
-
-
-class MultiDiscreteEnv(gym.Env):
-    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    action_space = gym.spaces.MultiDiscrete([2, 3])
-
-    def reset(self, *, seed=None, options=None):
-        return np.zeros(2, np.float32), {}
-
-    def step(self, action):
-        return np.zeros(2, np.float32), 0.0, True, False, {}
 
 
 def test_tensorboard_logging(pendulum_demos, tmp_path):

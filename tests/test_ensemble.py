@@ -136,7 +136,7 @@ def test_save_load_identity(fitted, linear_demos, tmp_path):
 def test_input_errors(fitted):
     with pytest.raises(RuntimeError, match="not fitted"):
         BCEnsemble(OBS, WIDE, 2, (4,)).disagreement(np.zeros((1, 3)))
-    with pytest.raises(ValueError, match=r"shape \(4,\) do not match the ensemble's \(3,\)"):
+    with pytest.raises(ValueError, match=r"shape \(4,\) do not match the observation space's \(3,\)"):
         fitted.disagreement(np.zeros((2, 4)))
     with pytest.raises(ValueError, match="NaN or inf"):
         fitted.disagreement(np.array([[0.0, np.nan, 0.0]]))
@@ -144,7 +144,7 @@ def test_input_errors(fitted):
         BCEnsemble(OBS, WIDE, n_members=1)
     with pytest.raises(ValueError, match="disagreement must be one of"):
         BCEnsemble(OBS, WIDE, disagreement="entropy")
-    with pytest.raises(ValueError, match="Box observation"):
-        BCEnsemble(spaces.Discrete(3), WIDE)
-    with pytest.raises(ValueError, match="Box and Discrete action"):
-        BCEnsemble(OBS, spaces.MultiDiscrete([2, 2]))
+    with pytest.raises(ValueError, match="unsupported observation space Tuple"):
+        BCEnsemble(spaces.Tuple([OBS]), WIDE)
+    with pytest.raises(ValueError, match="unsupported action space Tuple"):
+        BCEnsemble(OBS, spaces.Tuple([WIDE]))

@@ -1,6 +1,8 @@
 """The policy's observation standardisation from demo statistics (sb3_cmzdril.policies)."""
 from __future__ import annotations
 
+import logging
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -60,14 +62,24 @@ def test_switched_off_the_policy_sees_raw_observations(pendulum_demos):
     assert th.equal(model.policy.extract_features(obs, model.policy.features_extractor), obs)
 
 
-def test_conflicts_are_refused_and_vecnormalize_wins(pendulum_demos):
-    with pytest.raises(ValueError, match="pass standardize_observations=False to keep yours"):
-        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos,
-                **{**TINY, "policy_kwargs": {"features_extractor_class": FlattenExtractor}})
-    with pytest.raises(ValueError, match="needs a flat-input policy"):
-        CMZDRIL("CnnPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+def test_a_users_extractor_is_composed_and_vecnormalize_wins(pendulum_demos, caplog):
+    kwargs = {**TINY, "policy_kwargs": {"features_extractor_class": FlattenExtractor, "net_arch": [8]}}
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril.algorithm"):
+        model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **kwargs)
+    ext = model.policy.features_extractor
+    assert isinstance(ext, DemoStandardizer) and type(ext.extractor) is FlattenExtractor
+    assert not caplog.records  # flattening is what MlpPolicy does anyway: nothing to note
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=False)
     model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
     with pytest.warns(UserWarning, match="VecNormalize normalises the observations already"):
         model.pretrain()
     assert float(model.policy.features_extractor.obs_std.min()) == 1.0  # left as the identity
+
+
+def test_statistics_of_every_standardizer_when_actor_and_critic_do_not_share(pendulum_demos):
+    kwargs = {**TINY, "policy_kwargs": {"share_features_extractor": False, "net_arch": [8]}}
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **kwargs)
+    model.pretrain()
+    mean, _ = observation_statistics(pendulum_demos.observations)
+    for ext in (model.policy.pi_features_extractor, model.policy.vf_features_extractor):
+        np.testing.assert_allclose(ext.obs_mean.cpu().numpy(), mean, rtol=1e-6)

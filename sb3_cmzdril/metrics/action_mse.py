@@ -10,8 +10,10 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.spaces import Observations, n_steps, take
 
-ObsTransform = Callable[[np.ndarray], np.ndarray]
+#: What VecNormalize.normalize_obs is: an array or a dict of arrays in, the same kind out.
+ObsTransform = Callable[[Observations], Observations]
 # Observations per predict() call in action_mse: bounds memory for long demonstration sets.
 _PREDICT_CHUNK = 8192
 
@@ -49,16 +51,16 @@ def _observation_transform(model: Any, obs_transform: ObsTransform | None) -> Ob
     return None
 
 
-def _predict(model: Any, observations: np.ndarray, transform: ObsTransform | None) -> np.ndarray:
+def _predict(model: Any, observations: Observations, transform: ObsTransform | None) -> np.ndarray:
     """Deterministic actions for a batch of observations, one row per observation."""
     batch = transform(observations) if transform is not None else observations
     result = model.predict(batch, deterministic=True)
     # SB3 returns (actions, state); a bare array from a hand-written expert is accepted too.
     actions = np.asarray(result[0] if isinstance(result, tuple) else result)
-    if len(actions) != len(observations) or actions.ndim == 0:
+    if len(actions) != n_steps(observations) or actions.ndim == 0:
         raise ValueError(
             f"{type(model).__name__}.predict returned actions of shape {actions.shape} for "
-            f"{len(observations)} observations; it must predict on the whole batch"
+            f"{n_steps(observations)} observations; it must predict on the whole batch"
         )
     return actions
 
@@ -94,7 +96,7 @@ def _step_errors(
     errors = np.empty(n, dtype=np.float64)
     for start in range(0, n, _PREDICT_CHUNK):
         stop = min(n, start + _PREDICT_CHUNK)
-        pred = _predict(model, demos.observations[start:stop], transform)
+        pred = _predict(model, take(demos.observations, slice(start, stop)), transform)
         if isinstance(action_space, spaces.Box):
             # Compared at the precision the demonstrations are stored in (float32), so that replaying
             # the expert gives exactly 0 rather than float32 rounding noise.
