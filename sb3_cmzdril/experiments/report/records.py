@@ -136,10 +136,8 @@ def run_identity(folder: Path) -> tuple[tuple[str, str, int], dict[str, Any]] | 
         return f"no {CONFIG_FILE}, so not known which run it is"
     try:
         config = read_json(path)
-    except ValueError as e:
-        return str(e)
-    if not isinstance(config, dict):
-        return f"{CONFIG_FILE} is not a JSON object"
+    except ValueError as e:  # corrupt, or not a JSON object: the reason, with the file named as in the list
+        return str(e).replace(str(path), CONFIG_FILE)
     env = config.get("env_name") or (env_name(config["env_id"]) if isinstance(config.get("env_id"), str) else None)
     method, seed = config.get("method"), config.get("seed")
     if not isinstance(env, str) or not env:
