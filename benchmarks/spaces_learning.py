@@ -1,6 +1,6 @@
 """BC against CMZ-DRIL beyond flat vectors: one image-observation task, one Dict-observation task.
 
-    python benchmarks/spaces_learning.py [--trials 3] [--timesteps 20000] [--n-demos 5]
+    python benchmarks/spaces_learning.py [--trials 3] [--timesteps 20000] [--n-demos 5,10]
         [--eval-episodes 30] [--output docs/spaces_learning.md]
 
 The task, defined here: a point on an 8x8 grid must walk to a goal cell. Start and goal are drawn
@@ -16,7 +16,7 @@ goal. Two views of the same task:
   with ``MultiInputPolicy``.
 
 The expert is scripted: step along the axis with the larger distance to the goal (x on a tie).
-For each task and trial t: record ``--n-demos`` expert episodes (reset seeds
+For each task, demo count K of ``--n-demos`` and trial t: record K expert episodes (reset seeds
 ``1000 * t + i``), build a CMZDRIL model (seed t, CMZDRIL's defaults otherwise, PPO with 4 envs x
 256 steps), ``pretrain()`` it (NLL behaviour cloning to the early stop, the ensemble fit): that
 policy is BC, evaluated; then ``learn(--timesteps)`` from it on the CMZ-DRIL reward, evaluated again.
@@ -93,7 +93,7 @@ class GoalGrid(gym.Env):
         if self.view == "dict":
             scale = np.float32(GRID - 1)
             return {"position": self.agent.astype(np.float32) / scale, "goal": self.goal.astype(np.float32) / scale}
-        image = np.zeros(self.observation_space.shape, np.uint8)  # type: ignore[arg-type]
+        image = np.zeros((2, GRID * CELL_PX, GRID * CELL_PX), np.uint8)
         for channel, (x, y) in enumerate((self.agent, self.goal)):
             image[channel, y * CELL_PX : (y + 1) * CELL_PX, x * CELL_PX : (x + 1) * CELL_PX] = 255
         return image
@@ -156,7 +156,8 @@ def evaluate(view: str, policy: Policy, n_episodes: int) -> dict[str, float]:
     rng = np.random.default_rng(0)
     for i in range(n_episodes):
         obs, _ = env.reset(seed=EVAL_SEED + i)
-        total, done, info = 0.0, False, {}
+        total, done = 0.0, False
+        info: dict[str, Any] = {}
         while not done:
             obs, reward, terminated, truncated, info = env.step(policy(obs, env, rng))
             total += reward
@@ -186,8 +187,8 @@ def model_policy(model: CMZDRIL) -> Policy:
     return act
 
 
-def run_trial(view: str, trial: int, args: argparse.Namespace) -> dict[str, Any]:
-    demos = record_demos(view, [1000 * trial + i for i in range(args.n_demos)])
+def run_trial(view: str, n_demos: int, trial: int, args: argparse.Namespace) -> dict[str, Any]:
+    demos = record_demos(view, [1000 * trial + i for i in range(n_demos)])
     start = time.perf_counter()
     model = make_model(view, demos, seed=trial)
     model.pretrain()
@@ -205,7 +206,7 @@ def run_trial(view: str, trial: int, args: argparse.Namespace) -> dict[str, Any]
         "bc_seconds": bc_seconds,
     }
     print(
-        f"{view} trial {trial}: BC {bc['return']:.2f} ({bc['success']:.0%}), "
+        f"{view}, {n_demos} demos, trial {trial}: BC {bc['return']:.2f} ({bc['success']:.0%}), "
         f"CMZ-DRIL {cmz['return']:.2f} ({cmz['success']:.0%}), {row['seconds']:.0f} s",
         flush=True,
     )
@@ -216,26 +217,36 @@ def fmt(result: dict[str, float]) -> str:
     return f"{result['return']:.2f} | {result['success']:.0%}"
 
 
-def task_table(view: str, rows: list[dict[str, Any]], expert: dict[str, float], random: dict[str, float]) -> str:
+def task_table(
+    view: str, n_demos: int, rows: list[dict[str, Any]], expert: dict[str, float], random: dict[str, float]
+) -> str:
+    policy = "CnnPolicy, (2, 16, 16) uint8" if view == "image" else "MultiInputPolicy, Dict position/goal"
     lines = [
-        f"**{view}** ({'CnnPolicy, (2, 16, 16) uint8' if view == 'image' else 'MultiInputPolicy, Dict position/goal'})",
+        f"**{view}, {n_demos} demos** ({policy})",
         "",
-        "| | BC return | BC success | CMZ-DRIL return | CMZ-DRIL success | demo steps | run time (s) |",
-        "|---|---|---|---|---|---|---|",
+        "| | BC return | BC success | CMZ-DRIL return | CMZ-DRIL success | demo steps | BC epochs | run time (s) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         lines.append(
             f"| trial {row['trial']} | {fmt(row['bc'])} | {fmt(row['cmz'])} | "
-            f"{row['demo_steps']} | {row['seconds']:.0f} |"
+            f"{row['demo_steps']} | {row['bc_epochs']} | {row['seconds']:.0f} |"
         )
     mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in ("return", "success")} for m in ("bc", "cmz")}
     std = {m: float(np.std([r[m]["return"] for r in rows])) for m in ("bc", "cmz")}
     lines += [
         f"| **mean over {len(rows)} trials** (return std) | **{mean['bc']['return']:.2f}** ({std['bc']:.2f}) | "
         f"**{mean['bc']['success']:.0%}** | **{mean['cmz']['return']:.2f}** ({std['cmz']:.2f}) | "
-        f"**{mean['cmz']['success']:.0%}** | | |",
-        f"| expert (scripted) | {fmt(expert)} | | | | |",
-        f"| random actions | {fmt(random)} | | | | |",
+        f"**{mean['cmz']['success']:.0%}** | | | |",
+        f"| expert (scripted) | {fmt(expert)} | | | | | |",
+        f"| random actions | {fmt(random)} | | | | | |",
+    ]
+    above = sum(r["cmz"]["return"] > r["bc"]["return"] for r in rows)
+    below = sum(r["cmz"]["return"] < r["bc"]["return"] for r in rows)
+    lines += [
+        "",
+        f"CMZ-DRIL's return above BC's in {above}, below in {below} of {len(rows)} trials; mean difference "
+        f"{mean['cmz']['return'] - mean['bc']['return']:+.2f}.",
     ]
     return "\n".join(lines)
 
@@ -261,8 +272,9 @@ success, below 0 a failure (-{STEP_COST * HORIZON:.2f} at worst); *success* is r
   `MultiInputPolicy`, net_arch [64, 64]; the policy's inputs are standardised with the demos' statistics
   (CMZDRIL's default, on the Box parts).
 
-Expert: scripted, closes the larger gap first (x on a tie). Per task and trial t:
-{args.n_demos} expert episodes (reset seeds 1000t .. 1000t+{args.n_demos - 1}) are the demonstrations; a
+Expert: scripted, closes the larger gap first (x on a tie). Per task, demo count K
+({", ".join(map(str, args.n_demos))}) and trial t: K expert episodes (reset seeds 1000t .. 1000t+K-1)
+are the demonstrations; a
 CMZDRIL model (seed t, CMZDRIL's defaults: alpha 10, g 0.99, 5 members, NLL pretraining to the early
 stop, one BC epoch after every update; PPO with 4 envs x 256 steps, batch 64, PPO's other defaults) is
 pretrained: that policy is **BC** and is evaluated; the same model then learns {args.timesteps:,} PPO
@@ -270,10 +282,9 @@ steps on the CMZ-DRIL reward and is evaluated again (**CMZ-DRIL**). Evaluation: 
 episodes with reset seeds {EVAL_SEED}.. (disjoint from every demo's), deterministic actions, the env's
 true return. The expert and uniform random actions are evaluated on the same seeds.
 
-Why {args.n_demos} demonstrations (the default) and not 1-3: in pilot runs (2 trials, 10,000 steps, 20
-evaluation episodes, same seeds) 3 demos (20-23 steps) left BC on the Dict task at 15% success
-(random: 5%) and CMZ-DRIL below it (0-5%), and 10 demos (about 60 steps) put BC at the expert's level (98%)
-with nothing left to gain; 5 demos sit between. `--n-demos` changes it.
+Why 5 and 10 demonstrations (the default) and not 1-3: in a pilot run (Dict task, 2 trials, 10,000
+steps, 20 evaluation episodes, same seeds) 3 demos (20-23 steps) left BC at 15% success (random
+actions: 5%) and CMZ-DRIL below it (0% and 5%). `--n-demos` sets the counts.
 
 ## Results
 
@@ -288,13 +299,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=3)
     parser.add_argument("--timesteps", type=int, default=20_000, help="PPO steps of CMZ-DRIL after pretraining")
-    parser.add_argument("--n-demos", type=int, default=5, help="expert episodes per trial")
+    parser.add_argument("--n-demos", default="5,10", help="comma-separated demo counts (expert episodes per trial)")
     parser.add_argument("--eval-episodes", type=int, default=30)
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, from {TASKS}")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "spaces_learning.md")
     args = parser.parse_args(argv)
     tasks = [t for t in args.tasks.split(",") if t]
-    for name, value in (("--trials", args.trials), ("--timesteps", args.timesteps), ("--n-demos", args.n_demos)):
+    try:
+        args.n_demos = [int(n) for n in args.n_demos.split(",")]
+    except ValueError:
+        parser.error(f"--n-demos must be comma-separated integers, got {args.n_demos!r}")
+    for name, value in (("--trials", args.trials), ("--timesteps", args.timesteps), ("--n-demos", min(args.n_demos))):
         if value < 1:
             parser.error(f"{name} must be at least 1, got {value}")
     if args.eval_episodes < 1:
@@ -309,8 +324,9 @@ def main(argv: list[str] | None = None) -> int:
     for view in tasks:
         expert = evaluate(view, lambda _o, env, _r: expert_action(env), args.eval_episodes)
         random = evaluate(view, lambda _o, _a, rng: int(rng.integers(len(MOVES))), args.eval_episodes)
-        rows = [run_trial(view, t, args) for t in range(args.trials)]
-        sections.append(task_table(view, rows, expert, random))
+        for n_demos in args.n_demos:
+            rows = [run_trial(view, n_demos, t, args) for t in range(args.trials)]
+            sections.append(task_table(view, n_demos, rows, expert, random))
     minutes = (time.perf_counter() - start) / 60
     tables = "\n\n".join(sections)
     print(tables)
