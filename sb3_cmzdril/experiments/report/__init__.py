@@ -4,62 +4,8 @@
 ``report/`` this package was the module ``sb3_cmzdril.experiments.report``; its names stay importable
 from here.
 """
-from sb3_cmzdril.experiments.report.report import (
-    FIGURES,
-    METHOD_LABELS,
-    PAPER_TABLE_I,
-    README_BEGIN,
-    README_END,
-    GridReport,
-    ReferenceTable,
-    RunRecord,
-    expert_returns,
-    final_table,
-    fmt,
-    fmt_ci,
-    fmt_mean_std,
-    gap_closed,
-    gap_trials,
-    headline_markdown,
-    load_runs,
-    mean_ci,
-    plot_figure,
-    plot_final,
-    render_markdown,
-    report_outputs,
-    reward_signal,
-    table_csv,
-    table_one,
-    update_readme,
-    write_report,
-)
+from sb3_cmzdril.experiments.report import report as _report
+from sb3_cmzdril.experiments.report.report import *  # noqa: F403  (the old module's names, listed once there)
+from sb3_cmzdril.experiments.report.report import render_markdown
 
-__all__ = [
-    "METHOD_LABELS",
-    "PAPER_TABLE_I",
-    "README_BEGIN",
-    "README_END",
-    "FIGURES",
-    "ReferenceTable",
-    "RunRecord",
-    "GridReport",
-    "load_runs",
-    "table_one",
-    "gap_closed",
-    "gap_trials",
-    "expert_returns",
-    "reward_signal",
-    "final_table",
-    "mean_ci",
-    "headline_markdown",
-    "update_readme",
-    "table_csv",
-    "plot_figure",
-    "plot_final",
-    "render_markdown",
-    "report_outputs",
-    "write_report",
-    "fmt",
-    "fmt_ci",
-    "fmt_mean_std",
-]
+__all__ = [*_report.__all__, "render_markdown"]
