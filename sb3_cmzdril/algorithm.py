@@ -107,6 +107,13 @@ class CMZDRIL(PPO):
         -2, std 0.13), and PPO then barely leaves the cloned trajectory, so the disagreement reward
         has nothing to correct; from std 0.37 (-1.0) the BC epochs and PPO anneal it again (to about
         0.1 by 300k steps). Measured in docs/tuning/logstd-floor-1 against docs/tuning/logstd-keep.
+    :param absorbing: score an episode's termination (not a time-limit truncation) as entering an
+        absorbing state at the highest disagreement seen so far, worth ``gamma / (1 - gamma)`` times
+        the reward there (:func:`~sb3_cmzdril.rewards.with_absorbing_state`). ``"auto"``: for the
+        ``"cmz"`` reward, on when every demonstration lasts the env's time limit (the expert never
+        terminates: Walker2d, Hopper), else off; the ``"dril"``, ``"zero"`` and ``"env"`` baselines
+        stay as defined. Without it, a mean-zero reward makes falling over about as good as walking
+        on. Measured in docs/new_tasks.md.
     :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
@@ -142,6 +149,7 @@ class CMZDRIL(PPO):
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
         log_std_floor: float | None = -1.0,
+        absorbing: bool | str = "auto",
         batch_scoring: bool = True,
         learning_rate: float | Schedule = 3e-4,
         n_steps: int = 2048,
@@ -183,6 +191,8 @@ class CMZDRIL(PPO):
             raise ValueError(f"bc_patience must be >= 1, got {bc_patience}")
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise ValueError(f"log_std_floor must be finite or None, got {log_std_floor}")
+        if absorbing not in (True, False, "auto"):
+            raise ValueError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
         self.demonstrations: Demonstrations | None = (
             None if demonstrations is None else as_demonstrations(demonstrations)
         )
@@ -206,6 +216,11 @@ class CMZDRIL(PPO):
         self.bc_batch_size = int(bc_batch_size)
         self.bc_learning_rate = float(bc_learning_rate)
         self.log_std_floor = None if log_std_floor is None else float(log_std_floor)
+        self.absorbing = absorbing
+        #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
+        self.absorbing_active = False
+        #: the absorbing state's disagreement: the running maximum of u over the scored rollouts
+        self.absorbing_u = 0.0
         self.batch_scoring = bool(batch_scoring)
         self.pretrain_info: dict[str, float] = {}
         self.pretrain_history: dict[str, list[float]] = {}
@@ -538,18 +553,34 @@ class CMZDRIL(PPO):
         if self.env is None:
             raise ValueError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
         assert self.reward_rule is not None
+        self.absorbing_active = self._absorbing_applies()
+        absorbing_gamma = self.gamma if self.absorbing_active and self.reward != "env" else None
         wrapper = self.reward_wrapper()
         if wrapper is not None:
-            wrapper.ensemble, wrapper.rule = self.ensemble, self.reward_rule
+            wrapper.ensemble, wrapper.rule, wrapper.absorbing_gamma = self.ensemble, self.reward_rule, absorbing_gamma
             return
         if not self._per_step_scoring():
             return
         vec_normalize = self.get_vec_normalize_env()
+        below = self.env if vec_normalize is None else vec_normalize.venv
+        wrapped = DisagreementReward(below, self.ensemble, self.reward_rule, absorbing_gamma)
         if vec_normalize is None:
-            self.env = DisagreementReward(self.env, self.ensemble, self.reward_rule)
+            self.env = wrapped
         else:
-            vec_normalize.venv = DisagreementReward(vec_normalize.venv, self.ensemble, self.reward_rule)
+            vec_normalize.venv = wrapped
         self._last_obs = None  # the next learn() resets through the wrapper so it sees the first obs
+
+    def _absorbing_applies(self) -> bool:
+        if self.absorbing != "auto":
+            return bool(self.absorbing)
+        if self.reward != "cmz" or self.demonstrations is None or self.env is None:
+            return False
+        try:
+            spec = self.env.get_attr("spec", [0])[0]
+        except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
+            return False
+        limit = getattr(spec, "max_episode_steps", None)
+        return limit is not None and bool(np.all(self.demonstrations.episode_lengths >= limit))
 
     # -- training ---------------------------------------------------------------------------------
     def learn(

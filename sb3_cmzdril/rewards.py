@@ -49,6 +49,12 @@ class RewardRule:
             else np.zeros(u.shape, np.float32)
         )
 
+    def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        """The reward each step would have had at disagreement ``u_absorbing`` (broadcast to ``u``)
+        instead of its own ``u``, given ``rewards``, what the rule gave for ``u``: the per-step
+        reward of the absorbing state a terminated episode enters (``CMZDRIL(absorbing=...)``)."""
+        raise NotImplementedError(f"{type(self).__name__} has no absorbing-state reward")
+
     def get_state(self) -> np.ndarray:
         """Per-env state as an array (empty for stateless rules), for saving with a model."""
         return np.zeros(0)
@@ -108,6 +114,10 @@ class CMZReward(RewardRule):
         self.ubar = final[0]
         return (-self.alpha * (u - ubar)).astype(np.float32)
 
+    def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        # rewards = -alpha (u - ubar), so -alpha (u_absorbing - ubar) needs no ubar of its own.
+        return (rewards - self.alpha * (np.asarray(u_absorbing) - np.asarray(u))).astype(np.float32)
+
     def get_state(self) -> np.ndarray:
         return np.zeros(0) if self.ubar is None else self.ubar.copy()
 
@@ -141,6 +151,9 @@ class DRILReward(RewardRule):
 
     sequence = __call__  # stateless and elementwise
 
+    def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        return self(np.broadcast_to(u_absorbing, np.shape(u)), rewards)
+
     def __repr__(self) -> str:
         return f"DRILReward(threshold={self.threshold:.6g})"
 
@@ -155,6 +168,9 @@ class ZeroReward(RewardRule):
 
     sequence = __call__
 
+    def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        return np.zeros(np.shape(u), dtype=np.float32)
+
 
 class EnvReward(RewardRule):
     """The true environment reward (the paper's upper bound)."""
@@ -165,6 +181,32 @@ class EnvReward(RewardRule):
         return np.asarray(env_rewards, dtype=np.float32)
 
     sequence = __call__
+
+
+def terminations(dones: np.ndarray, infos: list[dict]) -> np.ndarray:
+    """Which envs' episodes ended by termination at this step: done, and not cut by a time limit."""
+    truncated = np.array([bool(info.get("TimeLimit.truncated", False)) for info in infos], dtype=bool)
+    return np.asarray(dones, dtype=bool) & ~truncated
+
+
+def with_absorbing_state(
+    rule: RewardRule, rewards: np.ndarray, u: np.ndarray, terminated: np.ndarray, u_absorbing: np.ndarray, gamma: float
+) -> np.ndarray:
+    """``rewards`` with each terminating step's reward raised by the discounted value of staying
+    forever in an absorbing state of disagreement ``u_absorbing`` (broadcast to ``u``: the highest u
+    seen up to that step): ``gamma / (1 - gamma)`` times the rule's reward there (``rule.absorbing``).
+
+    A disagreement reward says nothing about an episode's end: under a mean-zero reward, dying is
+    worth about as much as living on. Where the expert never terminates (Walker2d and Hopper: it
+    walks until the time limit), termination is the least expert-like outcome, and an absorbing
+    state (as in DAC, Kostrikov et al. 2019) at the highest disagreement seen scores it so.
+    """
+    if not terminated.any() or gamma >= 1.0:
+        return rewards
+    out = np.array(rewards, dtype=np.float32, copy=True)
+    u_absorbing = np.broadcast_to(u_absorbing, np.shape(u))[terminated]
+    out[terminated] += gamma / (1.0 - gamma) * rule.absorbing(u_absorbing, u[terminated], out[terminated])
+    return out
 
 
 class DisagreementReward(VecEnvWrapper):
@@ -179,12 +221,16 @@ class DisagreementReward(VecEnvWrapper):
         :class:`~sb3_cmzdril.ensemble.BCEnsemble`. ``needs_actions`` on it (default True) says
         whether to pass the actions.
     :param rule: the reward rule, e.g. ``CMZReward()``.
+    :param absorbing_gamma: give each terminating step the discounted value (with this discount) of
+        an absorbing state at the highest u seen so far (:func:`with_absorbing_state`); None: off.
 
     Put it above any Monitor/VecMonitor so they record the true return (``CMZDRIL`` does; by default
     it does not use this wrapper at all but scores whole rollouts, see :mod:`sb3_cmzdril.scoring`).
     """
 
-    def __init__(self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule) -> None:
+    def __init__(
+        self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule, absorbing_gamma: float | None = None
+    ) -> None:
         super().__init__(venv)
         if not hasattr(ensemble, "disagreement"):
             raise TypeError(f"ensemble must have a disagreement(obs, actions) method; got {type(ensemble).__name__}")
@@ -192,6 +238,9 @@ class DisagreementReward(VecEnvWrapper):
             raise TypeError(f"rule must be a RewardRule (CMZReward, DRILReward, ...); got {type(rule).__name__}")
         self.ensemble = ensemble
         self.rule = rule
+        self.absorbing_gamma = absorbing_gamma
+        #: the absorbing state's disagreement: the running maximum of u
+        self.absorbing_u = 0.0
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
         self._last_obs: VecEnvObs | None = None
         self._actions: np.ndarray | None = None
@@ -215,6 +264,11 @@ class DisagreementReward(VecEnvWrapper):
         acted_on = cast(np.ndarray, self._last_obs)
         u = self.ensemble.disagreement(acted_on, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
+        if self.absorbing_gamma is not None:
+            self.absorbing_u = max(self.absorbing_u, float(np.max(u)))
+            rewards = with_absorbing_state(
+                self.rule, rewards, u, terminations(dones, infos), np.asarray(self.absorbing_u), self.absorbing_gamma
+            )
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist(), strict=True):
             info["env_reward"] = r_env
             info["disagreement"] = u_i
@@ -251,4 +305,6 @@ __all__: list[str] = [
     "EnvReward",
     "DisagreementReward",
     "make_rule",
+    "terminations",
+    "with_absorbing_state",
 ]

@@ -24,6 +24,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_cmzdril.rewards import terminations, with_absorbing_state
 from sb3_cmzdril.spaces import concatenate, indices_as_actions, reshape_rows
 
 if TYPE_CHECKING:
@@ -40,6 +41,7 @@ class RolloutScorer(BaseCallback):
         super().__init__()
         self.rescore = bool(rescore)
         self._env_rewards: np.ndarray | None = None
+        self._terminated: np.ndarray | None = None
         self._raw_obs: list[Any] | None = None
         self._vec_normalize: Any = None
         self._t = 0
@@ -55,6 +57,7 @@ class RolloutScorer(BaseCallback):
             return
         buffer = self.cmz.rollout_buffer
         self._env_rewards = np.zeros((buffer.buffer_size, buffer.n_envs), np.float32)
+        self._terminated = np.zeros((buffer.buffer_size, buffer.n_envs), bool)
         vec_normalize = self.model.get_vec_normalize_env()
         # The buffer holds what the policy saw; the ensemble needs raw observations.
         self._vec_normalize = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
@@ -66,6 +69,8 @@ class RolloutScorer(BaseCallback):
             assert self._env_rewards is not None
             # A copy: collect_rollouts adds the truncation bootstrap to this array in place afterwards.
             self._env_rewards[t] = self.locals["rewards"]
+            assert self._terminated is not None
+            self._terminated[t] = terminations(self.locals["dones"], self.locals["infos"])
             if self._raw_obs is not None and t + 1 < self.cmz.rollout_buffer.buffer_size:
                 # What VecNormalize returned last is the raw form of the next observation acted on.
                 self._raw_obs.append(_copy(self._vec_normalize.get_original_obs()))
@@ -98,11 +103,17 @@ class RolloutScorer(BaseCallback):
         env_rewards = self._env_rewards
         assert env_rewards is not None and model.reward_rule is not None
         shaped = model.reward_rule.sequence(u, env_rewards)
+        if model.reward != "env" and model.absorbing_active:
+            assert self._terminated is not None
+            # The highest u seen up to each step, this step's envs included (as the per-step wrapper sees it).
+            seen = np.maximum.accumulate(np.maximum(u.max(axis=1), model.absorbing_u))
+            model.absorbing_u = float(seen[-1])
+            shaped = with_absorbing_state(model.reward_rule, shaped, u, self._terminated, seen[:, None], model.gamma)
         if model.reward != "env":
             # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.
             buffer.rewards += shaped - env_rewards
             buffer.compute_returns_and_advantage(last_values=self.locals["values"], dones=self.locals["dones"])
-        self._env_rewards = self._raw_obs = None
+        self._env_rewards = self._raw_obs = self._terminated = None
         return {"disagreement_mean": float(u.mean()), "shaped_reward_mean": float(shaped.mean())}
 
 

@@ -338,3 +338,44 @@ def test_mujoco_warnings_are_routed_only_while_the_library_works(pendulum_demos,
     assert mujoco.get_mju_user_warning() is None  # and MuJoCo's default is back afterwards
     assert "settotalmass" not in capfd.readouterr().err
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+@pytest.mark.parametrize(
+    ("reward", "limit", "absorbing", "expected"),
+    [
+        ("cmz", 100, "auto", True),  # every demo lasts the time limit: the expert never terminates
+        ("cmz", 500, "auto", False),  # the demos are shorter than the limit: they may have terminated
+        ("dril", 100, "auto", False),  # the baselines stay as defined
+        ("dril", 100, True, True),
+        ("cmz", 100, False, False),
+    ],
+)
+def test_absorbing_auto_is_on_where_the_expert_never_terminates(cartpole_demos, reward, limit, absorbing, expected):
+    assert np.all(cartpole_demos.episode_lengths == 100)  # the expert holds the pole for all recorded steps
+    env = gym.make("CartPole-v1", max_episode_steps=limit)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, reward=reward, absorbing=absorbing, **TINY)
+    model.learn(64)
+    assert model.absorbing_active is expected
+    assert (model.absorbing_u > 0) is expected
+    assert bool(model.rollout_buffer.rewards.min() < -5.0) is expected  # a fall within 64 steps costs ~99 steps' reward
+
+
+@pytest.mark.parametrize("reward", ["cmz", "dril"])
+def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, cartpole_demos):
+    def env():
+        return DummyVecEnv([lambda: gym.make("CartPole-v1", max_episode_steps=100)] * 2)
+
+    batch = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True)
+    step = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True, batch_scoring=False)
+    assert batch.absorbing_u == pytest.approx(step.reward_wrapper().absorbing_u, rel=1e-6)
+    _assert_same_rollouts(batch, step)
+
+
+def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
+    with pytest.raises(ValueError, match="absorbing must be True, False or 'auto'"):
+        CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing="yes")
+    model = CMZDRIL("MlpPolicy", gym.make("CartPole-v1", max_episode_steps=100), demonstrations=cartpole_demos, **TINY)
+    model.learn(64)
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRIL.load(tmp_path / "m.zip")
+    assert loaded.absorbing == "auto" and loaded.absorbing_u == model.absorbing_u > 0

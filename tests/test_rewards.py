@@ -8,7 +8,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_cmzdril import CMZReward, DisagreementReward, DRILReward
-from sb3_cmzdril.rewards import EnvReward, ZeroReward, make_rule
+from sb3_cmzdril.rewards import EnvReward, ZeroReward, make_rule, terminations, with_absorbing_state
 
 
 class ScriptedEnv(gym.Env):
@@ -169,3 +169,55 @@ def test_wrapper_errors():
     env.step_async(np.zeros((1, 1), np.float32))
     with pytest.raises(RuntimeError, match="before reset"):
         env.step_wait()
+
+
+def test_absorbing_state_hand_computed():
+    # CMZ (alpha 10, g 0.99, ubar_0 0): u = 0.1 then 0.3 -> r = -1, -10 (0.3 - 0.001) = -2.99.
+    # The second step terminates into an absorbing state at u = 0.5: each of its steps is worth
+    # -10 (0.5 - 0.001) = -4.99, and it starts one step later: + 0.99 / 0.01 * -4.99 = -494.01.
+    rule = CMZReward()
+    u = np.array([[0.1], [0.3]])
+    rewards = rule.sequence(u, np.zeros_like(u))
+    np.testing.assert_allclose(rewards[:, 0], [-1.0, -2.99], rtol=1e-6)
+    terminated = np.array([[False], [True]])
+    out = with_absorbing_state(rule, rewards, u, terminated, np.array(0.5), gamma=0.99)
+    np.testing.assert_allclose(out[:, 0], [-1.0, -2.99 - 494.01], rtol=1e-5)
+    assert out is not rewards and rewards[1, 0] == pytest.approx(-2.99)  # the input is left alone
+    # DRIL: the absorbing state lies above the threshold, so -1 forever: -99 on top of the step's reward.
+    dril = DRILReward(threshold=0.2)
+    np.testing.assert_allclose(
+        with_absorbing_state(dril, dril(u, u), u, terminated, np.array(0.5), 0.99)[:, 0], [1.0, -1.0 - 99.0]
+    )
+    assert with_absorbing_state(ZeroReward(), np.zeros((2, 1)), u, terminated, np.array(0.5), 0.99).tolist() == [
+        [0.0],
+        [0.0],
+    ]
+    assert with_absorbing_state(rule, rewards, u, ~terminated & False, np.array(0.5), 0.99) is rewards
+
+
+def test_terminations_leave_out_time_limit_truncations():
+    infos = [{"TimeLimit.truncated": True}, {}, {"TimeLimit.truncated": False}, {}]
+    assert terminations(np.array([True, True, True, False]), infos).tolist() == [False, True, True, False]
+
+
+def test_wrapper_scores_terminations_as_the_absorbing_state():
+    # CartPole pushed one way falls within tens of steps; u is the observation's first entry.
+    def wrapped(absorbing_gamma):
+        venv = DummyVecEnv([lambda: gym.make("CartPole-v1")])
+        venv.seed(0)
+        env = DisagreementReward(venv, ObsIsU(), CMZReward(), absorbing_gamma=absorbing_gamma)
+        env.reset()
+        return env
+
+    plain, absorbing = wrapped(None), wrapped(0.9)
+    for _ in range(200):
+        _, r_abs, done, info = absorbing.step(np.array([1]))
+        _, r_plain, _, _ = plain.step(np.array([1]))
+        if done[0]:
+            break
+        assert r_abs[0] == r_plain[0]
+    assert done[0] and not info[0].get("TimeLimit.truncated")
+    # 0.9 / 0.1 = 9 steps' worth of the CMZ reward at the highest u seen instead of this step's u.
+    at_absorbing = r_plain[0] - 10.0 * (absorbing.absorbing_u - info[0]["disagreement"])
+    assert r_abs[0] == pytest.approx(r_plain[0] + 9.0 * at_absorbing, rel=1e-5)
+    assert absorbing.absorbing_u > 0 and r_abs[0] < r_plain[0]
