@@ -183,6 +183,7 @@ def test_percent_of_expert_is_na_without_positive_expert_returns(tmp_path):
     expert = report.fmt_ci(*mean_ci([-999.5 + 10 * t for t in range(3)]))
     assert f"| {ENV} | CMZ-DRIL | 3 | 2 | {ret} | n/a | " in text  # final table: % of expert
     assert f"| 0.02 [0.01, 0.03] | n/a | {expert} |" in text  # and episodes at expert level, as before
+    assert f"| {ENV} | CMZ-DRIL | {ret}, n=3 | n/a, n=3 |" in text  # headline
     assert f"| {ENV} | CMZ-DRIL | 3 of 3 | 200 [200, 200] | n/a | — | — | — |" in text  # return: paired; % n/a
     # One non-positive expert return makes the run's percentage undefined, not a smaller number
     assert math.isnan(expert_percent({"return": np.array([5.0, 5.0]), "expert_return": np.array([10.0, 0.0])}))
@@ -314,18 +315,25 @@ def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
     assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(out),
                  "--label", "new", "--reference-label", "old"]) == 0
     text = (out / "results.md").read_text()
-    header = ("| Env | Method | new: final evaluation, mean [95% CI] | new: Table I, mean (std) "
+    header = ("| Env | Method | new: final evaluation, mean [95% CI] "
+              "| new: final evaluation, % of expert [95% CI] | new: Table I, mean (std) "
               "| old: Table I, mean (std) | The paper's Table I, mean (std) |")
     assert header in text
     row = next(line for line in text.splitlines() if line.startswith(f"| {ENV} | CMZ-DRIL |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == f"{report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4"  # final evaluation
+    assert cells[3] == f"{report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL['cmz'])]))}, n=4"
     window = [(0.0 + 100 + t + 200 + t) / 3 for t in range(4)]  # Table I: 3 epochs, all in the window
-    assert cells[3] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
-    assert cells[4:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
+    assert cells[4] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
+    assert cells[5:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
     bc = report.fmt_ci(*mean_ci([200, 150, 200, 70]))
-    assert f"| {ENV} | BC | {bc}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
-    assert f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*mean_ci([220, 160, 300, 100]))}, n=4 | — | — | — |" in text
+    bc_pct = report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL["bc"])]))
+    assert f"| {ENV} | BC | {bc}, n=4 | {bc_pct}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
+    lowest, lowest_pct = mean_ci([220, 160, 300, 100]), mean_ci([_pct(v, t) for t, v in enumerate(LOWEST["cmz"])])
+    assert (f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*lowest)}, n=4 | {report.fmt_ci(*lowest_pct)}, n=4 "
+            "| — | — | — |") in text
+    expert = report.fmt_ci(*mean_ci([1001 + 10 * t for t in range(4)]))
+    assert f"| {ENV} | Expert (held-out demos) | {expert}, n=4 | — |" in text  # no % of the expert itself
     assert "old: no final evaluation (its runs have no final_eval.csv)" in text
     assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in text
     assert "## new" in text and "## old" in text and f"`{ref}`" in text
