@@ -20,7 +20,7 @@ from scipy.stats import bootstrap
 
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.final_eval import expert_level_share, final_table, mean_ci
+from sb3_cmzdril.experiments.final_eval import expert_level_share, expert_percent, final_table, mean_ci
 from sb3_cmzdril.experiments.records import NOT_SET, load_runs, read_final_eval, setting_differences
 
 ENV = "HalfCheetah-v5"
@@ -30,12 +30,13 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def write_run(root: Path, method: str, trial: int, returns: Sequence[float], frechet: Sequence[float] | None = None,
               mse: Sequence[float] | None = None, *, env: str = ENV, final: dict[str, list[float]] | None = None,
-              done: bool = True, lowest_epoch: int | None = None, hyperparams: dict | None = None) -> Path:
+              done: bool = True, lowest_epoch: int | None = None, hyperparams: dict | None = None,
+              expert: float = 1000.0) -> Path:
     """A run folder with hand-written records (the report must not care who wrote them).
 
     ``returns`` etc. are eval.csv's per-epoch values; ``final`` maps a policy to the returns of its
     held-out episodes (Fréchet 10 + trial + episode, action MSE 0.01 (1 + trial), expert return
-    1000 + 10 trial + episode); ``done=False`` leaves the run unfinished (a checkpoint, no done.json).
+    ``expert`` + 10 trial + episode); ``done=False`` leaves the run unfinished (a checkpoint, no done.json).
     """
     out = root / env / method / f"trial{trial}"
     out.mkdir(parents=True)
@@ -50,7 +51,7 @@ def write_run(root: Path, method: str, trial: int, returns: Sequence[float], fre
     if final:
         rows = ["policy,episode,seed,return,length,frechet,action_mse,expert_return"]
         for policy, values in final.items():
-            rows += [f"{policy},{i},{i},{v!r},1000,{10 + trial + i},{0.01 * (1 + trial)!r},{1000 + 10 * trial + i}"
+            rows += [f"{policy},{i},{i},{v!r},1000,{10 + trial + i},{0.01 * (1 + trial)!r},{expert + 10 * trial + i!r}"
                      for i, v in enumerate(values)]
         (out / "final_eval.csv").write_text("\n".join(rows) + "\n")
     if done:
@@ -138,6 +139,55 @@ def test_expert_level_share_counts_episodes_at_half_the_expert_return(main_grid,
     share = {"return": np.array([50.0, 49.9, 120.0]), "expert_return": np.array([100.0, 100.0, 100.0])}
     assert expert_level_share(share) == pytest.approx(2 / 3)  # exactly half counts
     assert math.isnan(expert_level_share({"return": np.array([-10.0]), "expert_return": np.array([-20.0])}))
+
+
+def _pct(returns: Sequence[float], trial: int, expert: float = 1000.0) -> float:
+    """% of expert of one fixture run by hand: its 3 episodes' expert returns average expert + 10 trial + 1."""
+    return 100 * float(np.mean(returns)) / (expert + 10 * trial + 1)
+
+
+def test_percent_of_expert_equals_hand_computed(main_grid, tmp_path):
+    text = report.write_report(main_grid, tmp_path / "docs", references=(), figures=False).read_text()
+    table = {(r["method"], r["policy"]): r for r in _rows(tmp_path / "docs" / "final_table.csv")}
+    # CMZ-DRIL: 300, 110, 600, 90 against 1001, 1011, 1021, 1031
+    cmz = [100 * 300 / 1001, 100 * 110 / 1011, 100 * 600 / 1021, 100 * 90 / 1031]
+    assert cmz == pytest.approx([_pct(v, t) for t, v in enumerate(FINAL["cmz"])], rel=1e-12)
+    row = table[("cmz", "final")]
+    assert float(row["pct_of_expert_mean"]) == pytest.approx(np.mean(cmz), rel=1e-12)
+    low, high = by_hand_ci(cmz)
+    assert (float(row["pct_of_expert_ci_low"]), float(row["pct_of_expert_ci_high"])) == (pytest.approx(low),
+                                                                                         pytest.approx(high))
+    ret = report.fmt_ci(*mean_ci([300, 110, 600, 90]))
+    assert f"| {ENV} | CMZ-DRIL | 4 | 3 | {ret} | {report.fmt_ci(np.mean(cmz), low, high)} |" in text
+    assert "| Return | % of expert | Fréchet distance |" in text  # right after Return
+    lowest = [_pct(v, t) for t, v in enumerate(LOWEST["cmz"])]
+    assert float(table[("cmz", "lowest_u")]["pct_of_expert_mean"]) == pytest.approx(np.mean(lowest), rel=1e-12)
+    # Paired: trial by trial against BC's 200, 150, 200, 70 on the same episodes
+    bc = [_pct(v, t) for t, v in enumerate(FINAL["bc"])]
+    diff = report.fmt_ci(*mean_ci([c - b for c, b in zip(cmz, bc, strict=True)]))
+    assert f"| {ENV} | CMZ-DRIL | 3 of 4 | {report.fmt_ci(*mean_ci([100, -40, 400, 20]))} | {diff} | 3 of 4 |" in text
+    assert "| Return − BC, mean [CI] | % of expert − BC, mean [CI] |" in text
+    assert expert_percent({"return": np.array([0.0, 300.0]), "expert_return": np.array([100.0, 300.0])}) == 75.0
+
+
+def test_percent_of_expert_is_na_without_positive_expert_returns(tmp_path):
+    # Expert returns -1000 + 10 trial + episode: all negative, so neither a percentage nor a share
+    root = tmp_path / "runs"
+    for trial in range(3):
+        write_run(root, "bc", trial, [1.0], final={"final": [-900.0, -800.0]}, expert=-1000.0)
+        write_run(root, "cmz", trial, [1.0, 2.0], final={"final": [-700.0, -600.0]}, expert=-1000.0)
+    text = report.write_report(root, tmp_path / "docs", references=(), figures=False).read_text()
+    table = {r["method"]: r for r in _rows(tmp_path / "docs" / "final_table.csv")}
+    assert all(math.isnan(float(table[m]["pct_of_expert_mean"])) for m in ("bc", "cmz"))
+    ret = report.fmt_ci(-650.0, -650.0, -650.0)
+    expert = report.fmt_ci(*mean_ci([-999.5 + 10 * t for t in range(3)]))
+    assert f"| {ENV} | CMZ-DRIL | 3 | 2 | {ret} | n/a | " in text  # final table: % of expert
+    assert f"| 0.02 [0.01, 0.03] | n/a | {expert} |" in text  # and episodes at expert level, as before
+    assert f"| {ENV} | CMZ-DRIL | {ret}, n=3 | n/a, n=3 |" in text  # headline
+    assert f"| {ENV} | CMZ-DRIL | 3 of 3 | 200 [200, 200] | n/a | — | — | — |" in text  # return: paired; % n/a
+    # One non-positive expert return makes the run's percentage undefined, not a smaller number
+    assert math.isnan(expert_percent({"return": np.array([5.0, 5.0]), "expert_return": np.array([10.0, 0.0])}))
+    assert math.isnan(expert_percent({"return": np.array([]), "expert_return": np.array([])}))
 
 
 def test_mean_ci_needs_three_finite_values():
@@ -265,18 +315,25 @@ def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
     assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(out),
                  "--label", "new", "--reference-label", "old"]) == 0
     text = (out / "results.md").read_text()
-    header = ("| Env | Method | new: final evaluation, mean [95% CI] | new: Table I, mean (std) "
+    header = ("| Env | Method | new: final evaluation, mean [95% CI] "
+              "| new: final evaluation, % of expert [95% CI] | new: Table I, mean (std) "
               "| old: Table I, mean (std) | The paper's Table I, mean (std) |")
     assert header in text
     row = next(line for line in text.splitlines() if line.startswith(f"| {ENV} | CMZ-DRIL |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == f"{report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4"  # final evaluation
+    assert cells[3] == f"{report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL['cmz'])]))}, n=4"
     window = [(0.0 + 100 + t + 200 + t) / 3 for t in range(4)]  # Table I: 3 epochs, all in the window
-    assert cells[3] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
-    assert cells[4:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
+    assert cells[4] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
+    assert cells[5:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
     bc = report.fmt_ci(*mean_ci([200, 150, 200, 70]))
-    assert f"| {ENV} | BC | {bc}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
-    assert f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*mean_ci([220, 160, 300, 100]))}, n=4 | — | — | — |" in text
+    bc_pct = report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL["bc"])]))
+    assert f"| {ENV} | BC | {bc}, n=4 | {bc_pct}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
+    lowest, lowest_pct = mean_ci([220, 160, 300, 100]), mean_ci([_pct(v, t) for t, v in enumerate(LOWEST["cmz"])])
+    assert (f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*lowest)}, n=4 | {report.fmt_ci(*lowest_pct)}, n=4 "
+            "| — | — | — |") in text
+    expert = report.fmt_ci(*mean_ci([1001 + 10 * t for t in range(4)]))
+    assert f"| {ENV} | Expert (held-out demos) | {expert}, n=4 | — |" in text  # no % of the expert itself
     assert "old: no final evaluation (its runs have no final_eval.csv)" in text
     assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in text
     assert "## new" in text and "## old" in text and f"`{ref}`" in text

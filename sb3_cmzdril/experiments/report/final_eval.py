@@ -10,6 +10,8 @@ used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.runs
 * the share of held-out episodes a policy completes at expert level (:data:`EXPERT_LEVEL`): on
   HalfCheetah-v5 an episode either runs near the expert's return or fails outright (the cheetah
   flips), so a run's mean return mostly says how often it fails, and this column says it directly.
+* "% of expert" (:func:`expert_percent`): a run's mean return as a percentage of the expert's mean
+  return on the same held-out episodes, so that envs with returns of different scales compare.
 * :func:`paired` — a method against a baseline trial by trial (same seed, so the same demo split and
   the same held-out episodes): in how many trials it is higher, and the mean difference with its CI.
 """
@@ -19,7 +21,7 @@ import csv
 import dataclasses
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,7 @@ from sb3_cmzdril.experiments.report.records import METHOD_ORDER, POLICIES, RunRe
 #: Final-evaluation metrics: (final_eval.csv column, table header).
 FINAL_METRICS: tuple[tuple[str, str], ...] = (
     ("return", "Return"),
+    ("pct_of_expert", "% of expert"),
     ("frechet", "Fréchet distance"),
     ("action_mse", "Action MSE"),
     ("expert_level", "Episodes at expert level"),
@@ -83,10 +86,10 @@ class FinalRow:
         return label(self.method, self.policy)
 
     def per_run(self, column: str) -> list[float]:
-        """Each run's mean of ``column`` over its held-out episodes, in run order; ``expert_level``:
-        each run's share of episodes at expert level (:func:`expert_level_share`)."""
-        if column == "expert_level":
-            return [expert_level_share(r.final[self.policy]) for r in self.runs]
+        """Each run's mean of ``column`` over its held-out episodes, in run order; for a name in
+        :data:`PER_RUN_METRICS` (``expert_level``, ``pct_of_expert``), its function of the run's episodes."""
+        if column in PER_RUN_METRICS:
+            return [PER_RUN_METRICS[column](r.final[self.policy]) for r in self.runs]
         return [float(np.mean(r.final[self.policy][column])) for r in self.runs]
 
     def per_trial(self, column: str = "return") -> dict[int, float]:
@@ -106,13 +109,38 @@ class FinalRow:
         return [None if e is None else int(e) for e in chosen]
 
 
+def _positive_expert(columns: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The run's expert returns, or None unless there are some and all are positive: a fraction of
+    a negative (or zero) return neither orders episodes nor scales a mean."""
+    expert = np.asarray(columns["expert_return"], dtype=np.float64)
+    return expert if expert.size and (expert > 0).all() else None
+
+
 def expert_level_share(columns: dict[str, np.ndarray]) -> float:
     """The share of a run's held-out episodes whose return is at least :data:`EXPERT_LEVEL` times the
     expert's on the same episode; nan unless every expert return is positive."""
-    expert = np.asarray(columns["expert_return"], dtype=np.float64)
-    if expert.size == 0 or not (expert > 0).all():
+    expert = _positive_expert(columns)
+    if expert is None:
         return math.nan
     return float(np.mean(np.asarray(columns["return"], dtype=np.float64) >= EXPERT_LEVEL * expert))
+
+
+def expert_percent(columns: dict[str, np.ndarray]) -> float:
+    """100 * the run's mean return / the expert's mean return over the same held-out episodes; nan
+    unless every expert return is positive."""
+    expert = _positive_expert(columns)
+    if expert is None:
+        return math.nan
+    # A ratio of means, not a mean of per-episode ratios: one failed episode against a small expert
+    # return must not outweigh the rest, and it is the return table's number on the expert's scale.
+    return float(100 * np.mean(np.asarray(columns["return"], dtype=np.float64)) / np.mean(expert))
+
+
+#: Final-evaluation metrics computed from a run's episodes as a whole rather than averaged column-wise.
+PER_RUN_METRICS: dict[str, Callable[[dict[str, np.ndarray]], float]] = {
+    "expert_level": expert_level_share,
+    "pct_of_expert": expert_percent,
+}
 
 
 def final_table(records: Sequence[RunRecord]) -> list[FinalRow]:
@@ -134,7 +162,7 @@ def find(rows: Sequence[FinalRow], env: str, method: str, policy: str = "final")
 
 @dataclasses.dataclass
 class Paired:
-    """``row`` against ``baseline`` on the trials both have: return differences, row minus baseline."""
+    """``row`` against ``baseline`` on the trials both have: differences of one metric, row minus baseline."""
 
     trials: list[int]
     diffs: list[float]
@@ -147,11 +175,12 @@ class Paired:
         return f"{self.wins} of {len(self.trials)}" if self.trials else "n/a"
 
 
-def paired(row: FinalRow, baseline: FinalRow | None) -> Paired | None:
-    """None without a baseline; else the differences of mean return on the trials both ran."""
+def paired(row: FinalRow, baseline: FinalRow | None, column: str = "return") -> Paired | None:
+    """None without a baseline; else the differences of ``column`` (a :meth:`FinalRow.per_run` name;
+    mean return by default) on the trials both ran."""
     if baseline is None:
         return None
-    mine, theirs = row.per_trial(), baseline.per_trial()
+    mine, theirs = row.per_trial(column), baseline.per_trial(column)
     trials = sorted(set(mine) & set(theirs))
     return Paired(trials, [mine[t] - theirs[t] for t in trials])
 
@@ -189,9 +218,11 @@ def paired_markdown(rows: Sequence[FinalRow]) -> str:
             continue
         bc, zero = baselines(rows, r)
         epochs = ", ".join("?" if e is None else str(e) for e in r.selected_epochs()) if r.policy != "final" else "—"
-        body.append([r.env, r.label, *_diff_cell(paired(r, bc)), *_diff_cell(paired(r, zero)), epochs])
-    return md_table(["Env", "Method", "Above BC (trials)", "Return − BC, mean [CI]", "Above no reward (trials)",
-                     "Return − no reward, mean [CI]", "Selected epoch per trial"], body)
+        pct = paired(r, bc, "pct_of_expert")
+        body.append([r.env, r.label, *_diff_cell(paired(r, bc)), "—" if pct is None else fmt_ci(*mean_ci(pct.diffs)),
+                     *_diff_cell(paired(r, zero)), epochs])
+    return md_table(["Env", "Method", "Above BC (trials)", "Return − BC, mean [CI]", "% of expert − BC, mean [CI]",
+                     "Above no reward (trials)", "Return − no reward, mean [CI]", "Selected epoch per trial"], body)
 
 
 def final_csv(rows: Sequence[FinalRow], runs_dir: Path) -> str:
@@ -222,7 +253,8 @@ def method_text(confidence: float = CONFIDENCE) -> str:
         f"n/a with fewer than {MIN_TRIALS_FOR_CI} trials]. \"(lowest u)\" is the policy whose own training "
         "rollout had the lowest ensemble disagreement: chosen without the env reward. \"Episodes at expert "
         f"level\": the share of a run's held-out episodes whose return is at least {EXPERT_LEVEL:g} times the "
-        "expert's on the same episode (n/a where the expert's returns are not all positive)."
+        "expert's on the same episode. \"% of expert\": 100 times a run's mean return over its mean expert "
+        "return on the same episodes. Both are n/a where the expert's returns are not all positive."
     )
 
 
@@ -242,9 +274,9 @@ def expert_by_env(rows: Sequence[FinalRow]) -> dict[str, tuple[float, float, flo
     return {env: (*mean_ci(list(v.values())), len(v)) for env, v in per_env.items()}
 
 
-def fmt_cell(row: FinalRow | None) -> str:
-    """``mean [low, high], n=trials`` for a side-by-side table; ``—`` without the row."""
-    return "—" if row is None else f"{fmt_ci(*row.stat())}, n={row.n_trials}"
+def fmt_cell(row: FinalRow | None, column: str = "return") -> str:
+    """``mean [low, high], n=trials`` of ``column`` for a side-by-side table; ``—`` without the row."""
+    return "—" if row is None else f"{fmt_ci(*row.stat(column))}, n={row.n_trials}"
 
 
 __all__ = [
@@ -253,6 +285,8 @@ __all__ = [
     "mean_ci",
     "final_table",
     "expert_level_share",
+    "expert_percent",
+    "PER_RUN_METRICS",
     "EXPERT_LEVEL",
     "paired",
     "baselines",

@@ -25,7 +25,10 @@ def fmt_mean_std(mean: float, std: float) -> str:
 
 
 def fmt_ci(mean: float, low: float, high: float) -> str:
-    """``mean [low, high]``; ``mean [n/a]`` when there is no interval (too few trials)."""
+    """``mean [low, high]``; ``mean [n/a]`` when there is no interval (too few trials); ``n/a`` when
+    there is no mean (a metric undefined for the runs, e.g. a percentage of a negative expert return)."""
+    if not math.isfinite(mean):
+        return fmt(mean)
     if not (math.isfinite(low) and math.isfinite(high)):
         return f"{fmt(mean)} [n/a]"
     return f"{fmt(mean)} [{fmt(low)}, {fmt(high)}]"

@@ -84,12 +84,14 @@ def _table_one_cell(rows: Sequence[TableRow], env: str, method: str) -> str:
 
 
 def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable | None) -> str:
-    """Return per env and method: each grid's final evaluation (mean [CI], trials) where it has one,
-    each grid's Table I (mean (std), trials), and the reference's numbers; then the expert's return."""
+    """Return per env and method: each grid's final evaluation (mean [CI], trials) and its % of expert
+    where it has one, each grid's Table I (mean (std), trials), and the reference's numbers; then the
+    expert's return."""
     columns = []
     for rep in reports:
         if rep.final:
             columns.append(f"{rep.label}: final evaluation, mean [{100 * CONFIDENCE:g}% CI]")
+            columns.append(f"{rep.label}: final evaluation, % of expert [{100 * CONFIDENCE:g}% CI]")
         columns.append(f"{rep.label}: Table I, mean (std)")
     if reference is not None:
         columns.append(f"{reference.name[:1].upper() + reference.name[1:]}, mean (std)")
@@ -104,7 +106,8 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
             cells = []
             for rep in reports:
                 if rep.final:
-                    cells.append(fmt_cell(find(rep.final, env, method, policy)))
+                    row = find(rep.final, env, method, policy)
+                    cells += [fmt_cell(row), fmt_cell(row, "pct_of_expert")]
                 cells.append(_table_one_cell(rep.rows, env, method) if policy == "final" else "—")
             if reference is not None:
                 paper = reference.values.get(env, {}).get(method) if policy == "final" else None
@@ -115,6 +118,7 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
             if rep.final:
                 final_expert = expert_by_env(rep.final).get(env)
                 cells.append("—" if final_expert is None else f"{fmt_ci(*final_expert[:3])}, n={final_expert[3]}")
+                cells.append("—")  # the expert's % of itself says nothing
             expert = rep.experts.get(env)
             cells.append("—" if expert is None else f"{fmt_mean_std(*expert[:2])}, n={expert[2]}")
         body.append([env, "Expert (held-out demos)", *cells, *(["—"] if reference is not None else [])])
@@ -129,7 +133,9 @@ def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | Non
         parts.append("Final evaluation: each run's policy on every pool episode not used for training "
                      f"(final_eval.csv), mean over trials [{100 * CONFIDENCE:g}% bootstrap CI over trials; n/a with "
                      f"fewer than {MIN_TRIALS_FOR_CI} trials]; \"(lowest u)\": the policy whose own training rollout "
-                     "had the lowest ensemble disagreement (chosen without the env reward).")
+                     "had the lowest ensemble disagreement (chosen without the env reward); % of expert: 100 times a "
+                     "run's mean return over the expert's mean return on the same held-out episodes, mean over "
+                     "trials [CI as above; n/a where the expert's returns are not all positive].")
     missing = [rep.label for rep in reports if not rep.final]
     if missing:
         parts.append(f"{', '.join(missing)}: no final evaluation (its runs have no final_eval.csv).")
