@@ -345,9 +345,9 @@ def test_mujoco_warnings_are_routed_only_while_the_library_works(pendulum_demos,
     [
         ("cmz", 100, "auto", True),  # every demo lasts the time limit: the expert never terminates
         ("cmz", 500, "auto", False),  # the demos are shorter than the limit: they may have terminated
-        ("dril", 100, "auto", False),  # the baselines stay as defined
+        ("dril", 100, "auto", False),  # "auto" leaves the baselines as defined
         ("dril", 100, True, True),
-        ("cmz", 100, False, False),
+        ("cmz", 100, False, False),  # the default
     ],
 )
 def test_absorbing_auto_is_on_where_the_expert_never_terminates(cartpole_demos, reward, limit, absorbing, expected):
@@ -374,7 +374,9 @@ def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, 
 def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
     with pytest.raises(ValueError, match="absorbing must be True, False or 'auto'"):
         CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing="yes")
-    model = CMZDRIL("MlpPolicy", gym.make("CartPole-v1", max_episode_steps=100), demonstrations=cartpole_demos, **TINY)
+    assert CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos).absorbing is False
+    env = gym.make("CartPole-v1", max_episode_steps=100)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, absorbing="auto", **TINY)
     model.learn(64)
     model.save(tmp_path / "m.zip")
     loaded = CMZDRIL.load(tmp_path / "m.zip")
