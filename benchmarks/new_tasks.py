@@ -1,0 +1,169 @@
+"""Ablations of issue 19 (tasks nobody here tuned for), compared trial by trial: docs/new_tasks.md.
+
+    python benchmarks/new_tasks.py [--output docs] [--force]
+
+Each variant is a runs folder made by ``sb3-cmzdril benchmark`` (or ``benchmarks/tune.py``) for one
+env and method. Variants of an env share trials: trial t has the same seed, demo split and held-out
+episodes in every folder, so two variants are compared on the trials both have. Per variant: the
+final policy's % of the expert's return on the held-out episodes (mean over trials [bootstrap CI],
+and trial by trial), the lowest-u policy's, the Table I window's return, and in how many shared
+trials the final policy beats the env's reference variant (the first listed). The numbers come from
+the runs' final_eval.csv and done.json through :mod:`sb3_cmzdril.experiments.report`; a hand-written
+reading is appended from ``docs/new_tasks_discussion.md`` when it exists.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+
+from sb3_cmzdril.experiments.report.final_eval import FinalRow, final_table, find, mean_ci
+from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS, Skipped, load_runs
+from sb3_cmzdril.io import atomic_write_text
+
+ROOT = Path(__file__).resolve().parent.parent
+COMMAND = "python benchmarks/new_tasks.py --force"
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """One configuration of one env and method, and where its runs are."""
+
+    env: str
+    method: str
+    label: str
+    runs: str  #: runs folder, relative to the repository
+    made_by: str  #: the command (and commit) that made the runs
+
+
+#: The variants, reference first per env. Add a variant by adding a line.
+ABLATIONS: tuple[Variant, ...] = (
+    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "docs/runs",
+            "python benchmarks/tune.py W-no-absorbing --set absorbing=false -- --env Walker2d-v5 --methods cmz "
+            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2 (moved to docs/runs)"),
+    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
+            "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
+            "the default (moved here)"),
+    Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
+            "docs/tuning/W-abs-normrew",
+            "python benchmarks/tune.py W-abs-normrew --set 'normalize=dict(norm_obs=False, norm_reward=True)' -- "
+            "--env Walker2d-v5 --methods cmz --trials 2 --timesteps 300000 --eval-every 5 --workers 2 at commit "
+            "a3f38d8 (`absorbing: auto` then the default)"),
+    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "docs/runs",
+            "the published grid (CONTRIBUTING.md)"),
+    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/Hopper-absorbing",
+            "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
+)
+
+
+def variant_rows(variant: Variant, root: Path, skipped: list[Skipped]) -> dict[str, FinalRow | None]:
+    """The variant's final and lowest-u rows (None where its folder has no such finished runs)."""
+    folder = root / variant.runs
+    if not folder.is_dir():
+        skipped.append(Skipped(folder, "no such runs folder"))
+        return {"final": None, "lowest_u": None}
+    rows = final_table(load_runs(folder, skipped))
+    return {policy: find(rows, variant.env, variant.method, policy) for policy in ("final", "lowest_u")}
+
+
+def window_return(row: FinalRow) -> float:
+    """Mean over the row's runs of done.json's Table I window return."""
+    values = [r.summary.get("final_window", {}).get("return", math.nan) for r in row.runs]
+    return mean_ci(values)[0]
+
+
+def above_reference(row: FinalRow, reference: FinalRow) -> str:
+    """"k of n": in how many trials both have, the row's final return is above the reference's."""
+    mine, theirs = row.per_trial("return"), reference.per_trial("return")
+    shared = sorted(set(mine) & set(theirs))
+    return f"{sum(mine[t] > theirs[t] for t in shared)} of {len(shared)}"
+
+
+def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
+    if row is reference:
+        return "reference"
+    return "no reference runs" if reference is None else above_reference(row, reference)
+
+
+def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = ABLATIONS) -> str:
+    """One table per env: each variant's numbers and its paired count against the env's first variant."""
+    parts = []
+    for env in dict.fromkeys(v.env for v in ablations):
+        variants = [v for v in ablations if v.env == env]
+        rows = [variant_rows(v, root, skipped) for v in variants]
+        reference = rows[0]["final"]
+        body = []
+        for variant, row in zip(variants, rows, strict=True):
+            final, lowest = row["final"], row["lowest_u"]
+            if final is None:
+                body.append([variant.label, "0", "no finished runs", "", "", "", ""])
+                continue
+            per_trial = ", ".join(f"{t}: {fmt(v)}" for t, v in sorted(final.per_trial("return").items()))
+            body.append([
+                variant.label,
+                str(final.n_trials),
+                fmt_ci(*final.stat("pct_of_expert")),
+                per_trial,
+                fmt_ci(*lowest.stat("pct_of_expert")) if lowest is not None else "—",
+                fmt(window_return(final)),
+                paired_cell(final, reference),
+            ])
+        parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
+            ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
+             "Lowest-u policy: % of expert", "Table I window return", "Final above the reference (trials)"],
+            body,
+        ))
+        parts.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`, made by `{v.made_by}`" for v in variants))
+    return "\n\n".join(parts)
+
+
+
+def render(root: Path, ablations: tuple[Variant, ...] = ABLATIONS) -> str:
+    """docs/new_tasks.md's text, from the runs below ``root``."""
+    skipped: list[Skipped] = []
+    tables = ablation_markdown(root, skipped, ablations)
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    text = [
+        "# Beyond the three tuned tasks: ablations",
+        f"Written by `{COMMAND}` on {stamp} from the runs named under each table; no number is typed in. "
+        "The main grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs) is in [results.md](results.md).",
+        "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
+        "start state. % of expert: 100 x the run's mean return / the expert's mean return on the same "
+        "episodes; a cell is the mean over trials [95% bootstrap CI over trials, n/a under 3 trials]. "
+        "Lowest-u policy: the policy whose own training rollout had the lowest ensemble disagreement (no "
+        "env reward used). Table I window: the per-epoch evaluation (5 held-out episodes) averaged over the "
+        "last 100 epochs. Trials: a trial is a seed, demo split and set of held-out episodes, the same "
+        "in every variant; the paired count is over the trials both variants have.",
+        tables,
+    ]
+    if skipped:
+        text.append("Left out: " + "; ".join(s.text(root) for s in skipped))
+    discussion = root / "docs" / "new_tasks_discussion.md"
+    if discussion.is_file():
+        text.append("## Reading\n\n" + discussion.read_text().strip())
+    return "\n\n".join(text) + "\n"
+
+
+def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--output", default=str(root / "docs"), help="folder for new_tasks.md (default: docs)")
+    parser.add_argument("--force", action="store_true", help="replace an existing new_tasks.md")
+    args = parser.parse_args(argv)
+    out = Path(args.output) / "new_tasks.md"
+    if out.exists() and not args.force:
+        print(f"error: {out} exists; pass --force to replace it", file=sys.stderr)
+        return 2
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, render(root))
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
