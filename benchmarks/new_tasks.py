@@ -14,6 +14,7 @@ reading is appended from ``docs/new_tasks_discussion.md`` when it exists.
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import math
 import sys
@@ -60,6 +61,54 @@ ABLATIONS: tuple[Variant, ...] = (
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
 )
+
+
+#: Where each method's episode lengths are compared: (env, runs folder).
+LENGTHS: tuple[tuple[str, str], ...] = (("Walker2d-v5", "docs/runs"), ("Hopper-v5", "docs/runs"))
+#: Epochs (PPO rollouts) averaged at each end of training for the rollout episode length.
+EDGE_EPOCHS = 10
+
+
+def rollout_lengths(run: Path) -> tuple[float, float]:
+    """Mean training-rollout episode length (SB3's ``rollout/ep_len_mean``) over the first and the last
+    :data:`EDGE_EPOCHS` epochs of a run; NaN when its progress log has none."""
+    logs = sorted((run / "logs").glob("progress*.csv"))
+    if not logs:
+        return math.nan, math.nan
+    with open(logs[0], newline="", encoding="utf-8") as f:
+        values = [float(r["rollout/ep_len_mean"]) for r in csv.DictReader(f) if r.get("rollout/ep_len_mean")]
+    if not values:
+        return math.nan, math.nan
+    return float(sum(values[:EDGE_EPOCHS]) / len(values[:EDGE_EPOCHS])), float(
+        sum(values[-EDGE_EPOCHS:]) / len(values[-EDGE_EPOCHS:])
+    )
+
+
+def length_markdown(root: Path, skipped: list[Skipped], lengths: tuple[tuple[str, str], ...] = LENGTHS) -> str:
+    """Per env, per method: how long episodes last, in training rollouts and for the final policy."""
+    parts = []
+    for env, runs in lengths:
+        folder = root / runs
+        if not folder.is_dir():
+            skipped.append(Skipped(folder, "no such runs folder"))
+            continue
+        body = []
+        for row in final_table(load_runs(folder, skipped)):
+            if row.env != env or row.policy != "final":
+                continue
+            edges = [rollout_lengths(r.path) for r in row.runs]
+            rollout = [
+                "—" if all(math.isnan(e[i]) for e in edges) else fmt_ci(*mean_ci([e[i] for e in edges]))
+                for i in (0, 1)
+            ]
+            body.append([METHOD_LABELS[row.method], str(row.n_trials), *rollout, fmt_ci(*row.stat("length"))])
+        if body:
+            parts.append(f"### {env}: episode length by method (`{runs}`)\n\n" + md_table(
+                ["Method", "Trials", f"Training rollouts, first {EDGE_EPOCHS} epochs",
+                 f"Training rollouts, last {EDGE_EPOCHS} epochs", "Final policy, held-out episodes"],
+                body,
+            ))
+    return "\n\n".join(parts)
 
 
 def variant_rows(variant: Variant, root: Path, skipped: list[Skipped]) -> dict[str, FinalRow | None]:
@@ -124,10 +173,13 @@ def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Varia
 
 
 
-def render(root: Path, ablations: tuple[Variant, ...] = ABLATIONS) -> str:
+def render(
+    root: Path, ablations: tuple[Variant, ...] = ABLATIONS, lengths: tuple[tuple[str, str], ...] = LENGTHS
+) -> str:
     """docs/new_tasks.md's text, from the runs below ``root``."""
     skipped: list[Skipped] = []
     tables = ablation_markdown(root, skipped, ablations)
+    length_tables = length_markdown(root, skipped, lengths)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
         "# Beyond the three tuned tasks: ablations",
@@ -141,6 +193,10 @@ def render(root: Path, ablations: tuple[Variant, ...] = ABLATIONS) -> str:
         "last 100 epochs. Trials: a trial is a seed, demo split and set of held-out episodes, the same "
         "in every variant; the paired count is over the trials both variants have.",
         tables,
+        "## How long episodes last\n\nSteps per episode (each env's time limit: 1,000), mean over trials "
+        "[95% CI]. An episode shorter than the limit ended in a fall. A method whose reward favours staying "
+        "alive lengthens its training episodes.",
+        length_tables,
     ]
     if skipped:
         text.append("Left out: " + "; ".join(s.text(root) for s in skipped))

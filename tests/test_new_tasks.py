@@ -53,3 +53,19 @@ def test_refuses_to_replace_without_force(root, capsys):
     assert new_tasks.main([], root=root) == 2
     assert "exists; pass --force" in capsys.readouterr().err
     assert (root / "docs" / "new_tasks.md").read_text() == "mine"
+
+
+def test_episode_lengths_by_hand(tmp_path):
+    # Trial 0's rollouts last 100, 110, ..., 210 steps over 12 epochs: the first 10 average 145, the last
+    # 10 165. Trial 1's last 300 throughout. Over the two trials: 222.5 and 232.5. BC has no rollouts.
+    for trial, lengths in enumerate([[100 + 10 * i for i in range(12)], [300] * 12]):
+        run = write_run(tmp_path / "runs", "cmz", trial, [1.0], env=ENV, final={"final": [5.0, 5.0]})
+        (run / "logs").mkdir()
+        rows = ["time/iterations,rollout/ep_len_mean"] + [f"{i},{n}" for i, n in enumerate(lengths)]
+        (run / "logs" / "progress_0.csv").write_text("\n".join(rows) + "\n")
+    write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0, 5.0]})
+    text = new_tasks.length_markdown(tmp_path, [], ((ENV, "runs"),))
+    cmz = next(line for line in text.splitlines() if line.startswith("| CMZ-DRIL")).removesuffix(" |")
+    assert cmz.split(" | ")[1:5] == ["2", f"{new_tasks.fmt(222.5)} [n/a]", f"{new_tasks.fmt(232.5)} [n/a]",
+                                     f"{new_tasks.fmt(1000.0)} [n/a]"]
+    assert next(line for line in text.splitlines() if line.startswith("| BC")).split(" | ")[2:4] == ["—", "—"]

@@ -52,7 +52,7 @@ ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: rollout had the lowest ensemble disagreement (reward-free selection; RL methods only).
 POLICIES: tuple[str, ...] = ("final", "lowest_u")
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
-FINAL_VALUES: tuple[str, ...] = ("return", "frechet", "action_mse", "expert_return")
+FINAL_VALUES: tuple[str, ...] = ("return", "length", "frechet", "action_mse", "expert_return")
 
 
 @dataclasses.dataclass
