@@ -46,6 +46,9 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "docs/runs",
             "python benchmarks/tune.py W-no-absorbing --set absorbing=false -- --env Walker2d-v5 --methods cmz "
             "--trials 5 --timesteps 300000 --eval-every 5 --workers 2 (moved to docs/runs)"),
+    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/W-normrew",
+            "python benchmarks/tune.py W-normrew --set 'normalize=dict(norm_obs=False, norm_reward=True)' -- "
+            "--env Walker2d-v5 --methods cmz --trials 3 --timesteps 300000 --eval-every 5 --workers 1"),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
@@ -63,51 +66,73 @@ ABLATIONS: tuple[Variant, ...] = (
 )
 
 
-#: Where each method's episode lengths are compared: (env, runs folder).
-LENGTHS: tuple[tuple[str, str], ...] = (("Walker2d-v5", "docs/runs"), ("Hopper-v5", "docs/runs"))
-#: Epochs (PPO rollouts) averaged at each end of training for the rollout episode length.
+@dataclasses.dataclass(frozen=True)
+class RolloutTable:
+    """One training-rollout quantity compared by method, first epochs against last, in some envs."""
+
+    key: str  #: SB3 logger key in each run's logs/progress_0.csv
+    title: str
+    envs: tuple[str, ...]
+    runs: str = "docs/runs"
+    final_column: str | None = None  #: final_eval.csv column for the final policy's value, if any
+
+
+ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
+    RolloutTable("rollout/ep_len_mean", "episode length by method", ("Walker2d-v5", "Hopper-v5"),
+                 final_column="length"),
+    RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
+                 ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
+)
+#: Epochs (PPO rollouts) averaged at each end of training.
 EDGE_EPOCHS = 10
 
 
-def rollout_lengths(run: Path) -> tuple[float, float]:
-    """Mean training-rollout episode length (SB3's ``rollout/ep_len_mean``) over the first and the last
-    :data:`EDGE_EPOCHS` epochs of a run; NaN when its progress log has none."""
+def rollout_edges(run: Path, key: str) -> tuple[float, float]:
+    """Mean of a logged rollout quantity over the first and the last :data:`EDGE_EPOCHS` epochs of a
+    run; NaN when its progress log has none."""
     logs = sorted((run / "logs").glob("progress*.csv"))
     if not logs:
         return math.nan, math.nan
     with open(logs[0], newline="", encoding="utf-8") as f:
-        values = [float(r["rollout/ep_len_mean"]) for r in csv.DictReader(f) if r.get("rollout/ep_len_mean")]
+        values = [float(r[key]) for r in csv.DictReader(f) if r.get(key)]
     if not values:
         return math.nan, math.nan
-    return float(sum(values[:EDGE_EPOCHS]) / len(values[:EDGE_EPOCHS])), float(
-        sum(values[-EDGE_EPOCHS:]) / len(values[-EDGE_EPOCHS:])
-    )
+    first, last = values[:EDGE_EPOCHS], values[-EDGE_EPOCHS:]
+    return sum(first) / len(first), sum(last) / len(last)
 
 
-def length_markdown(root: Path, skipped: list[Skipped], lengths: tuple[tuple[str, str], ...] = LENGTHS) -> str:
-    """Per env, per method: how long episodes last, in training rollouts and for the final policy."""
+def rollout_markdown(root: Path, skipped: list[Skipped], tables: tuple[RolloutTable, ...] = ROLLOUT_TABLES) -> str:
+    """Per table and env, per method: the quantity in the first and last training epochs (and the final
+    policy's, where the table has a final_eval.csv column), mean over trials [CI]."""
     parts = []
-    for env, runs in lengths:
-        folder = root / runs
+    for table in tables:
+        folder = root / table.runs
         if not folder.is_dir():
             skipped.append(Skipped(folder, "no such runs folder"))
             continue
-        body = []
-        for row in final_table(load_runs(folder, skipped)):
-            if row.env != env or row.policy != "final":
+        rows = final_table(load_runs(folder, skipped))
+        for env in table.envs:
+            body = []
+            for row in rows:
+                if row.env != env or row.policy != "final":
+                    continue
+                edges = [rollout_edges(r.path, table.key) for r in row.runs]
+                cells = [
+                    "—" if all(math.isnan(e[i]) for e in edges) else fmt_ci(*mean_ci([e[i] for e in edges]))
+                    for i in (0, 1)
+                ]
+                if table.final_column:
+                    cells.append(fmt_ci(*row.stat(table.final_column)))
+                elif cells == ["—", "—"]:
+                    continue  # BC: no training rollouts, and nothing else in this table
+                body.append([METHOD_LABELS[row.method], str(row.n_trials), *cells])
+            if not body:
                 continue
-            edges = [rollout_lengths(r.path) for r in row.runs]
-            rollout = [
-                "—" if all(math.isnan(e[i]) for e in edges) else fmt_ci(*mean_ci([e[i] for e in edges]))
-                for i in (0, 1)
-            ]
-            body.append([METHOD_LABELS[row.method], str(row.n_trials), *rollout, fmt_ci(*row.stat("length"))])
-        if body:
-            parts.append(f"### {env}: episode length by method (`{runs}`)\n\n" + md_table(
-                ["Method", "Trials", f"Training rollouts, first {EDGE_EPOCHS} epochs",
-                 f"Training rollouts, last {EDGE_EPOCHS} epochs", "Final policy, held-out episodes"],
-                body,
-            ))
+            header = ["Method", "Trials", f"Training rollouts, first {EDGE_EPOCHS} epochs",
+                      f"Training rollouts, last {EDGE_EPOCHS} epochs"]
+            if table.final_column:
+                header.append("Final policy, held-out episodes")
+            parts.append(f"### {env}: {table.title} (`{table.runs}`)\n\n" + md_table(header, body))
     return "\n\n".join(parts)
 
 
@@ -174,12 +199,12 @@ def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Varia
 
 
 def render(
-    root: Path, ablations: tuple[Variant, ...] = ABLATIONS, lengths: tuple[tuple[str, str], ...] = LENGTHS
+    root: Path, ablations: tuple[Variant, ...] = ABLATIONS, rollouts: tuple[RolloutTable, ...] = ROLLOUT_TABLES
 ) -> str:
     """docs/new_tasks.md's text, from the runs below ``root``."""
     skipped: list[Skipped] = []
     tables = ablation_markdown(root, skipped, ablations)
-    length_tables = length_markdown(root, skipped, lengths)
+    rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
         "# Beyond the three tuned tasks: ablations",
@@ -193,10 +218,12 @@ def render(
         "last 100 epochs. Trials: a trial is a seed, demo split and set of held-out episodes, the same "
         "in every variant; the paired count is over the trials both variants have.",
         tables,
-        "## How long episodes last\n\nSteps per episode (each env's time limit: 1,000), mean over trials "
-        "[95% CI]. An episode shorter than the limit ended in a fall. A method whose reward favours staying "
-        "alive lengthens its training episodes.",
-        length_tables,
+        "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
+        "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
+        "ended in a fall, and a reward that favours staying alive lengthens it. u: the ensemble's disagreement "
+        "on the agent's own states, the quantity DRIL's and CMZ-DRIL's rewards push down (no reward: what "
+        "PPO's updates and the BC epochs alone do to it).",
+        rollout_tables,
     ]
     if skipped:
         text.append("Left out: " + "; ".join(s.text(root) for s in skipped))

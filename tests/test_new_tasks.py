@@ -64,8 +64,20 @@ def test_episode_lengths_by_hand(tmp_path):
         rows = ["time/iterations,rollout/ep_len_mean"] + [f"{i},{n}" for i, n in enumerate(lengths)]
         (run / "logs" / "progress_0.csv").write_text("\n".join(rows) + "\n")
     write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0, 5.0]})
-    text = new_tasks.length_markdown(tmp_path, [], ((ENV, "runs"),))
+    table = new_tasks.RolloutTable("rollout/ep_len_mean", "length", (ENV,), "runs", final_column="length")
+    text = new_tasks.rollout_markdown(tmp_path, [], (table,))
     cmz = next(line for line in text.splitlines() if line.startswith("| CMZ-DRIL")).removesuffix(" |")
     assert cmz.split(" | ")[1:5] == ["2", f"{new_tasks.fmt(222.5)} [n/a]", f"{new_tasks.fmt(232.5)} [n/a]",
                                      f"{new_tasks.fmt(1000.0)} [n/a]"]
     assert next(line for line in text.splitlines() if line.startswith("| BC")).split(" | ")[2:4] == ["—", "—"]
+
+
+def test_a_rollout_only_table_leaves_out_methods_without_rollouts(tmp_path):
+    run = write_run(tmp_path / "runs", "dril", 0, [1.0], env=ENV, final={"final": [5.0]})
+    (run / "logs").mkdir()
+    (run / "logs" / "progress_0.csv").write_text("rollout/disagreement_mean\n0.5\n0.25\n")
+    write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0]})
+    table = new_tasks.RolloutTable("rollout/disagreement_mean", "u", (ENV,), "runs")
+    lines = [line for line in new_tasks.rollout_markdown(tmp_path, [], (table,)).splitlines() if line.startswith("| ")]
+    # Header, then DRIL alone: two epochs, so both ends average both values (0.375).
+    assert len(lines) == 2 and lines[1].startswith("| DRIL | 1 | 0.375")
