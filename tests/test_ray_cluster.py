@@ -154,7 +154,9 @@ def test_lost_worker_leaves_its_last_checkpoint_on_the_driver(cluster, grids, mo
     """A worker killed mid-run: its run fails as on the local backend, its last checkpoint that reached
     the driver stays, and the next grid continues from it."""
     [spec] = plan_grid(ENV, "zero", [0], cluster / "lost", demos_dir=cluster / "experts",
-                       hyperparams=cluster / "cmzdril.yml", timesteps=64 * 20, n_eval_episodes=2, checkpoint_every=1)
+                       hyperparams=cluster / "cmzdril.yml", timesteps=64 * 200, n_eval_episodes=2, checkpoint_every=1)
+    # Long enough that the cancel lands mid-run: at 20 epochs a loaded CI machine once finished the run
+    # before the first checkpoint reached the driver.
     handles = []
     submit = remote.RemoteRuns.submit
     monkeypatch.setattr(remote.RemoteRuns, "submit", lambda self, s: handles.append(submit(self, s)) or handles[-1])
