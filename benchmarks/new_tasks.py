@@ -1,6 +1,11 @@
-"""Ablations of issue 19 (tasks nobody here tuned for), compared trial by trial: docs/new_tasks.md.
+"""Issue 19 (tasks nobody here tuned for): sweeps and ablations, compared trial by trial: docs/new_tasks.md.
 
     python benchmarks/new_tasks.py [--output docs] [--force]
+
+Sweeps (:data:`SWEEPS`): the same env and methods in several runs folders that differ in one setting
+of their config.json (training demonstrations, training budget); a table per sweep and a figure of %
+of expert against the setting in ``<output>/figures``, with the per-epoch evaluation curves for a
+sweep of the budget.
 
 Each variant is a runs folder made by ``sb3-cmzdril benchmark`` (or ``benchmarks/tune.py``) for one
 env and method. Variants of an env share trials: trial t has the same seed, demo split and held-out
@@ -21,9 +26,19 @@ import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
-from sb3_cmzdril.experiments.report.final_eval import FinalRow, final_table, find, mean_ci
+import numpy as np
+
+from sb3_cmzdril.experiments.report.figures import COLORS, SMOOTHING_SIGMA, new_figure, save_png, smoothed_band
+from sb3_cmzdril.experiments.report.final_eval import FinalRow, expert_by_env, final_table, find, mean_ci
 from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, Skipped, load_runs
+from sb3_cmzdril.experiments.report.records import (
+    METHOD_LABELS,
+    METHOD_ORDER,
+    RunRecord,
+    Skipped,
+    load_runs,
+    relative,
+)
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,6 +98,34 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
     RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
                  ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
 )
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """Runs of one env in several folders that differ in one setting of their config.json."""
+
+    env: str
+    methods: tuple[str, ...]
+    setting: str  #: the config.json key that varies between the folders
+    title: str  #: what the setting is, for headers and axes
+    folders: tuple[str, ...]  #: runs folders, relative to the repository
+    figure: str  #: file name of the figure under docs/figures
+    made_by: str  #: the commands that made the runs
+
+
+SWEEPS: tuple[Sweep, ...] = (
+    Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
+          ("docs/runs", "docs/runs_demos3", "docs/runs_demos10"), "new_tasks_demos.png",
+          "the main grid's command (1 demo, docs/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
+          "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
+          "--hyperparams hyperparams/cmzdril.yml -o docs/runs_demosN`"),
+    Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
+          ("docs/runs", "docs/runs_1m"), "new_tasks_budget.png",
+          "the main grid's command (300k, docs/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
+          "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
+          "hyperparams/cmzdril.yml -o docs/runs_1m`"),
+)
+
 #: Epochs (PPO rollouts) averaged at each end of training.
 EDGE_EPOCHS = 10
 
@@ -198,16 +241,154 @@ def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Varia
 
 
 
+def sweep_rows(sweep: Sweep, root: Path, skipped: list[Skipped]) -> dict[tuple[str, int], FinalRow]:
+    """The final policy's row per (method, value of the swept setting), over all the sweep's folders.
+
+    The value comes from each run's config.json, not from the folder's name; a trial met twice with the
+    same value counts once (the first folder's) and the other is listed as left out."""
+    runs: dict[tuple[str, int], dict[int, RunRecord]] = {}
+    for folder in sweep.folders:
+        path = root / folder
+        if not path.is_dir():
+            skipped.append(Skipped(path, "no such runs folder"))
+            continue
+        for row in final_table(load_runs(path, skipped)):
+            if row.env != sweep.env or row.method not in sweep.methods or row.policy != "final":
+                continue
+            for record in row.runs:
+                trials = runs.setdefault((row.method, int(record.config[sweep.setting])), {})
+                if record.trial in trials:
+                    skipped.append(Skipped(record.path, f"trial {record.trial} is already counted from "
+                                                        f"{relative(trials[record.trial].path, root)}"))
+                else:
+                    trials[record.trial] = record
+    return {key: FinalRow(sweep.env, key[0], "final", [trials[t] for t in sorted(trials)])
+            for key, trials in sorted(runs.items(), key=lambda item: (METHOD_ORDER.index(item[0][0]), item[0][1]))}
+
+
+def sweep_markdown(sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> str:
+    """Per method and value: the final policy's % of the expert, its returns by trial, and paired
+    counts against BC at the same value and against the method's previous value."""
+    body = []
+    for method in sweep.methods:
+        previous = None
+        for (m, value), row in rows.items():
+            if m != method:
+                continue
+            bc = rows.get(("bc", value))
+            per_trial = ", ".join(f"{t}: {fmt(v)}" for t, v in sorted(row.per_trial("return").items()))
+            body.append([
+                METHOD_LABELS[method], f"{value:,}", str(row.n_trials),
+                "/".join(str(n) for n in sorted(set(row.episodes()))),
+                fmt_ci(*row.stat("pct_of_expert")), per_trial,
+                "—" if bc is None or method == "bc" else above_reference(row, bc),
+                "—" if previous is None else above_reference(row, previous),
+            ])
+            previous = row
+    return md_table(
+        ["Method", sweep.title[:1].upper() + sweep.title[1:], "Trials", "Held-out episodes per trial",
+         "Final policy: % of expert [95% CI]", "Final policy: return by trial",
+         "Above BC, same setting (trials)", "Above the previous row (trials)"],
+        body,
+    )
+
+
+def plot_sweep(sweep: Sweep, rows: dict[tuple[str, int], FinalRow], path: Path) -> Path | None:
+    """% of expert against the swept setting (each trial a point, the mean with its CI); for a sweep of
+    the training budget, beside it the per-epoch evaluation return against timesteps."""
+    if not rows:
+        return None
+    values = sorted({value for _, value in rows})
+    curves = sweep.setting == "timesteps"
+    fig = new_figure(12.0 if curves else 6.5, 4.8)
+    axes = fig.subplots(1, 2 if curves else 1, squeeze=False)[0]
+    ax = axes[0]
+    for k, method in enumerate(sweep.methods):
+        points = [(value, rows[(method, value)]) for value in values if (method, value) in rows]
+        if not points:
+            continue
+        # Methods side by side on a log axis: a constant factor apart, the same on every report.
+        shift = 1.06 ** (k - (len(sweep.methods) - 1) / 2)
+        xs = [value * shift for value, _ in points]
+        stats = [row.stat("pct_of_expert") for _, row in points]
+        for x, (_, row) in zip(xs, points, strict=True):
+            pct = row.per_run("pct_of_expert")
+            ax.scatter([x] * len(pct), pct, s=14, color=COLORS[method], alpha=0.45, linewidth=0)
+        means = [m for m, _, _ in stats]
+        errors = [[m - lo if math.isfinite(lo) else 0.0 for m, lo, _ in stats],
+                  [hi - m if math.isfinite(hi) else 0.0 for m, _, hi in stats]]
+        ax.errorbar(xs, means, yerr=errors, color=COLORS[method], marker="o", capsize=4,
+                    label=f"{METHOD_LABELS[method]} (trials: {', '.join(str(r.n_trials) for _, r in points)})")
+    ax.axhline(100, color="black", linestyle=":", linewidth=1.2, label="expert")
+    ax.set_xscale("log")
+    ax.set_xticks(values, [f"{v:,}" for v in values])
+    ax.minorticks_off()
+    ax.set_xlabel(sweep.title)
+    ax.set_ylabel("final policy: % of the expert's return\non the same held-out episodes")
+    ax.set_title(f"{sweep.env}: mean over trials, bar: 95% bootstrap CI; dots: trials", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    if curves:
+        _plot_budget_curves(axes[1], sweep, rows)
+    return save_png(fig, path)
+
+
+def _plot_budget_curves(ax, sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> None:
+    styles = ("--", "-", "-.", ":")
+    for (method, value), row in rows.items():
+        epochs, mean, std = smoothed_band(row.runs, "return_mean", SMOOTHING_SIGMA)
+        steps = {int(e): int(t) for r in row.runs
+                 for e, t in zip(r.columns["epoch"], r.columns["timesteps"], strict=True)}
+        x = np.array([steps[int(e)] for e in epochs])
+        style = styles[sorted({v for _, v in rows}).index(value) % len(styles)]
+        ax.plot(x, mean, color=COLORS[method], linestyle=style,
+                label=f"{METHOD_LABELS[method]}, {value:,} steps (n={row.n_trials})")
+        ax.fill_between(x, mean - std, mean + std, color=COLORS[method], alpha=0.12, linewidth=0)
+    expert = expert_by_env(list(rows.values()))[sweep.env][0]
+    ax.axhline(expert, color="black", linestyle=":", linewidth=1.2, label="expert (held-out mean)")
+    ax.set_xlabel("PPO timesteps")
+    ax.set_ylabel("evaluation return (5 held-out episodes)")
+    ax.set_title(f"{sweep.env}: per-epoch evaluation, mean over trials ±1 std (smoothed)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+
+
+def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
+                    sweeps: tuple[Sweep, ...] = SWEEPS) -> str:
+    """A section per sweep: its table and, when ``figures`` is given, its figure written there."""
+    parts = []
+    for sweep in sweeps:
+        rows = sweep_rows(sweep, root, skipped)
+        text = [f"### {sweep.env}: {sweep.title}"]
+        if not rows:
+            text.append("No finished runs yet.")
+        else:
+            text.append(sweep_markdown(sweep, rows))
+            if figures is not None:
+                figure = plot_sweep(sweep, rows, figures / sweep.figure)
+                if figure is not None:
+                    text.append(f"![{sweep.title}](figures/{sweep.figure})")
+        text.append(f"Runs: `{'`, `'.join(sweep.folders)}`, made by {sweep.made_by}.")
+        parts.append("\n\n".join(text))
+    return "\n\n".join(parts)
+
+
 def render(
-    root: Path, ablations: tuple[Variant, ...] = ABLATIONS, rollouts: tuple[RolloutTable, ...] = ROLLOUT_TABLES
+    root: Path,
+    ablations: tuple[Variant, ...] = ABLATIONS,
+    rollouts: tuple[RolloutTable, ...] = ROLLOUT_TABLES,
+    sweeps: tuple[Sweep, ...] = SWEEPS,
+    figures: Path | None = None,
 ) -> str:
-    """docs/new_tasks.md's text, from the runs below ``root``."""
+    """docs/new_tasks.md's text, from the runs below ``root``; the sweeps' figures go to ``figures``
+    (none are drawn without it)."""
     skipped: list[Skipped] = []
+    sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations)
     rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
-        "# Beyond the three tuned tasks: ablations",
+        "# Beyond the three tuned tasks: demonstrations, budget and ablations",
         f"Written by `{COMMAND}` on {stamp} from the runs named under each table; no number is typed in. "
         "The main grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs) is in [results.md](results.md).",
         "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
@@ -217,6 +398,12 @@ def render(
         "env reward used). Table I window: the per-epoch evaluation (5 held-out episodes) averaged over the "
         "last 100 epochs. Trials: a trial is a seed, demo split and set of held-out episodes, the same "
         "in every variant; the paired count is over the trials both variants have.",
+        "## How many demonstrations, how many steps\n\nThe package defaults with more training "
+        "demonstrations (the first N of the trial's permutation of the pool, so a trial's 1 demo is among "
+        "its 3 and its 3 among its 10; the rest of the 30-episode pool is held out) and with a longer "
+        "training budget. The paired counts compare the same trials.",
+        sweep_tables,
+        "## Ablations",
         tables,
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
@@ -226,7 +413,8 @@ def render(
         rollout_tables,
     ]
     if skipped:
-        text.append("Left out: " + "; ".join(s.text(root) for s in skipped))
+        # Folders shared by several tables are loaded once per table: list what each leaves out once.
+        text.append("Left out: " + "; ".join(dict.fromkeys(s.text(root) for s in skipped)))
     discussion = root / "docs" / "new_tasks_discussion.md"
     if discussion.is_file():
         text.append("## Reading\n\n" + discussion.read_text().strip())
@@ -243,7 +431,7 @@ def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
         print(f"error: {out} exists; pass --force to replace it", file=sys.stderr)
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out, render(root))
+    atomic_write_text(out, render(root, figures=out.parent / "figures"))
     print(out)
     return 0
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -81,3 +82,54 @@ def test_a_rollout_only_table_leaves_out_methods_without_rollouts(tmp_path):
     lines = [line for line in new_tasks.rollout_markdown(tmp_path, [], (table,)).splitlines() if line.startswith("| ")]
     # Header, then DRIL alone: two epochs, so both ends average both values (0.375).
     assert len(lines) == 2 and lines[1].startswith("| DRIL | 1 | 0.375")
+
+
+def _sweep_run(root: Path, method: str, trial: int, value: float, setting: str, setting_value: int) -> Path:
+    run = write_run(root, method, trial, [1.0, 2.0, 3.0], env=ENV, final={"final": [value, value]})
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, setting: setting_value}))
+    return run
+
+
+def _table_line(text: str, method: str, value: str) -> list[str]:
+    line = next(line for line in text.splitlines() if line.startswith(f"| {method} | {value} |"))
+    return line.removeprefix("| ").removesuffix(" |").split(" | ")
+
+
+def test_a_sweep_groups_by_the_config_value_and_pairs_by_trial(tmp_path):
+    # 1 demo: BC 100/200, CMZ 150/150 in trials 0/1. 3 demos (folder "three"): BC 300 in trial 0 only,
+    # CMZ 400/100. Folder "again" repeats CMZ trial 0 with 3 demos: counted once, listed as left out.
+    for trial, (bc, cmz) in enumerate([(100.0, 150.0), (200.0, 150.0)]):
+        _sweep_run(tmp_path / "one", "bc", trial, bc, "n_demos", 1)
+        _sweep_run(tmp_path / "one", "cmz", trial, cmz, "n_demos", 1)
+    _sweep_run(tmp_path / "three", "bc", 0, 300.0, "n_demos", 3)
+    for trial, cmz in enumerate([400.0, 100.0]):
+        _sweep_run(tmp_path / "three", "cmz", trial, cmz, "n_demos", 3)
+    _sweep_run(tmp_path / "again", "cmz", 0, 999.0, "n_demos", 3)
+    folders = ("one", "three", "again", "gone")
+    sweep = new_tasks.Sweep(ENV, ("bc", "cmz"), "n_demos", "demos", folders, "s.png", "pytest")
+    skipped: list = []
+    text = new_tasks.sweeps_markdown(tmp_path, skipped, tmp_path / "figures", (sweep,))
+    cmz3 = _table_line(text, "CMZ-DRIL", "3")
+    # Trial t's expert mean over its two episodes: 1000.5 + 10 t.
+    assert cmz3[2:4] == ["2", "2"]
+    assert cmz3[4].startswith(f"{(100 * 400 / 1000.5 + 100 * 100 / 1010.5) / 2:.3g} ")
+    assert cmz3[5] == "0: 400, 1: 100"
+    assert cmz3[6:] == ["1 of 1", "1 of 2"]  # 400 > BC's 300 (trial 1 has no BC); 400 > 150, 100 < 150
+    assert _table_line(text, "CMZ-DRIL", "1")[6:] == ["1 of 2", "—"]  # 150 > 100, 150 < 200
+    assert _table_line(text, "BC", "3")[2] == "1" and _table_line(text, "BC", "3")[6:] == ["—", "1 of 1"]
+    reasons = [s.text(tmp_path) for s in skipped]
+    assert any(r.startswith("again/") and "trial 0 is already counted from three/" in r for r in reasons)
+    assert "gone: no such runs folder" in reasons
+    assert (tmp_path / "figures" / "s.png").stat().st_size > 0 and "![demos](figures/s.png)" in text
+
+
+def test_a_budget_sweep_draws_its_curves_and_a_sweep_without_runs_says_so(tmp_path):
+    for trial in range(2):
+        _sweep_run(tmp_path / "short", "dril", trial, 100.0, "timesteps", 4096)
+    sweep = new_tasks.Sweep(ENV, ("dril",), "timesteps", "steps", ("short",), "b.png", "pytest")
+    text = new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (sweep,))
+    assert _table_line(text, "DRIL", "4,096")[2] == "2" and (tmp_path / "figures" / "b.png").is_file()
+    empty = new_tasks.Sweep(ENV, ("cmz",), "timesteps", "steps", ("short",), "e.png", "pytest")
+    assert "No finished runs yet." in new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
+    assert not (tmp_path / "figures" / "e.png").exists()

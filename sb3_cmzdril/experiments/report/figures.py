@@ -40,7 +40,8 @@ SMOOTHING_SIGMA = 2.0
 COLORS = {"bc": "tab:gray", "dril": "tab:orange", "cmz": "tab:blue", "zero": "tab:red", "env": "tab:green"}
 
 
-def _figure(width: float, height: float):
+def new_figure(width: float, height: float):
+    """A matplotlib Figure on the Agg canvas (no display, no pyplot state), constrained layout."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -49,14 +50,15 @@ def _figure(width: float, height: float):
     return fig
 
 
-def _save(fig, path: PathLike) -> Path:
+def save_png(fig, path: PathLike) -> Path:
+    """Write ``fig`` to ``path`` as PNG, atomically."""
     path = Path(path)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     return path
 
 
-def _smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def smoothed_band(runs: Sequence[RunRecord], column: str, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(epochs, mean, std) over trials of each trial's smoothed curve; epochs not reached by every
     trial use the trials that reached them (an unfinished trial shortens nothing)."""
     from scipy.ndimage import gaussian_filter1d
@@ -82,7 +84,7 @@ def plot_figure(
     if not groups:
         return None
     envs = sorted({env for env, _ in groups}, key=env_key)
-    fig = _figure(13, 3.2 * len(envs) + 0.8)
+    fig = new_figure(13, 3.2 * len(envs) + 0.8)
     axes = fig.subplots(len(envs), len(METRICS), squeeze=False)
     for row, env in enumerate(envs):
         xmax = max((r.columns["epoch"][-1] for (e, m), runs in groups.items() if e == env and m != "bc" for r in runs),
@@ -102,7 +104,7 @@ def plot_figure(
                     ax.axhline(mean, color=color, linestyle="--", label=name)
                     ax.axhspan(mean - std, mean + std, color=color, alpha=0.12, linewidth=0)
                     continue
-                epochs, band_mean, band_std = _smoothed_band(runs, column, sigma)
+                epochs, band_mean, band_std = smoothed_band(runs, column, sigma)
                 ax.plot(epochs, band_mean, color=color, label=name)
                 ax.fill_between(epochs, band_mean - band_std, band_mean + band_std, color=color, alpha=0.2, linewidth=0)
             ax.set_xlim(0, max(1, xmax))
@@ -116,7 +118,7 @@ def plot_figure(
         + f"mean over trials, band ±1 std; curves Gaussian-smoothed (sigma {sigma:g} evaluations)",
         fontsize=11,
     )
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
 #: Horizontal offset of the final policy's and the lowest-u policy's points around a method's tick.
@@ -169,7 +171,7 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Pat
     from matplotlib.lines import Line2D
 
     envs = sorted({r.env for r in rows}, key=env_key)
-    fig = _figure(max(10.0, 4.8 * len(envs) + 0.6), 5.8)  # room for the legend with a single env
+    fig = new_figure(max(10.0, 4.8 * len(envs) + 0.6), 5.8)  # room for the legend with a single env
     axes = fig.subplots(1, len(envs), squeeze=False)[0]
     for ax, env in zip(axes, envs, strict=True):
         _plot_env(ax, rows, env)
@@ -186,7 +188,18 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Pat
     fig.suptitle((title + "\n" if title else "") + "each trial's return averaged over its held-out pool episodes "
                  "(final_eval.csv)\nunder each method: in how many trials its final | lowest-u policy is above BC",
                  fontsize=11)
-    return _save(fig, path)
+    return save_png(fig, path)
 
 
-__all__ = ["FIGURES", "FINAL_FIGURE", "FINAL_FIGURE_REFERENCE", "SMOOTHING_SIGMA", "plot_figure", "plot_final"]
+__all__ = [
+    "COLORS",
+    "FIGURES",
+    "FINAL_FIGURE",
+    "FINAL_FIGURE_REFERENCE",
+    "SMOOTHING_SIGMA",
+    "new_figure",
+    "plot_figure",
+    "plot_final",
+    "save_png",
+    "smoothed_band",
+]
