@@ -293,11 +293,10 @@ def sweep_markdown(sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> str:
     )
 
 
-def plot_sweep(sweep: Sweep, rows: dict[tuple[str, int], FinalRow], path: Path) -> Path | None:
+def plot_sweep(sweep: Sweep, rows: dict[tuple[str, int], FinalRow], path: Path) -> Path:
     """% of expert against the swept setting (each trial a point, the mean with its CI); for a sweep of
-    the training budget, beside it the per-epoch evaluation return against timesteps."""
-    if not rows:
-        return None
+    the training budget, beside it the per-epoch evaluation return against timesteps. ``rows`` is not
+    empty."""
     values = sorted({value for _, value in rows})
     curves = sweep.setting == "timesteps"
     fig = new_figure(12.0 if curves else 6.5, 4.8)
@@ -335,19 +334,21 @@ def plot_sweep(sweep: Sweep, rows: dict[tuple[str, int], FinalRow], path: Path) 
 
 def _plot_budget_curves(ax, sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> None:
     styles = ("--", "-", "-.", ":")
+    values = sorted({value for _, value in rows})
     for (method, value), row in rows.items():
         epochs, mean, std = smoothed_band(row.runs, "return_mean", SMOOTHING_SIGMA)
         steps = {int(e): int(t) for r in row.runs
                  for e, t in zip(r.columns["epoch"], r.columns["timesteps"], strict=True)}
         x = np.array([steps[int(e)] for e in epochs])
-        style = styles[sorted({v for _, v in rows}).index(value) % len(styles)]
+        style = styles[values.index(value) % len(styles)]
         ax.plot(x, mean, color=COLORS[method], linestyle=style,
                 label=f"{METHOD_LABELS[method]}, {value:,} steps (n={row.n_trials})")
         ax.fill_between(x, mean - std, mean + std, color=COLORS[method], alpha=0.12, linewidth=0)
     expert = expert_by_env(list(rows.values()))[sweep.env][0]
     ax.axhline(expert, color="black", linestyle=":", linewidth=1.2, label="expert (held-out mean)")
     ax.set_xlabel("PPO timesteps")
-    ax.set_ylabel("evaluation return (5 held-out episodes)")
+    episodes = sorted({int(n) for row in rows.values() for r in row.runs for n in r.columns["n_episodes"]})
+    ax.set_ylabel(f"evaluation return ({'/'.join(map(str, episodes))} held-out episodes)")
     ax.set_title(f"{sweep.env}: per-epoch evaluation, mean over trials ±1 std (smoothed)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
@@ -365,9 +366,8 @@ def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
         else:
             text.append(sweep_markdown(sweep, rows))
             if figures is not None:
-                figure = plot_sweep(sweep, rows, figures / sweep.figure)
-                if figure is not None:
-                    text.append(f"![{sweep.title}](figures/{sweep.figure})")
+                plot_sweep(sweep, rows, figures / sweep.figure)
+                text.append(f"![{sweep.title}](figures/{sweep.figure})")
         text.append(f"Runs: `{'`, `'.join(sweep.folders)}`, made by {sweep.made_by}.")
         parts.append("\n\n".join(text))
     return "\n\n".join(parts)
