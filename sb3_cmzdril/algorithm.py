@@ -82,6 +82,10 @@ class CMZDRIL(PPO):
     :param ema: CMZ EMA factor g (paper: 0.99).
     :param u0: initial EMA value (paper: 0).
     :param dril_quantile: DRIL threshold quantile of u on the demos (DRIL: 0.98).
+    :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (the
+        statistic of DRIL's threshold), so that every state beyond it costs the same and a few
+        far-off states cannot dominate the reward (``CMZReward(u_max=...)``); None (the paper) does
+        not clip.
     :param disagreement: ``"std"`` or ``"quadratic"`` (see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members (paper/DRIL: 5).
     :param ensemble_hidden: hidden layer widths of each member.
@@ -135,6 +139,7 @@ class CMZDRIL(PPO):
         ema: float = 0.99,
         u0: float = 0.0,
         dril_quantile: float = 0.98,
+        cmz_clip_quantile: float | None = None,
         disagreement: str = "std",
         ensemble_size: int = 5,
         ensemble_hidden: Sequence[int] = (64, 64),
@@ -182,6 +187,8 @@ class CMZDRIL(PPO):
             make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
         if not 0.0 < dril_quantile <= 1.0:
             raise ValueError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
+        if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
+            raise ValueError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
         for name, value in (("bc_pretrain_epochs", bc_pretrain_epochs), ("bc_epochs_per_update", bc_epochs_per_update)):
             if int(value) < 0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
@@ -202,6 +209,9 @@ class CMZDRIL(PPO):
         self.u0 = float(u0)
         self.dril_quantile = float(dril_quantile)
         self.dril_threshold: float | None = None
+        self.cmz_clip_quantile = None if cmz_clip_quantile is None else float(cmz_clip_quantile)
+        #: the CMZ reward's clip of u (``cmz_clip_quantile`` of u on the demos), computed with the ensemble
+        self.cmz_u_max: float | None = None
         self.disagreement = disagreement
         self.ensemble_size = int(ensemble_size)
         self.ensemble_hidden = tuple(int(h) for h in ensemble_hidden)
@@ -411,7 +421,7 @@ class CMZDRIL(PPO):
     # -- imitation set-up ------------------------------------------------------------------------
     def _make_rule(self) -> RewardRule:
         if self.reward == "cmz":
-            return make_rule("cmz", alpha=self.alpha, ema=self.ema, u0=self.u0)
+            return make_rule("cmz", alpha=self.alpha, ema=self.ema, u0=self.u0, u_max=self.cmz_u_max)
         if self.reward == "dril":
             assert self.dril_threshold is not None, "the DRIL threshold is computed by pretrain()"
             return make_rule("dril", threshold=self.dril_threshold)
@@ -507,6 +517,8 @@ class CMZDRIL(PPO):
         else:
             fit = "ensemble kept as loaded"
         threshold = f"; DRIL threshold {self.dril_threshold:.4g}" if self.dril_threshold is not None else ""
+        if self.cmz_u_max is not None:
+            threshold += f"; CMZ reward clips u at {self.cmz_u_max:.4g}"
         return f"CMZDRIL pretraining: {bc}; {fit}{threshold}"
 
     def _prepare_scoring(self, progress_bar: bool = False, remake_rule: bool = False) -> dict[str, float]:
@@ -529,6 +541,8 @@ class CMZDRIL(PPO):
             info["ensemble_seconds"] = time.perf_counter() - start
         if self.reward == "dril" and (remake_rule or self.dril_threshold is None):
             self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        if self.reward == "cmz" and self.cmz_clip_quantile is not None and (remake_rule or self.cmz_u_max is None):
+            self.cmz_u_max = quantile_of_disagreement(self.ensemble, self.demonstrations, self.cmz_clip_quantile)
         if remake_rule or self.reward_rule is None:
             self.reward_rule = self._make_rule()
         return info

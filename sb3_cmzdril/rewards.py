@@ -69,23 +69,35 @@ class CMZReward(RewardRule):
     :param alpha: reward scale (> 0); the paper uses 10.
     :param ema: EMA factor ``g`` in (0, 1); the paper uses 0.99.
     :param u0: initial ``ubar`` of every env; the paper uses 0.
+    :param u_max: clip ``u`` at this value before the reward and the EMA (None, the paper: no clip).
+        Linear in ``u``, the reward lets a few far-off states (a cheetah on its back) outweigh many
+        ordinary ones in PPO's normalised advantages; clipped, every state beyond ``u_max`` costs the
+        same, as in DRIL's reward, and the states below it keep their graded reward.
     """
 
     name = "cmz"
 
-    def __init__(self, alpha: float = 10.0, ema: float = 0.99, u0: float = 0.0) -> None:
+    def __init__(self, alpha: float = 10.0, ema: float = 0.99, u0: float = 0.0, u_max: float | None = None) -> None:
         if not alpha > 0:
             raise ValueError(f"alpha must be > 0, got {alpha}")
         if not 0.0 < ema < 1.0:
             raise ValueError(f"ema must lie in (0, 1), got {ema}")
         if not np.isfinite(u0):
             raise ValueError(f"u0 must be finite, got {u0}")
+        if u_max is not None and not (np.isfinite(u_max) and u_max > 0):
+            raise ValueError(f"u_max must be finite and > 0, or None, got {u_max}")
         self.alpha = float(alpha)
         self.ema = float(ema)
         self.u0 = float(u0)
+        self.u_max = None if u_max is None else float(u_max)
         self.ubar: np.ndarray | None = None
 
+    def _clipped(self, u: np.ndarray) -> np.ndarray:
+        u = np.asarray(u, dtype=np.float64)
+        return u if self.u_max is None else np.minimum(u, self.u_max)
+
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        u = self._clipped(u)
         if self.ubar is None or self.ubar.shape != u.shape:
             if self.ubar is not None:
                 raise ValueError(f"CMZReward holds EMA state for {self.ubar.size} envs but got {u.size} disagreements")
@@ -101,7 +113,7 @@ class CMZReward(RewardRule):
         # scipy runs it over all steps and envs at once and hands back the state after the last step.
         from scipy.signal import lfilter
 
-        u = np.asarray(u, dtype=np.float64)
+        u = self._clipped(u)
         if len(u) == 0:
             return np.zeros(u.shape, np.float32)
         if self.ubar is None:
@@ -116,7 +128,7 @@ class CMZReward(RewardRule):
 
     def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
         # rewards = -alpha (u - ubar), so -alpha (u_absorbing - ubar) needs no ubar of its own.
-        return (rewards - self.alpha * (np.asarray(u_absorbing) - np.asarray(u))).astype(np.float32)
+        return (rewards - self.alpha * (self._clipped(u_absorbing) - self._clipped(u))).astype(np.float32)
 
     def get_state(self) -> np.ndarray:
         return np.zeros(0) if self.ubar is None else self.ubar.copy()
@@ -126,7 +138,8 @@ class CMZReward(RewardRule):
         self.ubar = state.copy() if state.size else None
 
     def __repr__(self) -> str:
-        return f"CMZReward(alpha={self.alpha}, ema={self.ema}, u0={self.u0})"
+        clip = "" if self.u_max is None else f", u_max={self.u_max:.6g}"
+        return f"CMZReward(alpha={self.alpha}, ema={self.ema}, u0={self.u0}{clip})"
 
 
 class DRILReward(RewardRule):
@@ -290,7 +303,7 @@ class DisagreementReward(VecEnvWrapper):
 
 
 def make_rule(name: str, **kwargs: Any) -> RewardRule:
-    """Build a rule from its name: ``cmz`` (alpha, ema, u0), ``dril`` (threshold), ``zero``, ``env``."""
+    """Build a rule from its name: ``cmz`` (alpha, ema, u0, u_max), ``dril`` (threshold), ``zero``, ``env``."""
     rules: dict[str, Any] = {r.name: r for r in (CMZReward, DRILReward, ZeroReward, EnvReward)}
     if name not in rules:
         raise ValueError(f"unknown reward {name!r}; choose one of {sorted(rules)}")

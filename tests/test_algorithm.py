@@ -371,6 +371,23 @@ def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, 
     _assert_same_rollouts(batch, step)
 
 
+def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(pendulum_demos, tmp_path):
+    with pytest.raises(ValueError, match=r"cmz_clip_quantile must lie in \(0, 1\] or be None"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=1.5)
+    plain = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    plain.pretrain()
+    assert plain.cmz_u_max is None and plain.reward_rule.u_max is None
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=0.9, **TINY)
+    model.learn(64)
+    u = model.ensemble.disagreement(pendulum_demos.observations, pendulum_demos.actions)
+    assert model.cmz_u_max == pytest.approx(np.quantile(u, 0.9), rel=1e-5)
+    assert model.reward_rule.u_max == model.cmz_u_max
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRIL.load(tmp_path / "m.zip")
+    assert loaded.cmz_clip_quantile == 0.9 and loaded.cmz_u_max == model.cmz_u_max
+    assert loaded.reward_rule.u_max == model.cmz_u_max
+
+
 def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
     with pytest.raises(ValueError, match="absorbing must be True, False or 'auto'"):
         CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing="yes")

@@ -97,6 +97,30 @@ def test_cmz_state_roundtrip_and_validation():
         CMZReward(ema=1.0)
 
 
+def test_cmz_reward_clips_u_before_the_reward_and_the_ema():
+    # u_max 0.5: u = 0.2, 2.0, 0.4 reads as 0.2, 0.5, 0.4.
+    # r_1 = -10 * 0.2 = -2; ubar = 0.002; r_2 = -10 * (0.5 - 0.002) = -4.98; ubar = 0.00698;
+    # r_3 = -10 * (0.4 - 0.00698) = -3.9302.
+    rule = CMZReward(u_max=0.5)
+    u = np.array([[0.2], [2.0], [0.4]])
+    expected = [-2.0, -4.98, -3.9302]
+    np.testing.assert_allclose(rule.sequence(u, np.zeros_like(u))[:, 0], expected, rtol=1e-6)
+    stepwise = CMZReward(u_max=0.5)
+    np.testing.assert_allclose([stepwise(row, np.zeros(1))[0] for row in u], expected, rtol=1e-6)
+    np.testing.assert_allclose(rule.get_state(), stepwise.get_state())
+    np.testing.assert_allclose(rule.get_state(), [0.00698 * 0.99 + 0.004])
+    # Every u beyond the clip costs the same; below it the reward is the paper's.
+    far = CMZReward(u_max=0.5)
+    assert far(np.array([0.6, 5.0]), np.zeros(2)).tolist() == [-5.0, -5.0]
+    # The absorbing state's u is clipped too: at most as bad as a step at u_max.
+    rewards = CMZReward(u_max=0.5).sequence(np.array([[0.1]]), np.zeros((1, 1)))
+    np.testing.assert_allclose(rule.absorbing(np.array(3.0), np.array([[0.1]]), rewards), [[-5.0]], rtol=1e-6)
+    assert "u_max=0.5" in repr(rule) and "u_max" not in repr(CMZReward())
+    for bad in (0.0, -1.0, np.inf, np.nan):
+        with pytest.raises(ValueError, match="u_max must be finite and > 0, or None"):
+            CMZReward(u_max=bad)
+
+
 def test_dril_reward_and_threshold_from_quantile(pendulum_demos):
     rule = DRILReward(threshold=0.5)
     assert rule(np.array([0.4, 0.5, 0.6]), np.zeros(3)).tolist() == [1.0, 1.0, -1.0]
