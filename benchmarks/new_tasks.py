@@ -70,14 +70,31 @@ ABLATIONS: tuple[Variant, ...] = (
             "the default (moved here)"),
     Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "docs/tuning/W-abs-normrew",
-            "python benchmarks/tune.py W-abs-normrew --set 'normalize=dict(norm_obs=False, norm_reward=True)' -- "
-            "--env Walker2d-v5 --methods cmz --trials 2 --timesteps 300000 --eval-every 5 --workers 2 at commit "
-            "a3f38d8 (`absorbing: auto` then the default)"),
+            "python benchmarks/tune.py W-abs-normrew --set absorbing=auto --set 'normalize=dict(norm_obs=False, "
+            "norm_reward=True)' -- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2 (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
+    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
+            "docs/tuning/W-clip98",
+            "python benchmarks/tune.py W-clip98 --set cmz_clip_quantile=0.98 -- --env Walker2d-v5 --methods cmz "
+            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
+    Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
+            "docs/tuning/Hopper-abs-normrew",
+            "python benchmarks/tune.py Hopper-abs-normrew --set absorbing=auto --set 'normalize=dict(norm_obs=False, "
+            "norm_reward=True)' -- --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2"),
+    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "docs/runs",
+            "the published grid (CONTRIBUTING.md)"),
+    Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
+            "docs/tuning/HC-clip98",
+            "python benchmarks/tune.py HC-clip98 --set cmz_clip_quantile=0.98 -- --env HalfCheetah-v5 --methods cmz "
+            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2"),
+    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "docs/runs",
+            "the published grid (CONTRIBUTING.md)"),
 )
 
 
