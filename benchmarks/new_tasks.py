@@ -284,8 +284,9 @@ def sweep_rows(sweep: Sweep, root: Path, skipped: list[Skipped]) -> dict[tuple[s
 
 
 def sweep_markdown(sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> str:
-    """Per method and value: the final policy's % of the expert, its returns by trial, and paired
-    counts against BC at the same value and against the method's previous value."""
+    """Per method and value: the final policy's % of the expert, its returns by trial, the lowest-u
+    policy's % of the expert and the Table I window return (methods with an RL phase), and paired
+    counts of the final policy against BC at the same value and against the method's previous value."""
     body = []
     for method in sweep.methods:
         previous = None
@@ -294,10 +295,13 @@ def sweep_markdown(sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> str:
                 continue
             bc = rows.get(("bc", value))
             per_trial = ", ".join(f"{t}: {fmt(v)}" for t, v in sorted(row.per_trial("return").items()))
+            lowest = FinalRow(row.env, method, "lowest_u", [r for r in row.runs if "lowest_u" in r.final])
             body.append([
                 METHOD_LABELS[method], f"{value:,}", str(row.n_trials),
                 "/".join(str(n) for n in sorted(set(row.episodes()))),
                 fmt_ci(*row.stat("pct_of_expert")), per_trial,
+                fmt_ci(*lowest.stat("pct_of_expert")) if lowest.runs else "—",
+                "—" if method == "bc" else fmt(window_return(row)),
                 "—" if bc is None or method == "bc" else above_reference(row, bc),
                 "—" if previous is None else above_reference(row, previous),
             ])
@@ -305,6 +309,7 @@ def sweep_markdown(sweep: Sweep, rows: dict[tuple[str, int], FinalRow]) -> str:
     return md_table(
         ["Method", sweep.title[:1].upper() + sweep.title[1:], "Trials", "Held-out episodes per trial",
          "Final policy: % of expert [95% CI]", "Final policy: return by trial",
+         "Lowest-u policy: % of expert [95% CI]", "Table I window return",
          "Above BC, same setting (trials)", "Above the previous row (trials)"],
         body,
     )

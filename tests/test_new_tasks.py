@@ -84,8 +84,11 @@ def test_a_rollout_only_table_leaves_out_methods_without_rollouts(tmp_path):
     assert len(lines) == 2 and lines[1].startswith("| DRIL | 1 | 0.375")
 
 
-def _sweep_run(root: Path, method: str, trial: int, value: float, setting: str, setting_value: int) -> Path:
-    run = write_run(root, method, trial, [1.0, 2.0, 3.0], env=ENV, final={"final": [value, value]})
+def _sweep_run(
+    root: Path, method: str, trial: int, value: float, setting: str, setting_value: int, lowest_u: float | None = None
+) -> Path:
+    final = {"final": [value, value]} | ({} if lowest_u is None else {"lowest_u": [lowest_u, lowest_u]})
+    run = write_run(root, method, trial, [1.0, 2.0, 3.0], env=ENV, final=final)
     config = json.loads((run / "config.json").read_text())
     (run / "config.json").write_text(json.dumps({**config, setting: setting_value}))
     return run
@@ -98,13 +101,14 @@ def _table_line(text: str, method: str, value: str) -> list[str]:
 
 def test_a_sweep_groups_by_the_config_value_and_pairs_by_trial(tmp_path):
     # 1 demo: BC 100/200, CMZ 150/150 in trials 0/1. 3 demos (folder "three"): BC 300 in trial 0 only,
-    # CMZ 400/100. Folder "again" repeats CMZ trial 0 with 3 demos: counted once, listed as left out.
+    # CMZ 400/100 (lowest-u policy 500/300). Folder "again" repeats CMZ trial 0 with 3 demos: counted
+    # once, listed as left out.
     for trial, (bc, cmz) in enumerate([(100.0, 150.0), (200.0, 150.0)]):
         _sweep_run(tmp_path / "one", "bc", trial, bc, "n_demos", 1)
         _sweep_run(tmp_path / "one", "cmz", trial, cmz, "n_demos", 1)
     _sweep_run(tmp_path / "three", "bc", 0, 300.0, "n_demos", 3)
-    for trial, cmz in enumerate([400.0, 100.0]):
-        _sweep_run(tmp_path / "three", "cmz", trial, cmz, "n_demos", 3)
+    for trial, (cmz, lowest) in enumerate([(400.0, 500.0), (100.0, 300.0)]):
+        _sweep_run(tmp_path / "three", "cmz", trial, cmz, "n_demos", 3, lowest_u=lowest)
     _sweep_run(tmp_path / "again", "cmz", 0, 999.0, "n_demos", 3)
     folders = ("one", "three", "again", "gone")
     sweep = new_tasks.Sweep(ENV, ("bc", "cmz"), "n_demos", "demos", folders, "s.png", "pytest")
@@ -115,9 +119,12 @@ def test_a_sweep_groups_by_the_config_value_and_pairs_by_trial(tmp_path):
     assert cmz3[2:4] == ["2", "2"]
     assert cmz3[4].startswith(f"{(100 * 400 / 1000.5 + 100 * 100 / 1010.5) / 2:.3g} ")
     assert cmz3[5] == "0: 400, 1: 100"
-    assert cmz3[6:] == ["1 of 1", "1 of 2"]  # 400 > BC's 300 (trial 1 has no BC); 400 > 150, 100 < 150
-    assert _table_line(text, "CMZ-DRIL", "1")[6:] == ["1 of 2", "—"]  # 150 > 100, 150 < 200
-    assert _table_line(text, "BC", "3")[2] == "1" and _table_line(text, "BC", "3")[6:] == ["—", "1 of 1"]
+    assert cmz3[6].startswith(f"{(100 * 500 / 1000.5 + 100 * 300 / 1010.5) / 2:.3g} ")  # the lowest-u policy
+    assert cmz3[8:] == ["1 of 1", "1 of 2"]  # 400 > BC's 300 (trial 1 has no BC); 400 > 150, 100 < 150
+    assert _table_line(text, "CMZ-DRIL", "1")[6] == "—"  # no lowest-u policy in these runs
+    assert _table_line(text, "CMZ-DRIL", "1")[8:] == ["1 of 2", "—"]  # 150 > 100, 150 < 200
+    bc3 = _table_line(text, "BC", "3")
+    assert bc3[2] == "1" and bc3[6:] == ["—", "—", "—", "1 of 1"]  # BC has no RL phase
     reasons = [s.text(tmp_path) for s in skipped]
     assert any(r.startswith("again/") and "trial 0 is already counted from three/" in r for r in reasons)
     assert "gone: no such runs folder" in reasons
