@@ -42,6 +42,8 @@ from sb3_cmzdril.experiments.report.records import (
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
+#: the published grid: the BC and DRIL runs every ablation is paired with
+GRID = "docs/runs"
 COMMAND = "python benchmarks/new_tasks.py --force"
 
 
@@ -225,19 +227,25 @@ def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
     return "no reference runs" if reference is None else above_reference(row, reference)
 
 
-def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = ABLATIONS) -> str:
-    """One table per env: each variant's numbers and its paired count against the env's first variant."""
+def ablation_markdown(
+    root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = ABLATIONS, grid: str = GRID
+) -> str:
+    """One table per env: each variant's numbers, its paired count against the env's first variant
+    and against BC and DRIL of the published grid (``grid``): the issue's targets are paired ones."""
     parts = []
     for env in dict.fromkeys(v.env for v in ablations):
         variants = [v for v in ablations if v.env == env]
         rows = [variant_rows(v, root, skipped) for v in variants]
         reference = rows[0]["final"]
+        baselines = {m: variant_rows(Variant(env, m, m, grid, ""), root, [])["final"] for m in ("bc", "dril")}
         body = []
         for variant, row in zip(variants, rows, strict=True):
             final, lowest = row["final"], row["lowest_u"]
             if final is None:
-                body.append([variant.label, "0", "no finished runs", "", "", "", ""])
+                body.append([variant.label, "0", "no finished runs"] + [""] * 6)
                 continue
+            against = ["—" if m == variant.method or b is None else above_reference(final, b)
+                       for m, b in baselines.items()]
             per_trial = ", ".join(f"{t}: {fmt(v)}" for t, v in sorted(final.per_trial("return").items()))
             body.append([
                 variant.label,
@@ -247,10 +255,12 @@ def ablation_markdown(root: Path, skipped: list[Skipped], ablations: tuple[Varia
                 fmt_ci(*lowest.stat("pct_of_expert")) if lowest is not None else "—",
                 fmt(window_return(final)),
                 paired_cell(final, reference),
+                *against,
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
             ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
-             "Lowest-u policy: % of expert", "Table I window return", "Final above the reference (trials)"],
+             "Lowest-u policy: % of expert", "Table I window return", "Final above the reference (trials)",
+             f"Final above BC of `{grid}` (trials)", f"Final above DRIL of `{grid}` (trials)"],
             body,
         ))
         parts.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`, made by `{v.made_by}`" for v in variants))
@@ -273,6 +283,9 @@ def sweep_rows(sweep: Sweep, root: Path, skipped: list[Skipped]) -> dict[tuple[s
             if row.env != sweep.env or row.method not in sweep.methods or row.policy != "final":
                 continue
             for record in row.runs:
+                if sweep.setting not in record.config:
+                    skipped.append(Skipped(record.path, f"config.json has no {sweep.setting}"))
+                    continue
                 trials = runs.setdefault((row.method, int(record.config[sweep.setting])), {})
                 if record.trial in trials:
                     skipped.append(Skipped(record.path, f"trial {record.trial} is already counted from "

@@ -27,6 +27,9 @@ def root(tmp_path: Path) -> Path:
         write_run(tmp_path / "ref", "cmz", trial, [1.0], env=ENV, final={"final": [value, value]})
     for trial, value in enumerate([250.0, 150.0]):
         write_run(tmp_path / "var", "cmz", trial, [1.0], env=ENV, final={"final": [value, value]})
+    # The published grid's BC (trials 0-2: 120/120/120); no DRIL there.
+    for trial in range(3):
+        write_run(tmp_path / "docs" / "runs", "bc", trial, [1.0], env=ENV, final={"final": [120.0, 120.0]})
     return tmp_path
 
 
@@ -41,15 +44,17 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     # 300 / 1020.5 -> 9.995, 19.79, 29.40 %: mean 19.73.
     ref_pct = [100 * 100 / 1000.5, 100 * 200 / 1010.5, 100 * 300 / 1020.5]
     assert f"{sum(ref_pct) / 3:.3g}" in lines["from ref"]
-    assert "0: 100, 1: 200, 2: 300" in lines["from ref"] and lines["from ref"].endswith("| reference |")
+    # Against the grid's BC (120 in every trial): the reference is above it in 2 of 3, the variant in 2 of 2.
+    assert "0: 100, 1: 200, 2: 300" in lines["from ref"] and lines["from ref"].endswith("| reference | 2 of 3 | — |")
     # The variant beats the reference in trial 0 (250 > 100), not in trial 1 (150 < 200); trial 2 is not shared.
-    assert "| 1 of 2 |" in lines["from var"] and "n/a" in lines["from var"]  # no interval with 2 trials
+    assert lines["from var"].endswith("| 1 of 2 | 2 of 2 | — |") and "n/a" in lines["from var"]  # no CI: 2 trials
     assert "| from missing | 0 | no finished runs |" in lines["from missing"]
     assert "missing: no such runs folder" in text
+    assert "config.json has no n_demos" in text  # the demo sweep leaves out a run that does not say
 
 
 def test_refuses_to_replace_without_force(root, capsys):
-    (root / "docs").mkdir()
+    (root / "docs").mkdir(exist_ok=True)
     (root / "docs" / "new_tasks.md").write_text("mine")
     assert new_tasks.main([], root=root) == 2
     assert "exists; pass --force" in capsys.readouterr().err
