@@ -75,10 +75,6 @@ ABLATIONS: tuple[Variant, ...] = (
             "python benchmarks/tune.py W-abs-normrew --set absorbing=auto --set 'normalize=dict(norm_obs=False, "
             "norm_reward=True)' -- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
-    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "docs/tuning/W-clip98",
-            "python benchmarks/tune.py W-clip98 --set cmz_clip_quantile=0.98 -- --env Walker2d-v5 --methods cmz "
-            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/Hopper-absorbing",
