@@ -112,6 +112,8 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
                  final_column="length"),
     RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
                  ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
+    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
+                 ("HalfCheetah-v5",), runs="docs/tuning/HC-clip98"),
 )
 
 
