@@ -58,39 +58,41 @@ class Variant:
     made_by: str  #: the command (and commit) that made the runs
 
 
+ABS_NORMREW = "--set absorbing=auto --set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+
+
+def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
+    """The benchmarks/tune.py command that made a docs/tuning/NAME folder (300k steps, as the grid)."""
+    return (f"python benchmarks/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
+            f"--timesteps 300000 --eval-every 5 --workers {workers}")
+
+
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "docs/runs",
-            "python benchmarks/tune.py W-no-absorbing --set absorbing=false -- --env Walker2d-v5 --methods cmz "
-            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2 (moved to docs/runs)"),
+            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to docs/runs)"),
     Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/W-normrew",
-            "python benchmarks/tune.py W-normrew --set 'normalize=dict(norm_obs=False, norm_reward=True)' -- "
-            "--env Walker2d-v5 --methods cmz --trials 3 --timesteps 300000 --eval-every 5 --workers 1"),
+            tune_command("W-normrew", "--set 'normalize=dict(norm_obs=False, norm_reward=True)'", "Walker2d-v5",
+                         trials=3, workers=1)),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
             "the default (moved here)"),
     Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "docs/tuning/W-abs-normrew",
-            "python benchmarks/tune.py W-abs-normrew --set absorbing=auto --set 'normalize=dict(norm_obs=False, "
-            "norm_reward=True)' -- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2 (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
+            tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
+            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
     Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "docs/tuning/Hopper-abs-normrew",
-            "python benchmarks/tune.py Hopper-abs-normrew --set absorbing=auto --set 'normalize=dict(norm_obs=False, "
-            "norm_reward=True)' -- --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2"),
+            "docs/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "docs/tuning/HC-clip98",
-            "python benchmarks/tune.py HC-clip98 --set cmz_clip_quantile=0.98 -- --env HalfCheetah-v5 --methods cmz "
-            "--trials 5 --timesteps 300000 --eval-every 5 --workers 2"),
+            "docs/tuning/HC-clip98", tune_command("HC-clip98", "--set cmz_clip_quantile=0.98", "HalfCheetah-v5")),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
