@@ -542,7 +542,13 @@ class CMZDRIL(PPO):
         if self.reward == "dril" and (remake_rule or self.dril_threshold is None):
             self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
         if self.reward == "cmz" and self.cmz_clip_quantile is not None and (remake_rule or self.cmz_u_max is None):
-            self.cmz_u_max = quantile_of_disagreement(self.ensemble, self.demonstrations, self.cmz_clip_quantile)
+            u_max = quantile_of_disagreement(self.ensemble, self.demonstrations, self.cmz_clip_quantile)
+            if not u_max > 0:  # an ensemble that agrees exactly on most demo steps: a clip at 0 erases the reward
+                raise ValueError(
+                    f"cmz_clip_quantile={self.cmz_clip_quantile} clips u at {u_max:.4g}, the ensemble's disagreement "
+                    "on that share of the demos; choose a higher quantile or None"
+                )
+            self.cmz_u_max = u_max
         if remake_rule or self.reward_rule is None:
             self.reward_rule = self._make_rule()
         return info
