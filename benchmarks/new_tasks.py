@@ -58,7 +58,9 @@ class Variant:
     made_by: str  #: the command (and commit) that made the runs
 
 
-ABS_NORMREW = "--set absorbing=auto --set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+ABS_NORMREW = "--set absorbing=auto " + NORMREW
+CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -72,8 +74,9 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "docs/runs",
             tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to docs/runs)"),
     Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/W-normrew",
-            tune_command("W-normrew", "--set 'normalize=dict(norm_obs=False, norm_reward=True)'", "Walker2d-v5",
-                         trials=3, workers=1)),
+            tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
+    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
+            "docs/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
@@ -89,10 +92,14 @@ ABLATIONS: tuple[Variant, ...] = (
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
     Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "docs/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
+    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/Hopper-normrew",
+            tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "docs/tuning/HC-clip98", tune_command("HC-clip98", "--set cmz_clip_quantile=0.98", "HalfCheetah-v5")),
+            "docs/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    Variant("HalfCheetah-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/HC-normrew",
+            tune_command("HC-normrew", NORMREW, "HalfCheetah-v5")),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
