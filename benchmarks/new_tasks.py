@@ -77,6 +77,12 @@ ABLATIONS: tuple[Variant, ...] = (
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
     Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "docs/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)",
+            "docs/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "10 ensemble members (`ensemble_size: 10`)",
+            "docs/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
+            "docs/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
@@ -123,6 +129,8 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
                  ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
     RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
                  ("HalfCheetah-v5",), runs="docs/tuning/HC-clip98"),
+    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
+                 ("Walker2d-v5",), runs="docs/tuning/W-clip98"),
 )
 
 
