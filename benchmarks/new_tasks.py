@@ -104,8 +104,6 @@ ABLATIONS: tuple[Variant, ...] = (
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "docs/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    Variant("HalfCheetah-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/HC-normrew",
-            tune_command("HC-normrew", NORMREW, "HalfCheetah-v5")),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "docs/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
