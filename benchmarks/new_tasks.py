@@ -83,6 +83,8 @@ ABLATIONS: tuple[Variant, ...] = (
             "docs/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
             "docs/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
+            "docs/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
@@ -143,6 +145,7 @@ class Sweep:
     folders: tuple[str, ...]  #: runs folders, relative to the repository
     figure: str  #: file name of the figure under docs/figures
     made_by: str  #: the commands that made the runs
+    fixed: str = ""  #: what the folders share that is not the package defaults, for the heading
 
 
 SWEEPS: tuple[Sweep, ...] = (
@@ -156,6 +159,11 @@ SWEEPS: tuple[Sweep, ...] = (
           "the main grid's command (300k, docs/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
           "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
           "hyperparams/cmzdril.yml -o docs/runs_1m`"),
+    Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
+          ("docs/tuning/W-abs-normrew", "docs/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
+          f"`{tune_command('W-abs-normrew', ABS_NORMREW, 'Walker2d-v5')}` (1 demo; see its ablation row) and "
+          f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
+          fixed="absorbing state + reward normalisation"),
 )
 
 #: Epochs (PPO rollouts) averaged at each end of training.
@@ -408,7 +416,7 @@ def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
     parts = []
     for sweep in sweeps:
         rows = sweep_rows(sweep, root, skipped)
-        text = [f"### {sweep.env}: {sweep.title}"]
+        text = [f"### {sweep.env}: {sweep.title}" + (f", {sweep.fixed}" if sweep.fixed else "")]
         if not rows:
             text.append("No finished runs yet.")
         else:

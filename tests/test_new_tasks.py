@@ -142,6 +142,7 @@ def test_a_budget_sweep_draws_its_curves_and_a_sweep_without_runs_says_so(tmp_pa
     sweep = new_tasks.Sweep(ENV, ("dril",), "timesteps", "steps", ("short",), "b.png", "pytest")
     text = new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (sweep,))
     assert _table_line(text, "DRIL", "4,096")[2] == "2" and (tmp_path / "figures" / "b.png").is_file()
-    empty = new_tasks.Sweep(ENV, ("cmz",), "timesteps", "steps", ("short",), "e.png", "pytest")
-    assert "No finished runs yet." in new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
+    empty = new_tasks.Sweep(ENV, ("cmz",), "timesteps", "steps", ("short",), "e.png", "pytest", fixed="clip")
+    empty_text = new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
+    assert f"### {ENV}: steps, clip\n\nNo finished runs yet." in empty_text
     assert not (tmp_path / "figures" / "e.png").exists()
