@@ -380,7 +380,8 @@ def plot_sweep(sweep: Sweep, rows: dict[tuple[str, int], FinalRow], path: Path) 
     ax.minorticks_off()
     ax.set_xlabel(sweep.title)
     ax.set_ylabel("final policy: % of the expert's return\non the same held-out episodes")
-    ax.set_title(f"{sweep.env}: mean over trials, bar: 95% bootstrap CI; dots: trials", fontsize=10)
+    fixed = f"{sweep.fixed}\n" if sweep.fixed else ""
+    ax.set_title(f"{fixed}{sweep.env}: mean over trials, bar: 95% bootstrap CI; dots: trials", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     if curves:
