@@ -388,13 +388,13 @@ def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(
     assert loaded.reward_rule.u_max == model.cmz_u_max
 
 
-
 def test_cmz_clip_at_zero_disagreement_names_the_option(pendulum_demos, monkeypatch):
     # an ensemble agreeing exactly on most demo steps puts the quantile at 0: every state would score alike
     monkeypatch.setattr("sb3_cmzdril.algorithm.quantile_of_disagreement", lambda *args: 0.0)
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=0.5, **TINY)
     with pytest.raises(ValueError, match=r"cmz_clip_quantile=0.5 clips u at 0, .* choose a higher quantile or None"):
         model.pretrain()
+
 
 def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
     with pytest.raises(ValueError, match="absorbing must be True, False or 'auto'"):
