@@ -273,6 +273,29 @@ def versions() -> dict[str, str]:
     return found
 
 
+def portable_path(path: PathLike) -> str:
+    """``path`` as a record stores it: relative to the current folder when it lies below it.
+
+    Run records are committed and shared, so they must not carry the absolute paths of the machine
+    that made them; a path outside the current folder has no portable form and stays as it is.
+    """
+    absolute = Path(os.path.abspath(path))
+    try:
+        return absolute.relative_to(Path.cwd()).as_posix() or "."
+    except ValueError:
+        return str(path)
+
+
 def command_line(argv: Sequence[str] | None = None) -> str:
-    """The command line as typed (``sys.argv`` by default), shell-quoted."""
-    return shlex.join(list(sys.argv if argv is None else argv))
+    """The command line as typed (``sys.argv`` by default), shell-quoted, in portable form.
+
+    The program is named as a user types it (``sb3-cmzdril``, not the interpreter's absolute path
+    to the console script or to ``__main__.py``), and absolute arguments below the current folder
+    become relative (:func:`portable_path`).
+    """
+    args = list(sys.argv if argv is None else argv)
+    if args:
+        program = Path(args[0])
+        if program.name == "sb3-cmzdril" or program.parts[-2:] == ("sb3_cmzdril", "__main__.py"):
+            args[0] = "sb3-cmzdril"
+    return shlex.join([portable_path(a) if os.path.isabs(a) else a for a in args])

@@ -177,3 +177,13 @@ def test_provenance():
     found = io.versions()
     for key in ("python", "sb3_cmzdril", "stable_baselines3", "gymnasium", "torch", "numpy", "mujoco"):
         assert found[key]
+
+
+def test_records_carry_no_absolute_paths_of_the_machine(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert io.portable_path(tmp_path / "runs" / "a") == "runs/a"
+    assert io.portable_path(tmp_path) == "."
+    assert io.portable_path("/elsewhere/pool.npz") == "/elsewhere/pool.npz"  # no portable form
+    line = io.command_line(["/opt/py/bin/sb3-cmzdril", "train", "-o", str(tmp_path / "out"), "--env", "a b"])
+    assert line == "sb3-cmzdril train -o out --env 'a b'"
+    assert io.command_line(["/site/sb3_cmzdril/__main__.py", "report"]) == "sb3-cmzdril report"

@@ -14,7 +14,6 @@ step count, the best evaluation score so far and the wall time spent) and trains
 from __future__ import annotations
 
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from sb3_cmzdril.io import (
     LOCK_FILE,
     PathLike,
     lock_output,
+    portable_path,
     read_json,
     read_json_or_empty,
     remove_stale_temporaries,
@@ -264,11 +264,10 @@ def _expert_metadata(env_id, algo, seed, total, model, state, returns, lengths, 
         "eval_freq": int(eval_freq),
         "n_eval_episodes": int(n_eval_episodes),
         "evaluations": state.get("evaluations", []),
-        "hyperparams": {"file": str(hp_path), "key": hp.key, "values": hp.raw},
+        "hyperparams": {"file": portable_path(hp_path), "key": hp.key, "values": hp.raw},
         "versions": versions(),
         "torch_threads": torch.get_num_threads(),
         "command": command,
-        "cwd": os.getcwd(),
         "wall_time_s": round(wall, 1),
         "resumes": int(state.get("resumes", 0)),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

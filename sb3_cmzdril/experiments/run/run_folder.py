@@ -53,6 +53,7 @@ from sb3_cmzdril.io import (
     deferred_signals,
     jsonable,
     lock_output,
+    portable_path,
     read_json,
     read_json_or_empty,
     remove_stale_temporaries,
@@ -247,7 +248,7 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "seed": spec.seed,
         "network_seed": spec.seed,
         "env_seed": spec.seed,
-        "demos": spec.demos,
+        "demos": portable_path(spec.demos),
         "demos_sha256": file_sha256(spec.demos),
         "pool_episodes": int(pool.n_episodes),
         "split": "numpy.random.default_rng(seed).permutation(pool_episodes): first n_demos train, "
@@ -261,7 +262,7 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "timesteps": spec.timesteps,
         "eval_every": spec.eval_every,
         "checkpoint_every": spec.checkpoint_every,
-        "hyperparams_file": spec.hyperparams,
+        "hyperparams_file": portable_path(spec.hyperparams),
         "hyperparams_key": hp.key,
         "hyperparams_values": hp.raw,
         "model_kwargs": hp.model_kwargs(),
@@ -269,7 +270,6 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "versions": versions(),
         "command": spec.command,
         "train_command": train_command(spec),
-        "cwd": os.getcwd(),
         "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
 

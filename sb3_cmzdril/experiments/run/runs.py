@@ -75,7 +75,7 @@ from sb3_cmzdril.experiments.run.spec import (
 )
 from sb3_cmzdril.experts import check_env_id
 from sb3_cmzdril.experts.callbacks import ProgressCallback
-from sb3_cmzdril.io import PathLike
+from sb3_cmzdril.io import PathLike, portable_path
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -283,7 +283,7 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "wall_time_s": round(state.wall_time(), 2),
         "segments": len(state.data["segments"]),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "run_dir": spec.output_dir,
+        "run_dir": portable_path(spec.output_dir),
     }
 
 

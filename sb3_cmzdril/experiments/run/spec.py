@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations
-from sb3_cmzdril.io import PathLike
+from sb3_cmzdril.io import PathLike, portable_path
 
 if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
     from sb3_cmzdril.demos import Demonstrations
@@ -414,7 +414,7 @@ def train_command(spec: RunSpec) -> str:
         "--reward",
         spec.method,
         "--demos",
-        spec.demos,
+        portable_path(spec.demos),
         "--n-demos",
         str(spec.n_demos),
         "--eval-episodes",
@@ -426,9 +426,9 @@ def train_command(spec: RunSpec) -> str:
         "--checkpoint-every",
         str(spec.checkpoint_every),
         "--hyperparams",
-        spec.hyperparams,
+        portable_path(spec.hyperparams),
         "-o",
-        spec.output_dir,
+        portable_path(spec.output_dir),
     ]
     if spec.method != "bc":
         args[6:6] = ["--timesteps", str(spec.timesteps)]
