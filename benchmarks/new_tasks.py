@@ -43,7 +43,7 @@ from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the published grid: the BC and DRIL runs every ablation is paired with
-GRID = "docs/runs"
+GRID = "results/runs"
 COMMAND = "python benchmarks/new_tasks.py --force"
 
 
@@ -64,49 +64,49 @@ CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
-    """The benchmarks/tune.py command that made a docs/tuning/NAME folder (300k steps, as the grid)."""
+    """The benchmarks/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
             f"--timesteps 300000 --eval-every 5 --workers {workers}")
 
 
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
-    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "docs/runs",
-            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to docs/runs)"),
-    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/W-normrew",
+    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "results/runs",
+            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to results/runs)"),
+    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
     Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "docs/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
+            "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)",
-            "docs/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
+            "results/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "10 ensemble members (`ensemble_size: 10`)",
-            "docs/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
+            "results/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
-            "docs/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
+            "results/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
-            "docs/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/W-absorbing",
+            "results/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8, when `auto` was "
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
             "the default (moved here)"),
     Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "docs/tuning/W-abs-normrew",
+            "results/tuning/W-abs-normrew",
             tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
             + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
-    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "docs/runs",
+    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
-    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "docs/tuning/Hopper-absorbing",
+    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o docs/runs at commit a3f38d8 (moved here)"),
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
     Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "docs/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
-    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "docs/tuning/Hopper-normrew",
+            "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
+    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
-    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "docs/runs",
+    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "docs/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "docs/runs",
+            "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
 
@@ -118,7 +118,7 @@ class RolloutTable:
     key: str  #: SB3 logger key in each run's logs/progress_0.csv
     title: str
     envs: tuple[str, ...]
-    runs: str = "docs/runs"
+    runs: str = "results/runs"
     final_column: str | None = None  #: final_eval.csv column for the final policy's value, if any
 
 
@@ -128,9 +128,9 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
     RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
                  ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
     RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
-                 ("HalfCheetah-v5",), runs="docs/tuning/HC-clip98"),
+                 ("HalfCheetah-v5",), runs="results/tuning/HC-clip98"),
     RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
-                 ("Walker2d-v5",), runs="docs/tuning/W-clip98"),
+                 ("Walker2d-v5",), runs="results/tuning/W-clip98"),
 )
 
 
@@ -150,17 +150,17 @@ class Sweep:
 
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
-          ("docs/runs", "docs/runs_demos3", "docs/runs_demos10"), "new_tasks_demos.png",
-          "the main grid's command (1 demo, docs/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
+          ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
+          "the main grid's command (1 demo, results/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
           "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
-          "--hyperparams hyperparams/cmzdril.yml -o docs/runs_demosN`"),
+          "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`"),
     Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
-          ("docs/runs", "docs/runs_1m"), "new_tasks_budget.png",
-          "the main grid's command (300k, docs/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
+          ("results/runs", "results/runs_1m"), "new_tasks_budget.png",
+          "the main grid's command (300k, results/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
           "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
-          "hyperparams/cmzdril.yml -o docs/runs_1m`"),
+          "hyperparams/cmzdril.yml -o results/runs_1m`"),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
-          ("docs/tuning/W-abs-normrew", "docs/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
+          ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
           f"`{tune_command('W-abs-normrew', ABS_NORMREW, 'Walker2d-v5')}` (1 demo; see its ablation row) and "
           f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
           fixed="absorbing state + reward normalisation"),

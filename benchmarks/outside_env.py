@@ -24,7 +24,7 @@ env stepped 4,000 steps per CPU second; HalfCheetah-v5 stepped 3,200 at the same
 on an idle core, DESIGN.md, where PPO on it ran ~1,660 steps/s).
 Each run's wall time is in the "Runs" table of results.md (from its done.json).
 
-What it does, into OUTPUT (default docs/outside_env), resumable at every step:
+What it does, into OUTPUT (default results/outside_env), resumable at every step:
 
 1. records the demo pool ``OUTPUT/LunarLander-v3/demos.npz`` with ``collect_demos`` (the expert is
    registered as the scripted expert ``lunar-heuristic``): ``--pool-episodes`` deterministic episodes,
@@ -61,7 +61,7 @@ ENV_ID = "LunarLander-v3"
 EXPERT_NAME = "lunar-heuristic"
 METHODS = ("bc", "cmz", "zero")
 HYPERPARAMS = Path(__file__).resolve().with_name("outside_env.yml")
-DEFAULT_OUTPUT = ROOT / "docs" / "outside_env"
+DEFAULT_OUTPUT = ROOT / "results" / "outside_env"
 #: gymnasium's LunarLander documentation: "An episode is considered a solution if it scores at least 200 points."
 SOLVED_RETURN = 200.0
 
@@ -301,7 +301,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--eval-every", type=int, default=5,
                         help="PPO updates between per-epoch evaluations (default 5)")
     parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUTPUT,
-                        help="output folder (default docs/outside_env)")
+                        help="output folder (default results/outside_env)")
     parser.add_argument("--report-only", action="store_true", help="only rewrite results.md/results.csv")
     args = parser.parse_args(argv)
     unknown = sorted(set(parse_list(args.methods)) - set(METHODS))

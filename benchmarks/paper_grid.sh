@@ -5,8 +5,8 @@
 # runs' small records (config, state, eval.csv, final_eval.csv, pretrain.csv, progress logs) are
 # tracked by git.
 #
-#   bash benchmarks/paper_grid.sh               # the shipped defaults (hyperparams/cmzdril.yml) -> docs/runs
-#   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=docs/runs_paper_faithful bash benchmarks/paper_grid.sh
+#   bash benchmarks/paper_grid.sh               # the shipped defaults (hyperparams/cmzdril.yml) -> results/runs
+#   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=results/runs_paper_faithful bash benchmarks/paper_grid.sh
 #                                                # the paper-faithful setting (raw inputs, 100 BC epochs)
 #
 # BC, CMZ-DRIL and no reward (the comparisons the claims rest on) run first on every env and trial,
@@ -17,7 +17,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 workers=${WORKERS:-2}
 hyperparams=${HYPERPARAMS:-hyperparams/cmzdril.yml}
-runs=${RUNS:-docs/runs}
+runs=${RUNS:-results/runs}
 cli=${SB3_CMZDRIL:-sb3-cmzdril}
 for methods in bc,cmz,zero dril,env; do
     $cli benchmark --env HalfCheetah-v5,Hopper-v5 --methods "$methods" --trials 5 \

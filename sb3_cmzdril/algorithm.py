@@ -110,7 +110,7 @@ class CMZDRIL(PPO):
         (None keeps what NLL learned). NLL on a few demos collapses it (HalfCheetah/Hopper: about
         -2, std 0.13), and PPO then barely leaves the cloned trajectory, so the disagreement reward
         has nothing to correct; from std 0.37 (-1.0) the BC epochs and PPO anneal it again (to about
-        0.1 by 300k steps). Measured in docs/tuning/logstd-floor-1 against docs/tuning/logstd-keep.
+        0.1 by 300k steps). Measured in results/tuning/logstd-floor-1 against results/tuning/logstd-keep.
     :param absorbing: score an episode's termination (not a time-limit truncation) as entering an
         absorbing state at the highest disagreement seen so far, worth ``gamma / (1 - gamma)`` times
         the reward there (:func:`~sb3_cmzdril.rewards.with_absorbing_state`); without it a mean-zero

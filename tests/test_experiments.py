@@ -553,10 +553,10 @@ def test_run_experiment_checks_a_spec_made_by_hand_before_writing(setup, tmp_pat
 
 
 def test_a_published_run_folder_is_still_the_same_run():
-    """A run folder written before the run half was restructured (docs/runs) is recognised as the
+    """A run folder written before the run half was restructured (results/runs) is recognised as the
     finished run of the same spec: config.json's identity is what it was."""
     repo = Path(__file__).resolve().parent.parent
-    out = repo / "docs" / "runs" / "Hopper-v5" / "cmz" / "trial0"
+    out = repo / "results" / "runs" / "Hopper-v5" / "cmz" / "trial0"
     config = _config(out)
     spec = RunSpec(
         env_id=config["env_id"], method=config["method"], demos=str(repo / "experts" / "Hopper-v5" / "demos.npz"),

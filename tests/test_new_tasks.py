@@ -29,7 +29,7 @@ def root(tmp_path: Path) -> Path:
         write_run(tmp_path / "var", "cmz", trial, [1.0], env=ENV, final={"final": [value, value]})
     # The published grid's BC (trials 0-2: 120/120/120); no DRIL there.
     for trial in range(3):
-        write_run(tmp_path / "docs" / "runs", "bc", trial, [1.0], env=ENV, final={"final": [120.0, 120.0]})
+        write_run(tmp_path / "results" / "runs", "bc", trial, [1.0], env=ENV, final={"final": [120.0, 120.0]})
     return tmp_path
 
 

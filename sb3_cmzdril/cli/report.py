@@ -28,7 +28,7 @@ def add_report(sub) -> None:
     p.add_argument(
         "--reference-runs",
         metavar="DIR",
-        help="a second runs folder (e.g. docs/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
+        help="a second runs folder (e.g. results/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
         "(and final evaluation, where its runs have one) in the headline and its own sections",
     )
     p.add_argument("--label", help="how the report names RUNS_DIR's grid (default: the path as given)")
