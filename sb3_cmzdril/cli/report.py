@@ -31,6 +31,14 @@ def add_report(sub) -> None:
         help="a second runs folder (e.g. results/runs_paper_faithful) reported beside RUNS_DIR: its Table I "
         "(and final evaluation, where its runs have one) in the headline and its own sections",
     )
+    p.add_argument(
+        "--aggregate-runs",
+        metavar="DIR",
+        action="append",
+        default=[],
+        help="another runs folder (e.g. a benchmark of another env) whose final evaluations join RUNS_DIR's in "
+        "the across-task aggregate (IQM, probability of improvement, performance profiles; rliable); repeatable",
+    )
     p.add_argument("--label", help="how the report names RUNS_DIR's grid (default: the path as given)")
     p.add_argument("--reference-label", help="how the report names the --reference-runs grid (default: its path)")
     from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW
@@ -78,6 +86,7 @@ def _run_report(args) -> int:
         discussion=args.discussion,
         readme=args.readme,
         reference_runs=args.reference_runs,
+        aggregate_runs=args.aggregate_runs,
         label=args.label,
         reference_label=args.reference_label,
         figures=not args.no_figures,

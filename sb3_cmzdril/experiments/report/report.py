@@ -24,6 +24,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from sb3_cmzdril.experiments.report.aggregate import CSV as ACROSS_CSV
+from sb3_cmzdril.experiments.report.aggregate import FIGURE as ACROSS_FIGURE
+from sb3_cmzdril.experiments.report.aggregate import write_aggregate
 from sb3_cmzdril.experiments.report.figures import (
     FIGURES,
     FINAL_FIGURE,
@@ -75,7 +78,7 @@ def report_outputs() -> list[str]:
     names = ["results.md"]
     for suffix in SUFFIXES:
         names += [f"table1{suffix}.csv", f"final_table{suffix}.csv"]
-    return names + [name for name, _, _ in FIGURES] + [FINAL_FIGURE, FINAL_FIGURE_REFERENCE]
+    return names + [name for name, _, _ in FIGURES] + [FINAL_FIGURE, FINAL_FIGURE_REFERENCE, ACROSS_CSV, ACROSS_FIGURE]
 
 
 def _source_line(rep: GridReport) -> str:
@@ -99,8 +102,10 @@ def render_markdown(
     report_command: str | None,
     window: int,
     discussion: str | None = None,
+    across: str | None = None,
 ) -> str:
-    """results.md: the headline, each grid's sections, the figures, the references, the sources."""
+    """results.md: the headline, the across-task aggregate (``across``), each grid's sections, the
+    figures, the references, the sources."""
     two = len(reports) > 1
     h = "###" if two else "##"
     reference = references[0] if references else None
@@ -124,6 +129,8 @@ def render_markdown(
         headline_markdown(reports, reference),
         "",
     ]
+    if across:
+        parts += ["## Across tasks", "", across, ""]
     if two:
         parts += [differences_markdown(reports[0], reports[1]), ""]
     for i, rep in enumerate(reports):
@@ -206,6 +213,7 @@ def write_report(
     label: str | None = None,
     reference_label: str | None = None,
     figures: bool = True,
+    aggregate_runs: Sequence[PathLike] = (),
 ) -> Path:
     """Write results.md, the tables' CSVs and the figures into ``output_dir``; returns results.md's path.
 
@@ -220,6 +228,9 @@ def write_report(
     :param label: how tables name the grid of ``runs_dir`` (default: the path as given);
         ``reference_label`` the same for ``reference_runs``.
     :param figures: False writes the tables only (quicker: each figure takes a second or two).
+    :param aggregate_runs: more runs folders (e.g. a benchmark of another env) whose final evaluations
+        join the main grid's in the across-task aggregate (:mod:`~sb3_cmzdril.experiments.report.aggregate`,
+        rliable), written when the main grid has final evaluations.
     """
     _check_inputs(window, discussion, readme)
     grids = [load_grid(runs_dir, label)]
@@ -249,8 +260,13 @@ def write_report(
         if path is not None:
             curves.append((title, path))
             written.add(filename)
+    across = None
+    if reports[0].final:
+        pooled = list(reports[0].final) + [row for d in aggregate_runs for row in final_table(load_runs(d))]
+        across = write_aggregate(pooled, out, figures)
+        written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
     notes = Path(discussion).read_text(encoding="utf-8") if discussion is not None else None
-    text = render_markdown(reports, curves, final_figures, references, command, int(window), notes)
+    text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
     atomic_write_text(out / "results.md", text)
     for name in set(report_outputs()) - written:
         (out / name).unlink(missing_ok=True)  # an earlier report's file this one would contradict

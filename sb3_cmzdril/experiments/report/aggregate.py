@@ -1,0 +1,265 @@
+"""One number across tasks: rliable's aggregates of the final evaluation, over every task and trial.
+
+Per-task tables say how a method does on each env; a reader comparing methods across envs needs one
+number with an honest interval. Following Agarwal et al. (NeurIPS 2021, the ``rliable`` library):
+
+* a run's **normalised score** is its mean return over its held-out pool episodes divided by the
+  expert's mean return over the same episodes (1 = the expert), so envs of different return scales
+  pool together (:func:`score_matrix`);
+* the **interquartile mean** (IQM) of the scores over all tasks and trials, beside the mean and the
+  median of the per-task means, each with a stratified bootstrap confidence interval (runs resampled
+  within each task);
+* the **probability of improvement** of one method over another: the chance that a run of the first
+  scores above a run of the second on a task picked at random (ties count half), with its interval;
+* **performance profiles**: the share of runs whose score exceeds each threshold.
+
+A method enters an aggregate only on the tasks where it has runs; a comparison between two methods
+uses the tasks both have. Trials are matched by index (the grids' trials 0..n-1), so every task
+contributes the same number of runs, as rliable's stratified bootstrap needs.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from sb3_cmzdril.experiments.report.final_eval import FinalRow
+from sb3_cmzdril.experiments.report.formatting import md_table
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER
+from sb3_cmzdril.io import PathLike, atomic_write_text
+
+#: Seed of every bootstrap here: the same runs give the same intervals on every report.
+SEED = 0
+#: Bootstrap replications (rliable's default is 50,000; 2,000 keeps a report within seconds and
+#: moves the interval ends by well under a percentage point on 30 runs).
+REPS = 2000
+CONFIDENCE = 0.95
+#: Thresholds of the performance profiles, in normalised score (0 to 1.25 times the expert).
+PROFILE_TAUS = np.linspace(0.0, 1.25, 51)
+#: Pairs whose probability of improvement the report gives: (method, baseline).
+IMPROVEMENT_PAIRS: tuple[tuple[str, str], ...] = (("cmz", "bc"), ("cmz", "dril"), ("cmz", "zero"), ("dril", "bc"))
+FIGURE = "fig4_across_tasks.png"
+CSV = "across_tasks.csv"
+
+
+def normalised_score(columns: dict[str, np.ndarray]) -> float:
+    """A run's mean return over the expert's mean return on the same held-out episodes; nan when the
+    expert's mean is not positive (no scale to divide by).
+
+    A ratio of means, as the per-task "% of expert": unlike that column it accepts single negative
+    expert episodes (LunarLander's expert crashes now and then), since only the mean sets the scale.
+    """
+    expert = float(np.mean(np.asarray(columns["expert_return"], dtype=np.float64)))
+    if not expert > 0:
+        return math.nan
+    return float(np.mean(np.asarray(columns["return"], dtype=np.float64)) / expert)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scores:
+    """Normalised scores of the final policies: ``by_method[m]`` is (trials, tasks) over ``tasks[m]``."""
+
+    trials: tuple[int, ...]
+    tasks: dict[str, tuple[str, ...]]
+    by_method: dict[str, np.ndarray]
+
+    def on(self, method: str, tasks: Sequence[str]) -> np.ndarray:
+        """``method``'s (trials, len(tasks)) scores restricted to ``tasks``."""
+        columns = [self.tasks[method].index(t) for t in tasks]
+        return self.by_method[method][:, columns]
+
+    def shared_tasks(self, a: str, b: str) -> tuple[str, ...]:
+        return tuple(t for t in self.tasks[a] if t in self.tasks[b])
+
+
+def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores:
+    """The normalised scores of every (task, method) of ``rows`` with a run on each common trial.
+
+    The trials are those every task and method in ``rows`` share (rliable's stratified bootstrap
+    resamples runs within tasks and wants as many on each); a task whose runs have no positive expert
+    mean is left out. Raises ValueError when nothing is left, or when an (env, method) comes twice
+    (from two grids: which one counts is the caller's choice, not ours).
+    """
+    chosen = [r for r in rows if r.policy == policy]
+    seen: set[tuple[str, str]] = set()
+    for row in chosen:
+        if (row.env, row.method) in seen:
+            raise ValueError(f"{row.env} {METHOD_LABELS[row.method]} is in two grids: aggregate each task once")
+        seen.add((row.env, row.method))
+    trial_sets = [set(r.per_trial("return")) for r in chosen]
+    trials = tuple(sorted(set.intersection(*trial_sets))) if trial_sets else ()
+    tasks: dict[str, list[str]] = {}
+    columns: dict[str, list[list[float]]] = {}
+    for row in chosen:
+        by_trial = {run.trial: normalised_score(run.final[policy]) for run in row.runs}
+        values = [by_trial[t] for t in trials]
+        if not np.isfinite(values).all():
+            continue
+        tasks.setdefault(row.method, []).append(row.env)
+        columns.setdefault(row.method, []).append(values)
+    if not trials or not columns:
+        raise ValueError("no task has final evaluations on a common set of trials with a positive expert return")
+    methods = [m for m in METHOD_ORDER if m in columns]
+    return Scores(
+        trials=trials,
+        tasks={m: tuple(tasks[m]) for m in methods},
+        by_method={m: np.asarray(columns[m], dtype=np.float64).T for m in methods},
+    )
+
+
+def stratified_bootstrap(
+    samples: Sequence[np.ndarray], func: Callable[..., np.ndarray | float], reps: int = REPS, seed: int = SEED
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(point, low, high) of ``func(*samples)`` with a percentile interval from a stratified bootstrap.
+
+    Each sample is a (runs, tasks) matrix; every replication resamples the runs of each task with
+    replacement, each sample independently: rliable's ``StratifiedBootstrap`` for one sample and
+    ``StratifiedIndependentBootstrap`` for two. Done here in numpy because rliable's bootstrap module
+    imports ``arch``, whose releases that rliable admits (< 8) fail to import beside pandas 3.
+    """
+    rng = np.random.default_rng(seed)
+    point = np.atleast_1d(np.asarray(func(*samples), dtype=np.float64))
+    draws = np.empty((reps, point.size))
+    for r in range(reps):
+        resampled = []
+        for x in samples:
+            rows = rng.integers(0, x.shape[0], size=x.shape)  # per task (column), runs with replacement
+            resampled.append(np.take_along_axis(x, rows, axis=0))
+        draws[r] = np.atleast_1d(np.asarray(func(*resampled), dtype=np.float64))
+    tail = 100 * (1 - CONFIDENCE) / 2
+    low, high = np.percentile(draws, [tail, 100 - tail], axis=0)
+    return point, low, high
+
+
+@dataclasses.dataclass(frozen=True)
+class Aggregates:
+    """IQM, mean and median per method (point, low, high), and the probabilities of improvement."""
+
+    scores: Scores
+    summary: dict[str, dict[str, tuple[float, float, float]]]  #: method -> statistic -> (point, low, high)
+    improvement: dict[tuple[str, str], tuple[float, float, float, tuple[str, ...]]]  #: + the tasks used
+    profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]  #: method -> (profile, low, high)
+
+
+STATISTICS: tuple[str, ...] = ("IQM", "Mean", "Median")
+
+
+def aggregate(scores: Scores) -> Aggregates:
+    """Every aggregate of ``scores``: rliable's statistics (the ``experiments`` extra), bootstrapped."""
+    from sb3_cmzdril.extras import require_extra
+
+    metrics = require_extra("rliable.metrics", "experiments", "the across-task aggregate (rliable)")
+
+    def stats(x: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(x), metrics.aggregate_mean(x), metrics.aggregate_median(x)])
+
+    def profile(x: np.ndarray) -> np.ndarray:
+        return np.array([np.mean(x > tau) for tau in PROFILE_TAUS])
+
+    summary, profiles = {}, {}
+    for m, matrix in scores.by_method.items():
+        point, low, high = stratified_bootstrap([matrix], stats)
+        summary[m] = {st: (float(point[i]), float(low[i]), float(high[i])) for i, st in enumerate(STATISTICS)}
+        profiles[m] = stratified_bootstrap([matrix], profile)
+    improvement = {}
+    for a, b in IMPROVEMENT_PAIRS:
+        shared = scores.shared_tasks(a, b) if a in scores.tasks and b in scores.tasks else ()
+        if shared:
+            point, low, high = stratified_bootstrap(
+                [scores.on(a, shared), scores.on(b, shared)], metrics.probability_of_improvement
+            )
+            improvement[(a, b)] = (float(point[0]), float(low[0]), float(high[0]), shared)
+    return Aggregates(scores, summary, improvement, profiles)
+
+
+def _pct(point: float, low: float, high: float) -> str:
+    return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
+
+
+def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
+    """The report's "Across tasks" section: the method, the tables and the figure."""
+    s = agg.scores
+    trials = ", ".join(str(t) for t in s.trials)
+    parts = [
+        "One number across tasks, as Agarwal et al. (NeurIPS 2021) recommend, with `rliable`'s statistics: each "
+        "run's final policy scores its mean return over its held-out pool episodes divided by the expert's mean "
+        "return on the same episodes (100% = the expert). The interquartile mean (IQM) and the mean pool every "
+        f"task and trial (trials {trials}); the median is that of the per-task means, as rliable's. Intervals: "
+        f"{CONFIDENCE:.0%} percentile intervals of a stratified bootstrap ({REPS} resamples of the runs within "
+        f"each task, seed {SEED}). A method counts on the tasks where it has runs.",
+        "",
+        md_table(
+            ["Method", "Tasks", *(f"{st}, % of expert [CI]" for st in STATISTICS)],
+            [[METHOD_LABELS[m], ", ".join(s.tasks[m]), *(_pct(*agg.summary[m][st]) for st in STATISTICS)]
+             for m in s.by_method],
+        ),
+        "",
+        "**Probability of improvement**: the chance that a run of the first method scores above a run of the "
+        "second on a task picked at random (0.5: neither is better), over the tasks both have.",
+        "",
+        md_table(
+            ["Method", "Over", "P(improvement) [CI]", "Tasks"],
+            [[METHOD_LABELS[a], METHOD_LABELS[b], f"{p:.2f} [{lo:.2f}, {hi:.2f}]", ", ".join(tasks)]
+             for (a, b), (p, lo, hi, tasks) in agg.improvement.items()],
+        ),
+        "",
+    ]
+    if figure is not None:
+        parts += [
+            "**Performance profiles** (left): the share of runs (all tasks and trials) whose score exceeds each "
+            "fraction of the expert, with its bootstrap band; a curve above another is better everywhere. Right: "
+            "the IQM with its interval.",
+            "",
+            f"![Across tasks]({figure.name})",
+            "",
+        ]
+    return "\n".join(parts)
+
+
+def aggregate_csv(agg: Aggregates) -> str:
+    """Every run's normalised score: method, task, trial, score (the figure's and the tables' input)."""
+    lines = ["method,task,trial,score"]
+    for m, matrix in agg.scores.by_method.items():
+        for j, task in enumerate(agg.scores.tasks[m]):
+            lines += [f"{m},{task},{t},{matrix[i, j]:.6g}" for i, t in enumerate(agg.scores.trials)]
+    return "\n".join(lines) + "\n"
+
+
+def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
+    """Performance profiles and the IQM per method, side by side."""
+    from sb3_cmzdril.experiments.report.figures import COLORS, new_figure, save_png
+
+    fig = new_figure(11.0, 4.0)
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})
+    methods = list(agg.scores.by_method)
+    most = max(len(agg.scores.tasks[m]) for m in methods)
+    # A method on fewer tasks than the others is not comparable at a glance: its label says so.
+    names = {m: METHOD_LABELS[m] + ("" if len(agg.scores.tasks[m]) == most else f" ({len(agg.scores.tasks[m])} tasks)")
+             for m in methods}
+    for m in methods:
+        profile, low, high = agg.profiles[m]
+        left.plot(100 * PROFILE_TAUS, profile, label=names[m], color=COLORS.get(m))
+        left.fill_between(100 * PROFILE_TAUS, low, high, color=COLORS.get(m), alpha=0.2)
+    left.set_xlabel("normalised score τ (% of expert)")
+    left.set_ylabel("share of runs with score > τ")
+    left.set_ylim(0, 1.02)
+    left.legend(loc="lower left", fontsize=8)
+    for y, m in enumerate(methods):
+        iqm, iqm_low, iqm_high = agg.summary[m]["IQM"]
+        right.barh(y, 100 * (iqm_high - iqm_low), left=100 * iqm_low, height=0.6, alpha=0.4, color=COLORS.get(m))
+        right.plot([100 * iqm] * 2, [y - 0.3, y + 0.3], color="black")
+    right.set_yticks(range(len(methods)), [names[m] for m in methods])
+    right.set_xlabel("IQM, % of expert (95% CI)")
+    return save_png(fig, path)
+
+
+def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = True) -> str:
+    """Write :data:`CSV` (and :data:`FIGURE`) into ``out``; returns the markdown section."""
+    agg = aggregate(score_matrix(rows))
+    out = Path(out)
+    atomic_write_text(out / CSV, aggregate_csv(agg))
+    figure = plot_aggregate(agg, out / FIGURE) if figures else None
+    return aggregate_markdown(agg, figure)

@@ -1,0 +1,100 @@
+"""The across-task aggregate (rliable): normalised scores, IQM, probability of improvement, profiles."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import trim_mean
+from test_report import write_run
+
+from sb3_cmzdril.experiments.report import aggregate as agg
+from sb3_cmzdril.experiments.report.final_eval import final_table
+from sb3_cmzdril.experiments.report.records import load_runs
+
+pytest.importorskip("rliable")
+
+TASKS = ("Hopper-v5", "Walker2d-v5")
+
+
+def _grid(root, methods=("bc", "cmz"), trials=range(5), tasks=TASKS):
+    """Final returns of method m, trial t on task k: (100 + 50 m_index + 7 t + 3 k) on two episodes."""
+    for k, env in enumerate(tasks):
+        for m_index, method in enumerate(methods):
+            for t in trials:
+                value = 100.0 + 50 * m_index + 7 * t + 3 * k
+                write_run(root, method, t, [1.0], env=env, final={"final": [value, value]}, expert=1000.0)
+    return final_table(load_runs(root))
+
+
+def _by_hand(method_index: int) -> np.ndarray:
+    # write_run's expert returns on a trial t: 1000 + 10 t and 1001 + 10 t (mean 1000.5 + 10 t).
+    return np.array([[(100.0 + 50 * method_index + 7 * t + 3 * k) / (1000.5 + 10 * t) for k in range(len(TASKS))]
+                     for t in range(5)])
+
+
+def test_a_runs_score_is_its_mean_return_over_the_experts_on_the_same_episodes():
+    assert agg.normalised_score({"return": np.array([50.0, 150.0]), "expert_return": np.array([-10.0, 410.0])}) == 0.5
+    assert math.isnan(agg.normalised_score({"return": np.array([5.0]), "expert_return": np.array([-1.0])}))
+
+
+def test_score_matrix_is_trials_by_tasks_per_method(tmp_path):
+    scores = agg.score_matrix(_grid(tmp_path))
+    assert scores.trials == (0, 1, 2, 3, 4)
+    assert scores.tasks == {"bc": TASKS, "cmz": TASKS}
+    np.testing.assert_allclose(scores.by_method["bc"], _by_hand(0))
+    np.testing.assert_allclose(scores.by_method["cmz"], _by_hand(1))
+
+
+def test_only_trials_every_task_and_method_has_enter(tmp_path):
+    rows = _grid(tmp_path)
+    write_run(tmp_path, "bc", 7, [1.0], env=TASKS[0], final={"final": [1.0, 1.0]})
+    assert agg.score_matrix(final_table(load_runs(tmp_path))).trials == (0, 1, 2, 3, 4)
+    assert len(rows) == 4
+
+
+def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_values(tmp_path):
+    result = agg.aggregate(agg.score_matrix(_grid(tmp_path)))
+    bc = _by_hand(0).ravel()
+    iqm, low, high = result.summary["bc"]["IQM"]
+    assert iqm == pytest.approx(trim_mean(bc, 0.25))
+    assert low <= iqm <= high
+    assert result.summary["bc"]["Mean"][0] == pytest.approx(bc.mean())
+    # rliable's median is over tasks of each task's mean over runs.
+    assert result.summary["bc"]["Median"][0] == pytest.approx(np.median(_by_hand(0).mean(axis=0)))
+    # CMZ-DRIL's every run scores above every BC run of the same task: P(improvement) = 1.
+    p, p_low, p_high, tasks = result.improvement[("cmz", "bc")]
+    assert (p, p_low, p_high, tasks) == (1.0, 1.0, 1.0, TASKS)
+    profile, _, _ = result.profiles["bc"]
+    assert profile[0] == 1.0 and profile[-1] == 0.0  # every score is above 0, none above 1.25
+
+
+def test_the_same_runs_give_the_same_intervals(tmp_path):
+    rows = _grid(tmp_path)
+    first = agg.aggregate(agg.score_matrix(rows)).summary
+    assert agg.aggregate(agg.score_matrix(rows)).summary == first
+
+
+def test_the_report_writes_the_across_task_section_its_csv_and_figure(tmp_path):
+    from sb3_cmzdril.experiments.report.report import write_report
+
+    _grid(tmp_path / "runs")
+    _grid(tmp_path / "more", methods=("bc",), tasks=("Swimmer-v5",))
+    more = [tmp_path / "more"]
+    text = write_report(tmp_path / "runs", tmp_path / "docs", references=(), aggregate_runs=more).read_text()
+    assert "## Across tasks" in text and "Probability of improvement" in text
+    assert "| CMZ-DRIL | BC | 1.00 [1.00, 1.00] | Hopper-v5, Walker2d-v5 |" in text
+    csv = (tmp_path / "docs" / agg.CSV).read_text().splitlines()
+    assert csv[0] == "method,task,trial,score" and len(csv) == 1 + (2 + 2 + 1) * 5
+    assert (tmp_path / "docs" / agg.FIGURE).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_task_and_method_in_two_grids_is_refused(tmp_path):
+    rows = _grid(tmp_path / "a") + _grid(tmp_path / "b", methods=("bc",))
+    with pytest.raises(ValueError, match="Hopper-v5 BC is in two grids"):
+        agg.score_matrix(rows)
+
+
+def test_nothing_to_aggregate_is_named():
+    with pytest.raises(ValueError, match="no task has final evaluations"):
+        agg.score_matrix([])
