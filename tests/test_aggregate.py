@@ -98,3 +98,17 @@ def test_a_task_and_method_in_two_grids_is_refused(tmp_path):
 def test_nothing_to_aggregate_is_named():
     with pytest.raises(ValueError, match="no task has final evaluations"):
         agg.score_matrix([])
+
+
+def test_the_batched_bootstrap_statistics_are_rliables():
+    from rliable import metrics
+
+    rng = np.random.default_rng(3)
+    x = rng.integers(0, 6, size=(5, 4)) / 4.0  # ties on purpose
+    y = rng.integers(0, 6, size=(5, 4)) / 4.0
+    iqm, mean, median = agg.batch_statistics(x[None])[0]
+    assert iqm == pytest.approx(metrics.aggregate_iqm(x))
+    assert mean == pytest.approx(metrics.aggregate_mean(x))
+    assert median == pytest.approx(metrics.aggregate_median(x))
+    assert agg.batch_improvement(x[None], y[None])[0] == pytest.approx(metrics.probability_of_improvement(x, y))
+    assert agg.batch_improvement(x[None], x[None])[0] == 0.5

@@ -111,27 +111,55 @@ def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores:
 
 
 def stratified_bootstrap(
-    samples: Sequence[np.ndarray], func: Callable[..., np.ndarray | float], reps: int = REPS, seed: int = SEED
+    samples: Sequence[np.ndarray],
+    point_func: Callable[..., np.ndarray | float],
+    batch_func: Callable[..., np.ndarray],
+    reps: int = REPS,
+    seed: int = SEED,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(point, low, high) of ``func(*samples)`` with a percentile interval from a stratified bootstrap.
+    """(point, low, high): ``point_func(*samples)`` and a percentile interval from a stratified bootstrap.
 
     Each sample is a (runs, tasks) matrix; every replication resamples the runs of each task with
     replacement, each sample independently: rliable's ``StratifiedBootstrap`` for one sample and
     ``StratifiedIndependentBootstrap`` for two. Done here in numpy because rliable's bootstrap module
-    imports ``arch``, whose releases that rliable admits (< 8) fail to import beside pandas 3.
+    imports ``arch``, whose releases that rliable admits (< 8) fail to import beside pandas 3; and
+    batched (``batch_func`` takes (reps, runs, tasks) arrays and returns (reps, ...)), because a
+    Python loop of 2,000 Mann-Whitney tests per task and pair takes minutes.
     """
     rng = np.random.default_rng(seed)
-    point = np.atleast_1d(np.asarray(func(*samples), dtype=np.float64))
-    draws = np.empty((reps, point.size))
-    for r in range(reps):
-        resampled = []
-        for x in samples:
-            rows = rng.integers(0, x.shape[0], size=x.shape)  # per task (column), runs with replacement
-            resampled.append(np.take_along_axis(x, rows, axis=0))
-        draws[r] = np.atleast_1d(np.asarray(func(*resampled), dtype=np.float64))
+    point = np.atleast_1d(np.asarray(point_func(*samples), dtype=np.float64))
+    resampled = []
+    for x in samples:
+        rows = rng.integers(0, x.shape[0], size=(reps, *x.shape))  # per task (column), runs with replacement
+        resampled.append(np.take_along_axis(np.broadcast_to(x, (reps, *x.shape)), rows, axis=1))
+    draws = np.asarray(batch_func(*resampled), dtype=np.float64).reshape(reps, -1)
     tail = 100 * (1 - CONFIDENCE) / 2
     low, high = np.percentile(draws, [tail, 100 - tail], axis=0)
     return point, low, high
+
+
+def batch_statistics(x: np.ndarray) -> np.ndarray:
+    """(reps, 3): IQM, mean and median of each (runs, tasks) matrix of ``x``, as rliable's
+    ``aggregate_iqm``, ``aggregate_mean`` and ``aggregate_median`` compute them."""
+    from scipy.stats import trim_mean
+
+    flat = x.reshape(x.shape[0], -1)
+    per_task = x.mean(axis=1)
+    return np.stack([trim_mean(flat, 0.25, axis=1), per_task.mean(axis=1), np.median(per_task, axis=1)], axis=1)
+
+
+def batch_profile(x: np.ndarray) -> np.ndarray:
+    """(reps, len(PROFILE_TAUS)): the share of runs above each threshold (rliable's score distribution)."""
+    flat = x.reshape(x.shape[0], -1)
+    return (flat[:, :, None] > PROFILE_TAUS[None, None, :]).mean(axis=1)
+
+
+def batch_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(reps,): rliable's ``probability_of_improvement`` (Mann-Whitney U / (n m) per task, ties half,
+    averaged over tasks) of each pair of (runs, tasks) matrices."""
+    above = (x[:, :, None, :] > y[:, None, :, :]).mean(axis=(1, 2))
+    ties = (x[:, :, None, :] == y[:, None, :, :]).mean(axis=(1, 2))
+    return (above + 0.5 * ties).mean(axis=1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,19 +185,19 @@ def aggregate(scores: Scores) -> Aggregates:
         return np.array([metrics.aggregate_iqm(x), metrics.aggregate_mean(x), metrics.aggregate_median(x)])
 
     def profile(x: np.ndarray) -> np.ndarray:
-        return np.array([np.mean(x > tau) for tau in PROFILE_TAUS])
+        return batch_profile(x[None])[0]
 
     summary, profiles = {}, {}
     for m, matrix in scores.by_method.items():
-        point, low, high = stratified_bootstrap([matrix], stats)
+        point, low, high = stratified_bootstrap([matrix], stats, batch_statistics)
         summary[m] = {st: (float(point[i]), float(low[i]), float(high[i])) for i, st in enumerate(STATISTICS)}
-        profiles[m] = stratified_bootstrap([matrix], profile)
+        profiles[m] = stratified_bootstrap([matrix], profile, batch_profile)
     improvement = {}
     for a, b in IMPROVEMENT_PAIRS:
         shared = scores.shared_tasks(a, b) if a in scores.tasks and b in scores.tasks else ()
         if shared:
             point, low, high = stratified_bootstrap(
-                [scores.on(a, shared), scores.on(b, shared)], metrics.probability_of_improvement
+                [scores.on(a, shared), scores.on(b, shared)], metrics.probability_of_improvement, batch_improvement
             )
             improvement[(a, b)] = (float(point[0]), float(low[0]), float(high[0]), shared)
     return Aggregates(scores, summary, improvement, profiles)
