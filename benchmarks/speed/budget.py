@@ -1,0 +1,104 @@
+"""What a 1M- or 3M-step CMZ-DRIL run costs on one core: steps per CPU second, 1 env against 8.
+
+    python benchmarks/speed/budget.py [--env Walker2d-v5] [--steps 40960] [--n-envs 1 8] [-o FILE]
+
+For each number of envs, CMZDRIL (reward "cmz", the package defaults, one demonstration of the
+env's shipped pool) trains ``--steps`` steps in this process with one torch thread; the envs share
+one DummyVecEnv, so every policy forward and every ensemble scoring is one batch over the envs.
+``n_steps`` is 2048 / n_envs, so that a PPO update sees the same 2,048 transitions whatever the
+number of envs. The training loop (rollouts, scoring, PPO updates, the BC epoch after each) is timed
+in process CPU seconds (``time.process_time``), which another process on the same core does not
+inflate as it does wall time; wall seconds are printed beside them. The one-time pretraining (BC to
+convergence, ensemble fit) is timed apart. The projection to 1M and 3M steps is loop time per step
+times the steps plus the pretraining: arithmetic on the measurement, labelled as such.
+
+Writes a markdown table to ``-o`` (default: print only).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+
+from sb3_cmzdril import CMZDRIL, Demonstrations
+from sb3_cmzdril.io import atomic_write_text, command_line
+
+ROOT = Path(__file__).resolve().parents[2]
+UPDATE_SIZE = 2048
+
+
+class LoopClock(BaseCallback):
+    """CPU and wall seconds of the training loop only (after set-up, before tear-down)."""
+
+    def _on_training_start(self) -> None:
+        self.cpu0, self.wall0, self.steps0 = time.process_time(), time.perf_counter(), self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        self.cpu = time.process_time() - self.cpu0
+        self.wall = time.perf_counter() - self.wall0
+        self.steps = self.model.num_timesteps - self.steps0
+
+
+def measure(env_id: str, n_envs: int, steps: int, demos: Demonstrations, seed: int = 0) -> dict[str, float]:
+    env = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+    cpu0 = time.process_time()
+    model = CMZDRIL("MlpPolicy", env, demonstrations=demos, reward="cmz", seed=seed, device="cpu",
+                    n_steps=UPDATE_SIZE // n_envs)
+    clock = LoopClock()
+    model.learn(steps, callback=clock)
+    total_cpu = time.process_time() - cpu0
+    env.close()
+    return {"n_envs": n_envs, "steps": clock.steps, "loop_cpu_s": clock.cpu, "loop_wall_s": clock.wall,
+            "setup_cpu_s": total_cpu - clock.cpu}
+
+
+def table(env_id: str, rows: list[dict[str, float]]) -> str:
+    lines = [
+        f"| {env_id}: envs per process | steps per CPU second (loop) | wall steps/s (loop) | pretraining, CPU s "
+        "| projected CPU minutes for 1M steps | for 3M steps |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per_step = r["loop_cpu_s"] / r["steps"]
+        lines.append(
+            f"| {r['n_envs']:.0f} | {r['steps'] / r['loop_cpu_s']:.0f} | {r['steps'] / r['loop_wall_s']:.0f} "
+            f"| {r['setup_cpu_s']:.0f} | {(1e6 * per_step + r['setup_cpu_s']) / 60:.1f} "
+            f"| {(3e6 * per_step + r['setup_cpu_s']) / 60:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", default="Walker2d-v5")
+    parser.add_argument("--steps", type=int, default=40960, help="training steps per measurement (default 20 updates)")
+    parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("-o", "--output", type=Path, help="markdown file for the table")
+    args = parser.parse_args()
+    if any(UPDATE_SIZE % n for n in args.n_envs):
+        parser.error(f"every --n-envs must divide {UPDATE_SIZE}")
+    torch.set_num_threads(1)
+    demos = Demonstrations.load(ROOT / "experts" / args.env / "demos.npz").select([0])
+    rows = []
+    for n in args.n_envs:
+        rows.append(measure(args.env, n, args.steps, demos))
+        print(table(args.env, rows[-1:]).splitlines()[-1], flush=True)
+    text = (
+        f"Measured by `{command_line()}` on {time.strftime('%Y-%m-%d')} (1 torch thread, CPU time of this "
+        f"process; CMZDRIL defaults, reward cmz, {args.steps} steps, n_steps = {UPDATE_SIZE} / envs).\n\n"
+        + table(args.env, rows) + "\n"
+    )
+    print(text)
+    if args.output is not None:
+        atomic_write_text(args.output, text)
+
+
+if __name__ == "__main__":
+    main()
