@@ -102,6 +102,10 @@ class CMZDRIL(PPO):
         NLL has not improved for ``bc_patience`` epochs (the best epoch's weights are kept); 0
         trains all ``bc_pretrain_epochs`` on every step.
     :param bc_patience: epochs without improvement of the held-out NLL before pretraining stops.
+    :param bc_refit: the held-out steps only choose the number of pretraining epochs; the policy then
+        learns that many epochs afresh on every demo step, so a single demonstration is not cut by a
+        fifth. Off by default: the published grids ran without it (measurements:
+        docs/bc_single_episode.md).
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
         disables).
     :param bc_batch_size: minibatch size of the NLL epochs.
@@ -150,6 +154,7 @@ class CMZDRIL(PPO):
         bc_pretrain_epochs: int = 1000,
         bc_validation_fraction: float = 0.2,
         bc_patience: int = 20,
+        bc_refit: bool = False,
         bc_epochs_per_update: int = 1,
         bc_batch_size: int = 64,
         bc_learning_rate: float = 1e-3,
@@ -222,6 +227,7 @@ class CMZDRIL(PPO):
         self.bc_pretrain_epochs = int(bc_pretrain_epochs)
         self.bc_validation_fraction = float(bc_validation_fraction)
         self.bc_patience = int(bc_patience)
+        self.bc_refit = bool(bc_refit)
         self.bc_epochs_per_update = int(bc_epochs_per_update)
         self.bc_batch_size = int(bc_batch_size)
         self.bc_learning_rate = float(bc_learning_rate)
@@ -484,7 +490,12 @@ class CMZDRIL(PPO):
         start = time.perf_counter()
         nll_before = self.bc.nll(transform)
         stopping = self.bc.train_early_stopping(
-            self.bc_pretrain_epochs, self.bc_validation_fraction, self.bc_patience, transform, progress_bar
+            self.bc_pretrain_epochs,
+            self.bc_validation_fraction,
+            self.bc_patience,
+            transform,
+            progress_bar,
+            refit=getattr(self, "bc_refit", False),  # a model saved before the option has none
         )
         nll_after = self.bc.nll(transform)
         log_std_learned = mean_log_std(self.policy)
@@ -498,6 +509,7 @@ class CMZDRIL(PPO):
             "bc_validation_nll": min(stopping.validation_nll) if stopping.validation_nll else float("nan"),
             "bc_best_epoch": stopping.best_epoch,
             "bc_epochs": stopping.epochs,
+            "bc_refit_epochs": stopping.refit_epochs,
             "bc_log_std_learned": log_std_learned,
             "bc_log_std": mean_log_std(self.policy),
             "bc_seconds": time.perf_counter() - start,

@@ -109,6 +109,7 @@ class BehaviourCloner:
         obs_transform: ObsTransform | None = None,
         progress_bar: bool = False,
         on_epoch: Callable[[int, float, float], None] | None = None,
+        refit: bool = False,
     ) -> EarlyStopping:
         """Train on a random ``1 - validation_fraction`` of the demo steps until the NLL of the
         held-out steps has not improved for ``patience`` epochs (or ``max_epochs``), then restore the
@@ -116,6 +117,11 @@ class BehaviourCloner:
 
         ``validation_fraction=0`` trains ``max_epochs`` on every step (no early stopping).
         ``on_epoch(epoch, train_nll, validation_nll)`` is called after each epoch (for logging).
+        ``refit=True``: the split only chooses the number of epochs; the policy then starts again
+        from its weights before training and learns that many epochs on every demo step. With one
+        demonstration the held-out steps are neighbours of training steps on the same trajectory, so
+        they measure interpolation rather than generalisation, and holding them out costs the clone
+        a fifth of its only episode (see :attr:`EarlyStopping.refit_epochs`).
         """
         if not 0.0 <= validation_fraction < 1.0:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {validation_fraction}")
@@ -131,6 +137,7 @@ class BehaviourCloner:
             return result
         order = self.rng.permutation(n)
         val_idx, train_idx = order[:n_val], order[n_val:]
+        initial = _snapshot(self.policy) if refit else None
         best = (self.nll(obs_transform, val_idx), _snapshot(self.policy))
         result.validation_nll.append(best[0])
         bar = _epochs(int(max_epochs), progress_bar, "BC pretraining")
@@ -149,6 +156,11 @@ class BehaviourCloner:
         self.policy.load_state_dict(best[1])
         # Adam's moments belong to the discarded epochs' trajectory; the later BC epochs start afresh.
         self.optimizer.state.clear()
+        if initial is not None and result.best_epoch > 0:
+            self.policy.load_state_dict(initial)
+            result.refit_nll = self.train(result.best_epoch, obs_transform, progress_bar)
+            result.refit_epochs = result.best_epoch
+            self.optimizer.state.clear()
         return result
 
     def _observations(self, obs_transform: ObsTransform | None) -> TensorObs:
@@ -181,6 +193,9 @@ class EarlyStopping:
     validation_nll: list[float] = dataclasses.field(default_factory=list)
     best_epoch: int = 0
     epochs: int = 0
+    #: with ``refit``: the epochs trained afresh on every demo step (the best epoch), and their NLLs
+    refit_epochs: int = 0
+    refit_nll: list[float] = dataclasses.field(default_factory=list)
 
 
 def _snapshot(module: th.nn.Module) -> dict[str, th.Tensor]:

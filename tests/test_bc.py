@@ -60,3 +60,27 @@ def test_pretrain_reports_the_curve_and_the_log_std(pendulum_demos):
     assert 1 <= info["bc_best_epoch"] <= info["bc_epochs"] <= 40
     assert info["bc_log_std"] >= -0.5 - 1e-6
     assert info["bc_log_std"] == pytest.approx(float(model.policy.log_std.detach().mean()))
+
+
+def test_refit_learns_the_chosen_number_of_epochs_afresh_on_every_step(pendulum_demos):
+    bc = _cloner(pendulum_demos)
+    initial = {k: v.clone() for k, v in bc.policy.state_dict().items()}
+    chosen = bc.train_early_stopping(max_epochs=12, validation_fraction=0.25, patience=3)
+    refitted = _cloner(pendulum_demos)
+    refitted.policy.load_state_dict(initial)
+    result = refitted.train_early_stopping(max_epochs=12, validation_fraction=0.25, patience=3, refit=True)
+    assert result.best_epoch == chosen.best_epoch > 0  # the same split picks the same epoch count
+    assert result.refit_epochs == result.best_epoch and len(result.refit_nll) == result.best_epoch
+    # From the initial weights, every demo step: the refit's last epoch sees all of them.
+    assert result.refit_nll[-1] == pytest.approx(refitted.nll(), rel=0.5)
+    assert any(not th.equal(v, bc.policy.state_dict()[k]) for k, v in refitted.policy.state_dict().items())
+    assert not refitted.optimizer.state
+
+
+def test_refit_is_a_constructor_option_reported_by_pretrain(pendulum_demos):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos,
+                    **{**TINY, "bc_pretrain_epochs": 20, "bc_refit": True})
+    info = model.pretrain()
+    assert info["bc_refit_epochs"] == info["bc_best_epoch"] >= 1
+    plain = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "bc_pretrain_epochs": 20})
+    assert plain.pretrain()["bc_refit_epochs"] == 0
