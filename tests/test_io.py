@@ -17,6 +17,7 @@ import pytest
 from sb3_cmzdril import io
 
 
+@pytest.mark.slow
 def test_import_and_write_leave_the_umask_alone_and_apply_it(tmp_path):
     # A fresh interpreter with a umask of its own, in which os.umask records every call: importing
     # the package and writing a file must not call it (another thread could create a file in that

@@ -54,6 +54,7 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     assert "config.json has no n_demos" in text  # the demo sweep leaves out a run that does not say
 
 
+@pytest.mark.slow
 def test_the_script_refuses_to_replace_the_page_without_force(tmp_path):
     (tmp_path / "new_tasks.md").write_text("mine")
     script = REPO / "benchmarks" / "studies" / "new_tasks.py"
