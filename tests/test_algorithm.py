@@ -34,6 +34,7 @@ def test_every_reward_mode_learns_and_logs(reward, pendulum_demos, tmp_path):
         assert model.dril_threshold is not None and model.dril_threshold > 0
 
 
+@pytest.mark.slow
 def test_pretraining_lowers_the_nll_of_expert_actions(pendulum_demos):
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "bc_pretrain_epochs": 30})
     info = model.pretrain()

@@ -259,6 +259,7 @@ def test_images_through_a_cnn_trunk(vector, caplog):
 
 
 # -- PPO's other promises ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_vecnormalize_on_dict_observations_and_subprocvecenv():
     space = OBS_SPACES["dict"]
     make = [lambda: SpacesEnv(space, ACTION_SPACES["box"])] * 2
