@@ -3,10 +3,10 @@
 ``from sb3_cmzdril import CMZDRIL`` and use it where you would use ``PPO``; see the README.
 """
 from sb3_cmzdril import envs  # noqa: F401  (registers WaypointNav-v0 with gymnasium)
+from sb3_cmzdril._version import __version__ as __version__
 from sb3_cmzdril.algorithm import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.rewards import CMZReward, DisagreementReward, DRILReward
 
-__version__ = "0.1.0"
 __all__ = ["CMZDRIL", "Demonstrations", "BCEnsemble", "DisagreementReward", "CMZReward", "DRILReward"]

@@ -25,7 +25,7 @@ import math
 import time
 import warnings
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -50,7 +50,7 @@ from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
-from sb3_cmzdril.scoring import RolloutScorer
+from sb3_cmzdril.scoring import RolloutRecord, score_rollout
 from sb3_cmzdril.spaces import check_action_space
 
 logger = logging.getLogger(__name__)
@@ -66,6 +66,7 @@ _SAVED_TENSORS = (
     "_saved_demo_lengths",
     "_saved_demo_seeds",
     "_saved_reward_state",
+    "_saved_absorbing_u",
 )
 
 
@@ -235,8 +236,6 @@ class CMZDRIL(PPO):
         self.absorbing = absorbing
         #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
         self.absorbing_active = False
-        #: the absorbing state's disagreement: the running maximum of u over the scored rollouts
-        self.absorbing_u = 0.0
         self.batch_scoring = bool(batch_scoring)
         self.pretrain_info: dict[str, float] = {}
         self.pretrain_history: dict[str, list[float]] = {}
@@ -310,6 +309,12 @@ class CMZDRIL(PPO):
         self.ensemble.fitted.fill_(float(bool(value)))
         self._imitation_ready = False  # the rule (and DRIL threshold) is remade for the ensemble at learn()
 
+    @property
+    def absorbing_u(self) -> float:
+        """The absorbing state's disagreement: the highest u scored so far, kept by the reward rule
+        (0 before the first rollout)."""
+        return 0.0 if self.reward_rule is None else self.reward_rule.absorbing_u
+
     def _setup_model(self) -> None:
         check_action_space(self.action_space)
         if self.standardize_observations:
@@ -351,6 +356,7 @@ class CMZDRIL(PPO):
             self._saved_demo_seeds = th.as_tensor(demos.seeds)
         if self.reward_rule is not None:
             self._saved_reward_state = th.as_tensor(self.reward_rule.get_state())
+            self._saved_absorbing_u = th.tensor([self.reward_rule.absorbing_u], dtype=th.float64)
         super().save(path, exclude=exclude, include=include)
 
     @classmethod
@@ -397,6 +403,9 @@ class CMZDRIL(PPO):
             self._ensemble_replaced = True  # the DRIL threshold and the rule belong to the old ensemble
 
     def _restore_saved_state(self, demonstrations: Demonstrations | None) -> None:
+        # Models saved before the rule kept the absorbing state's u had it as a plain attribute,
+        # which SB3's load() put into __dict__ beside the property that now reads it from the rule.
+        legacy_absorbing_u = self.__dict__.pop("absorbing_u", None)
         # Models saved before _policy_pretrained existed were pretrained when their rule was ready.
         self._policy_pretrained = self._policy_pretrained or self._imitation_ready
         self._ensemble_replaced = False  # load()'s own set_parameters: threshold and rule came with the ensemble
@@ -423,6 +432,10 @@ class CMZDRIL(PPO):
                 )
                 state = np.full(self.n_envs, state.mean())
             self.reward_rule.set_state(state)
+            if self._saved_absorbing_u.numel():
+                self.reward_rule.absorbing_u = float(self._saved_absorbing_u.item())
+            elif legacy_absorbing_u is not None:
+                self.reward_rule.absorbing_u = float(legacy_absorbing_u)
 
     # -- imitation set-up ------------------------------------------------------------------------
     def _make_rule(self) -> RewardRule:
@@ -586,7 +599,7 @@ class CMZDRIL(PPO):
             raise ValueError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
         assert self.reward_rule is not None
         self.absorbing_active = self._absorbing_applies()
-        absorbing_gamma = self.gamma if self.absorbing_active and self.reward != "env" else None
+        absorbing_gamma = self._absorbing_gamma()
         wrapper = self.reward_wrapper()
         if wrapper is not None:
             wrapper.ensemble, wrapper.rule, wrapper.absorbing_gamma = self.ensemble, self.reward_rule, absorbing_gamma
@@ -601,6 +614,11 @@ class CMZDRIL(PPO):
         else:
             vec_normalize.venv = wrapped
         self._last_obs = None  # the next learn() resets through the wrapper so it sees the first obs
+
+    def _absorbing_gamma(self) -> float | None:
+        """The discount of the absorbing state's value where terminations are scored so, else None
+        (the true env reward is left as the env gave it)."""
+        return self.gamma if self.absorbing_active and self.reward != "env" else None
 
     def _absorbing_applies(self) -> bool:
         if self.absorbing != "auto":
@@ -670,12 +688,49 @@ class CMZDRIL(PPO):
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
         user = super()._init_callback(callback, progress_bar=False)
-        callbacks: list[BaseCallback] = [RolloutScorer(rescore=not self._per_step_scoring()), user]
+        callbacks: list[BaseCallback] = [_RolloutScoring(rescore=not self._per_step_scoring()), user]
         if progress_bar:
             callbacks.append(_WholeRolloutsProgressBar())
         combined = CallbackList(callbacks)
         combined.init_callback(self)
         return combined
+
+    def _new_rollout_record(self) -> RolloutRecord:
+        """An empty record of the rollout about to be collected (batch scoring)."""
+        vec_normalize = self.get_vec_normalize_env()
+        # The buffer holds what the policy saw; the ensemble needs raw observations.
+        raw_from = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
+        return RolloutRecord(self.rollout_buffer.buffer_size, self.rollout_buffer.n_envs, raw_from)
+
+    def _finish_rollout(self, record: RolloutRecord | None, last_values: th.Tensor, dones: np.ndarray) -> None:
+        """Score the rollout just collected into the buffer (``record`` None: the per-step wrapper
+        scored it already) and log its disagreement statistics."""
+        if record is None:
+            wrapper = self.reward_wrapper()
+            stats = wrapper.pop_stats() if wrapper is not None else {}
+        else:
+            assert self.reward_rule is not None
+            buffer = self.rollout_buffer
+            scores = score_rollout(
+                record,
+                buffer,
+                self.ensemble,
+                self.reward_rule,
+                self.observation_space,
+                self.action_space,
+                self._absorbing_gamma(),
+            )
+            if self.reward != "env":
+                # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.
+                buffer.rewards += scores.rewards - record.env_rewards
+                buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
+            stats = scores.stats()
+        for key, value in stats.items():
+            self.logger.record(f"rollout/{key}", value)
+        self.rollout_disagreement = stats.get("disagreement_mean")
+        state = self.reward_rule.get_state() if self.reward_rule is not None else np.zeros(0)
+        if state.size:
+            self.logger.record("rollout/ubar_mean", float(state.mean()))
 
     def train(self) -> None:
         super().train()
@@ -684,6 +739,38 @@ class CMZDRIL(PPO):
             for _ in range(self.bc_epochs_per_update):
                 nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+class _RolloutScoring(BaseCallback):
+    """Hands each rollout to its model for scoring: records its steps while it runs and has the
+    model score it at its end. The first callback, so that user callbacks' ``on_rollout_end``
+    already see the final rewards.
+
+    :param rescore: score from the buffer (False: a per-step wrapper already did).
+    """
+
+    def __init__(self, rescore: bool) -> None:
+        super().__init__()
+        self.rescore = bool(rescore)
+        self._record: RolloutRecord | None = None
+
+    @property
+    def cmz(self) -> CMZDRIL:
+        # Only CMZDRIL._init_callback installs it, so its model is always a CMZDRIL.
+        return cast(CMZDRIL, self.model)
+
+    def _on_rollout_start(self) -> None:
+        self._record = self.cmz._new_rollout_record() if self.rescore else None
+
+    def _on_step(self) -> bool:
+        if self._record is not None:
+            # record() copies the rewards: collect_rollouts adds the truncation bootstrap in place afterwards.
+            self._record.record(self.locals["rewards"], self.locals["dones"], self.locals["infos"])
+        return True
+
+    def _on_rollout_end(self) -> None:
+        record, self._record = self._record, None
+        self.cmz._finish_rollout(record, self.locals["values"], self.locals["dones"])
 
 
 class _WholeRolloutsProgressBar(ProgressBarCallback):

@@ -254,11 +254,11 @@ def versions() -> dict[str, str]:
     import stable_baselines3
     import torch
 
-    import sb3_cmzdril
+    from sb3_cmzdril._version import __version__
 
     found = {
         "python": platform.python_version(),
-        "sb3_cmzdril": getattr(sb3_cmzdril, "__version__", "unknown"),
+        "sb3_cmzdril": __version__,
         "stable_baselines3": stable_baselines3.__version__,
         "gymnasium": gym.__version__,
         "torch": torch.__version__,

@@ -2,7 +2,7 @@
 
 SB3's ``MlpPolicy`` feeds raw observations to tanh units. On MuJoCo the velocities reach magnitudes of
 ~10, the units saturate, and behaviour cloning from one episode fits badly (HalfCheetah-v5, one demo:
-BC returns 188-736 on raw inputs against 3,380-4,760 with standardised inputs; DESIGN.md). The
+BC returns 188-736 on raw inputs against 3,380-4,760 with standardised inputs, as we measured). The
 ensemble has always standardised its inputs with the demos' mean and std; :class:`DemoStandardizer`
 gives the policy the same inputs.
 

@@ -36,6 +36,10 @@ class RewardRule:
 
     #: the name used by ``CMZDRIL(reward=...)`` and the command line
     name = "base"
+    #: the absorbing state's disagreement: the highest u this rule has scored (0 before any). It is
+    #: the rule's, not its caller's, so that per-step and whole-rollout scoring share one running
+    #: maximum and a saved model keeps it with the rest of the rule's state.
+    absorbing_u: float = 0.0
 
     def __call__(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -54,6 +58,13 @@ class RewardRule:
         instead of its own ``u``, given ``rewards``, what the rule gave for ``u``: the per-step
         reward of the absorbing state a terminated episode enters (``CMZDRIL(absorbing=...)``)."""
         raise NotImplementedError(f"{type(self).__name__} has no absorbing-state reward")
+
+    def highest_u_so_far(self, u: np.ndarray) -> np.ndarray:
+        """For the disagreements ``u`` (T, n_envs) of T consecutive steps, the highest u seen up to
+        each step, that step's envs included, (T,); :attr:`absorbing_u` then holds the last."""
+        seen = np.maximum.accumulate(np.maximum(u.max(axis=1), self.absorbing_u))
+        self.absorbing_u = float(seen[-1])
+        return seen
 
     def get_state(self) -> np.ndarray:
         """Per-env state as an array (empty for stateless rules), for saving with a model."""
@@ -252,8 +263,6 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self.absorbing_gamma = absorbing_gamma
-        #: the absorbing state's disagreement: the running maximum of u
-        self.absorbing_u = 0.0
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
         self._last_obs: VecEnvObs | None = None
         self._actions: np.ndarray | None = None
@@ -278,9 +287,10 @@ class DisagreementReward(VecEnvWrapper):
         u = self.ensemble.disagreement(acted_on, self._actions if self._pass_actions else None)
         rewards = self.rule(u, env_rewards)
         if self.absorbing_gamma is not None:
-            self.absorbing_u = max(self.absorbing_u, float(np.max(u)))
+            self.rule.highest_u_so_far(np.reshape(u, (1, -1)))
+            u_absorbing = np.asarray(self.rule.absorbing_u)
             rewards = with_absorbing_state(
-                self.rule, rewards, u, terminations(dones, infos), np.asarray(self.absorbing_u), self.absorbing_gamma
+                self.rule, rewards, u, terminations(dones, infos), u_absorbing, self.absorbing_gamma
             )
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist(), strict=True):
             info["env_reward"] = r_env
@@ -291,6 +301,11 @@ class DisagreementReward(VecEnvWrapper):
         self._sum_reward += float(np.add.reduce(rewards))
         self._count += u.size
         return obs, rewards, dones, infos
+
+    @property
+    def absorbing_u(self) -> float:
+        """The absorbing state's disagreement, the highest u scored so far (kept by the rule)."""
+        return self.rule.absorbing_u
 
     def pop_stats(self) -> dict[str, float]:
         """Mean u and mean shaped reward since the last call (empty dict if no step was taken)."""

@@ -7,114 +7,106 @@ action it took. Scoring them there, once per rollout, costs one batched ensemble
 reset by the user) can misalign steps and scores: there is no side queue to fall out of step.
 
 The env stack is left alone: every Monitor and VecMonitor sees the true reward, and so do callbacks
-during the rollout. At the end of the rollout :class:`RolloutScorer` (the first callback, so user
-callbacks' ``on_rollout_end`` already see the final rewards) replaces each step's env reward by the
-rule's reward, keeping SB3's bootstrap ``gamma * V(s_T)`` that ``collect_rollouts`` adds at time-limit
-truncations, and recomputes returns and advantages.
+during the rollout. While the rollout runs, a :class:`RolloutRecord` keeps what the buffer lacks
+(each step's env reward before SB3 adds its truncation bootstrap, which envs terminated, the raw
+observations under VecNormalize); at its end :func:`score_rollout`, a function of the rollout, the
+ensemble and the reward rule, gives each step's disagreement and the rule's reward. The model owns
+the buffer and applies the rewards itself (keeping SB3's bootstrap ``gamma * V(s_T)`` at time-limit
+truncations); this module writes nothing onto it.
 
 Two cases score step by step instead, with :class:`~sb3_cmzdril.rewards.DisagreementReward` in the
 env stack: a reward-normalising VecNormalize (it must see the shaped reward as it happens) and
-``CMZDRIL(batch_scoring=False)``. The scorer then only collects the wrapper's statistics.
+``CMZDRIL(batch_scoring=False)``.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, cast
+import dataclasses
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_cmzdril.rewards import terminations, with_absorbing_state
+from sb3_cmzdril.ensemble import BCEnsemble
+from sb3_cmzdril.rewards import RewardRule, terminations, with_absorbing_state
 from sb3_cmzdril.spaces import concatenate, indices_as_actions, reshape_rows
 
-if TYPE_CHECKING:
-    from sb3_cmzdril.algorithm import CMZDRIL
 
+class RolloutRecord:
+    """What scoring a rollout needs that the rollout buffer does not keep, step by step.
 
-class RolloutScorer(BaseCallback):
-    """Rescore each finished rollout in the buffer and log the disagreement statistics.
-
-    :param rescore: replace the buffer's rewards (False: a per-step wrapper already did).
+    :param n_steps: steps per env in the rollout (the buffer's ``buffer_size``).
+    :param n_envs: envs of the training VecEnv.
+    :param vec_normalize: the training env's VecNormalize when it normalises observations (the
+        buffer then holds normalised ones, and the ensemble needs raw ones), else None.
     """
 
-    def __init__(self, rescore: bool) -> None:
-        super().__init__()
-        self.rescore = bool(rescore)
-        self._env_rewards: np.ndarray | None = None
-        self._terminated: np.ndarray | None = None
+    def __init__(self, n_steps: int, n_envs: int, vec_normalize: VecNormalize | None = None) -> None:
+        self.n_steps = int(n_steps)
+        #: each step's env reward, copied before collect_rollouts adds the truncation bootstrap in place
+        self.env_rewards = np.zeros((n_steps, n_envs), np.float32)
+        #: which envs' episodes terminated (not truncated) at each step
+        self.terminated = np.zeros((n_steps, n_envs), bool)
+        self._vec_normalize = vec_normalize
         self._raw_obs: list[Any] | None = None
-        self._vec_normalize: Any = None
+        if vec_normalize is not None:
+            self._raw_obs = [_copy(vec_normalize.get_original_obs())]
         self._t = 0
 
-    @property
-    def cmz(self) -> CMZDRIL:
-        # Only CMZDRIL._init_callback installs the scorer, so its model is always a CMZDRIL.
-        return cast("CMZDRIL", self.model)
-
-    def _on_rollout_start(self) -> None:
-        self._t = 0
-        if not self.rescore:
-            return
-        buffer = self.cmz.rollout_buffer
-        self._env_rewards = np.zeros((buffer.buffer_size, buffer.n_envs), np.float32)
-        self._terminated = np.zeros((buffer.buffer_size, buffer.n_envs), bool)
-        vec_normalize = self.model.get_vec_normalize_env()
-        # The buffer holds what the policy saw; the ensemble needs raw observations.
-        self._vec_normalize = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
-        self._raw_obs = [_copy(self._vec_normalize.get_original_obs())] if self._vec_normalize is not None else None
-
-    def _on_step(self) -> bool:
-        if self.rescore:
-            t = self._t
-            assert self._env_rewards is not None
-            # A copy: collect_rollouts adds the truncation bootstrap to this array in place afterwards.
-            self._env_rewards[t] = self.locals["rewards"]
-            assert self._terminated is not None
-            self._terminated[t] = terminations(self.locals["dones"], self.locals["infos"])
-            if self._raw_obs is not None and t + 1 < self.cmz.rollout_buffer.buffer_size:
-                # What VecNormalize returned last is the raw form of the next observation acted on.
-                self._raw_obs.append(_copy(self._vec_normalize.get_original_obs()))
+    def record(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict]) -> None:
+        """One step of every env, as ``collect_rollouts`` hands it to the callbacks."""
+        t = self._t
+        self.env_rewards[t] = rewards
+        self.terminated[t] = terminations(dones, infos)
+        if self._vec_normalize is not None and self._raw_obs is not None and t + 1 < self.n_steps:
+            # What VecNormalize returned last is the raw form of the next observation acted on.
+            self._raw_obs.append(_copy(self._vec_normalize.get_original_obs()))
         self._t += 1
-        return True
 
-    def _on_rollout_end(self) -> None:
-        model = self.cmz
-        if not self.rescore:
-            wrapper = model.reward_wrapper()
-            stats = wrapper.pop_stats() if wrapper is not None else {}
-        else:
-            stats = self._rescore(model.rollout_buffer)
-        for key, value in stats.items():
-            model.logger.record(f"rollout/{key}", value)
-        model.rollout_disagreement = stats.get("disagreement_mean")
-        state = model.reward_rule.get_state() if model.reward_rule is not None else np.zeros(0)
-        if state.size:
-            model.logger.record("rollout/ubar_mean", float(state.mean()))
+    def observations(self, buffer: RolloutBuffer) -> Any:
+        """The observations the envs acted on, raw: (n_steps, n_envs, ...) or a dict of such."""
+        if self._raw_obs is None:
+            return buffer.observations
+        return concatenate([_row(o) for o in self._raw_obs])
 
-    def _rescore(self, buffer: Any) -> dict:
-        model = self.cmz
-        steps, n_envs = buffer.buffer_size, buffer.n_envs
-        obs = buffer.observations if self._raw_obs is None else concatenate([_row(o) for o in self._raw_obs])
-        flat_obs = reshape_rows(obs, (steps * n_envs,), model.observation_space)
-        actions = None
-        if getattr(model.ensemble, "needs_actions", True):
-            actions = buffer_actions(buffer.actions.reshape(steps * n_envs, -1), model.action_space)
-        u = model.ensemble.disagreement(flat_obs, actions).reshape(steps, n_envs)
-        env_rewards = self._env_rewards
-        assert env_rewards is not None and model.reward_rule is not None
-        shaped = model.reward_rule.sequence(u, env_rewards)
-        if model.reward != "env" and model.absorbing_active:
-            assert self._terminated is not None
-            # The highest u seen up to each step, this step's envs included (as the per-step wrapper sees it).
-            seen = np.maximum.accumulate(np.maximum(u.max(axis=1), model.absorbing_u))
-            model.absorbing_u = float(seen[-1])
-            shaped = with_absorbing_state(model.reward_rule, shaped, u, self._terminated, seen[:, None], model.gamma)
-        if model.reward != "env":
-            # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.
-            buffer.rewards += shaped - env_rewards
-            buffer.compute_returns_and_advantage(last_values=self.locals["values"], dones=self.locals["dones"])
-        self._env_rewards = self._raw_obs = self._terminated = None
-        return {"disagreement_mean": float(u.mean()), "shaped_reward_mean": float(shaped.mean())}
+
+@dataclasses.dataclass(frozen=True)
+class RolloutScores:
+    """Each step's disagreement ``u`` and the rule's reward for it, both (n_steps, n_envs)."""
+
+    u: np.ndarray
+    rewards: np.ndarray
+
+    def stats(self) -> dict[str, float]:
+        """What the model logs per rollout."""
+        return {"disagreement_mean": float(self.u.mean()), "shaped_reward_mean": float(self.rewards.mean())}
+
+
+def score_rollout(
+    record: RolloutRecord,
+    buffer: RolloutBuffer,
+    ensemble: BCEnsemble,
+    rule: RewardRule,
+    observation_space: spaces.Space,
+    action_space: spaces.Space,
+    absorbing_gamma: float | None = None,
+) -> RolloutScores:
+    """Score a finished rollout in one ensemble forward: ``u`` on the observation each env acted on,
+    then the rule's rewards (its state advances over the rollout, step by step as the per-step wrapper
+    would advance it). ``absorbing_gamma``: score terminations as entering an absorbing state at the
+    highest u seen so far, with this discount (:func:`~sb3_cmzdril.rewards.with_absorbing_state`)."""
+    steps, n_envs = buffer.buffer_size, buffer.n_envs
+    flat_obs = reshape_rows(record.observations(buffer), (steps * n_envs,), observation_space)
+    actions = None
+    if getattr(ensemble, "needs_actions", True):
+        actions = buffer_actions(buffer.actions.reshape(steps * n_envs, -1), action_space)
+    u = ensemble.disagreement(flat_obs, actions).reshape(steps, n_envs)
+    rewards = rule.sequence(u, record.env_rewards)
+    if absorbing_gamma is not None:
+        seen = rule.highest_u_so_far(u)
+        rewards = with_absorbing_state(rule, rewards, u, record.terminated, seen[:, None], absorbing_gamma)
+    return RolloutScores(u, rewards)
 
 
 def buffer_actions(actions: np.ndarray, space: spaces.Space) -> np.ndarray:
@@ -137,4 +129,4 @@ def _row(obs: Any) -> Any:
     return {k: v[None] for k, v in obs.items()} if isinstance(obs, dict) else obs[None]
 
 
-__all__ = ["RolloutScorer", "buffer_actions"]
+__all__ = ["RolloutRecord", "RolloutScores", "buffer_actions", "score_rollout"]

@@ -11,11 +11,12 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from conftest import TINY
+from helpers import TINY
 from sb3_cmzdril import CMZDRIL, CMZReward, DisagreementReward, DRILReward
 from sb3_cmzdril.demos import Demonstrations
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("reward", ["cmz", "dril", "zero", "env"])
 def test_every_reward_mode_learns_and_logs(reward, pendulum_demos, tmp_path):
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward=reward, **TINY)
@@ -33,6 +34,7 @@ def test_every_reward_mode_learns_and_logs(reward, pendulum_demos, tmp_path):
         assert model.dril_threshold is not None and model.dril_threshold > 0
 
 
+@pytest.mark.slow
 def test_pretraining_lowers_the_nll_of_expert_actions(pendulum_demos):
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **{**TINY, "bc_pretrain_epochs": 30})
     info = model.pretrain()
@@ -189,6 +191,7 @@ def test_tensorboard_logging(pendulum_demos, tmp_path):
     assert events and events[0].stat().st_size > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("reward", ["cmz", "dril", "env"])
 def test_batch_scoring_gives_the_same_rollout_as_per_step_scoring(reward, pendulum_demos):
     # Pendulum truncates at 200 steps: the rollout includes SB3's time-limit bootstrap, which the
@@ -360,6 +363,7 @@ def test_absorbing_auto_is_on_where_the_expert_never_terminates(cartpole_demos, 
     assert bool(model.rollout_buffer.rewards.min() < -5.0) is expected  # a fall within 64 steps costs ~99 steps' reward
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("reward", ["cmz", "dril"])
 def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, cartpole_demos):
     def env():

@@ -18,24 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_experiments import ENV, POOL_EPISODES
-from test_experiments import TINY_YAML as TINY_PPO
 
-from conftest import TINY, pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, TINY, pendulum_expert, record
+from helpers import TINY_PPO_YAML as TINY_PPO
+from helpers import TINY_SAC_YAML as TINY_SAC
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
-
-TINY_SAC = """
-Pendulum-v1:
-  n_timesteps: 200
-  policy: 'MlpPolicy'
-  learning_starts: 50
-  buffer_size: 2000
-  batch_size: 32
-  env_kwargs: "dict(max_episode_steps=50)"
-  policy_kwargs: "dict(net_arch=[16, 16])"
-"""
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch as th
 
-from conftest import TINY
+from helpers import TINY
 from sb3_cmzdril import CMZDRIL
 
 

@@ -16,24 +16,15 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from test_experiments import ENV, POOL_EPISODES, _fake_run  # the same tiny runs
-from test_experiments import TINY_YAML as TINY_PPO
 
-from conftest import pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, pendulum_expert, record
+from helpers import TINY_PPO_YAML as TINY_PPO
+from helpers import TINY_SAC_YAML as TINY_SAC
+from helpers import write_run as _fake_run
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.io import write_json
 
-TINY_SAC = """
-Pendulum-v1:
-  n_timesteps: 200
-  policy: 'MlpPolicy'
-  learning_starts: 50
-  buffer_size: 2000
-  batch_size: 32
-  env_kwargs: "dict(max_episode_steps=50)"
-  policy_kwargs: "dict(net_arch=[16, 16])"
-"""
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -207,7 +198,7 @@ def test_train_demo_pool_message_names_an_option_train_has(setup, tmp_path, caps
 
 def test_demo_pool_of_another_env_is_refused_before_config_json(setup, tmp_path, capsys):
     cartpole = tmp_path / "cartpole.npz"
-    from conftest import cartpole_expert
+    from helpers import cartpole_expert
 
     record("CartPole-v1", cartpole_expert, n_episodes=POOL_EPISODES, max_steps=20).save(cartpole)
     assert main(train_args(setup, "--demos", str(cartpole), "-o", str(tmp_path / "run"))) == 2
@@ -254,7 +245,7 @@ def test_a_folder_the_run_did_not_create_is_refused_untouched(setup, tmp_path, c
 
 
 def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun(setup, tmp_path):
-    from sb3_cmzdril.experiments import runs
+    from sb3_cmzdril.experiments.run import runs
 
     out = tmp_path / "run"
     spec = runs.plan_run(ENV, "bc", 0, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
@@ -392,6 +383,7 @@ def test_finished_run_reused_with_another_method_is_refused(setup, tmp_path, cap
     assert "already finished" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_finished_run_asked_for_more_steps_says_how_to_extend(setup, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(train_args(setup, "--timesteps", "128", "-o", str(out), reward="zero")) == 0
@@ -470,6 +462,7 @@ def test_collect_demos_keeps_an_existing_pool_and_foreign_metadata(tmp_path, cap
     assert json.loads((tmp_path / "metadata.json").read_text())["demos"]["episodes"] == 1
 
 
+@pytest.mark.slow
 def test_report_does_not_replace_results_without_force(tmp_path, capsys):
     runs_dir = tmp_path / "runs"
     _fake_run(runs_dir, "bc", 0, [1.0], [1.0], [0.1])
@@ -497,7 +490,7 @@ def test_train_expert_keeps_an_expert_it_cannot_resume(setup, tmp_path, capsys):
 
 # -- Ctrl-C --------------------------------------------------------------------------------------------------
 def test_keyboard_interrupt_is_one_line_and_130(setup, tmp_path, capsys, monkeypatch):
-    from sb3_cmzdril.experiments import runs
+    from sb3_cmzdril.experiments.run import runs
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
@@ -507,6 +500,7 @@ def test_keyboard_interrupt_is_one_line_and_130(setup, tmp_path, capsys, monkeyp
     assert capsys.readouterr().err == "sb3-cmzdril train: interrupted; rerun the same command to resume\n"
 
 
+@pytest.mark.slow
 def test_sigint_during_training_is_one_line_and_leaves_a_checkpoint(setup, tmp_path):
     """A real Ctrl-C (SIGINT) in the middle of PPO training, in a child process."""
     out = tmp_path / "run"
@@ -528,6 +522,7 @@ def test_sigint_during_training_is_one_line_and_leaves_a_checkpoint(setup, tmp_p
 
 
 # -- MuJoCo's noise ------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_halfcheetah_settotalmass_warning_and_log_file_are_gone(tmp_path):
     pytest.importorskip("mujoco")
     plain, cli = tmp_path / "plain", tmp_path / "cli"
@@ -569,7 +564,7 @@ def test_halfcheetah_settotalmass_warning_and_log_file_are_gone(tmp_path):
 
 def test_train_shows_progress_unless_told_not_to(setup, tmp_path, monkeypatch):
     """The progress display (PPO steps; pretraining where the algorithm supports it) is on by default."""
-    from sb3_cmzdril.experiments import runs
+    from sb3_cmzdril.experiments.run import runs
 
     seen = []
     monkeypatch.setattr(

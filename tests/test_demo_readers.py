@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from conftest import cartpole_expert, pendulum_expert
+from helpers import cartpole_expert, pendulum_expert
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.extras import MissingExtraError
 
@@ -134,6 +134,7 @@ def collect(minari, env_id: str, policy, seeds: list[int | None], dataset_id: st
     return dataset, played
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id, policy", [("Pendulum-v1", pendulum_expert), ("CartPole-v1", cartpole_expert)])
 def test_minari_round_trips_to_our_npz_with_seeds(minari_home, env_id, policy, tmp_path):
     name = env_id.split("-")[0].lower()

@@ -14,62 +14,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stable_baselines3.common.callbacks import BaseCallback
-from test_report import write_run as _fake_run  # noqa: F401  (test_cli.py imports it from here)
 
-from conftest import pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, Interrupt
+from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments import grid, report, runs
+from sb3_cmzdril.experiments import report
+from sb3_cmzdril.experiments.run import grid, runs
 from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
 from sb3_cmzdril.experiments.run.run_folder import check_finished
 from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
 from sb3_cmzdril.experiments.run.spec import RunSpec
 
-ENV = "Pendulum-v1"
-POOL_EPISODES = 6
-TINY_YAML = """
-default:
-  n_timesteps: 256
-  policy: 'MlpPolicy'
-  n_steps: 64
-  batch_size: 32
-  n_epochs: 2
-  ensemble_hidden: [16, 16]
-  ensemble_epochs: 5
-  bc_pretrain_epochs: 5
-  env_kwargs: "dict(max_episode_steps=50)"
-  policy_kwargs: "dict(net_arch=[16, 16])"
-  n_demos: 1
-"""
 GRID = dict(timesteps=256, n_eval_episodes=2, eval_every=1, checkpoint_every=2)
-
-
-class Interrupt(BaseCallback):
-    """Dies like a killed process would, once training has passed ``at`` steps."""
-
-    def __init__(self, at: int) -> None:
-        super().__init__()
-        self.at = at
-
-    def _on_rollout_start(self) -> None:
-        if self.model.num_timesteps >= self.at:
-            raise KeyboardInterrupt("simulated interruption")
-
-    def _on_step(self) -> bool:
-        return True
-
-
-@pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    """A demo pool in the <demos_dir>/<EnvName>/demos.npz layout and the tiny hyperparameters."""
-    root = tmp_path_factory.mktemp("exp")
-    pool = root / "experts" / ENV / "demos.npz"
-    pool.parent.mkdir(parents=True)
-    record(ENV, pendulum_expert, n_episodes=POOL_EPISODES, max_steps=50, seed=100).save(pool)
-    hp = root / "cmzdril.yml"
-    hp.write_text(TINY_YAML)
-    return {"root": root, "demos_dir": root / "experts", "pool": pool, "hp": hp}
 
 
 def _rows(path: Path) -> list:
@@ -107,17 +64,17 @@ def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):
 
 # -- the grid: local processes, interruption, resume, failure ------------------------------------------
 @pytest.fixture(scope="module")
-def grid_runs(setup):
+def grid_runs(tiny_experiment):
     """2 methods x 2 trials on the local process pool, one run interrupted first, one run failing."""
-    runs_dir = setup["root"] / "runs"
-    specs = plan_grid(ENV, "bc,cmz", 2, runs_dir, demos_dir=setup["demos_dir"], hyperparams=setup["hp"],
-                      command="pytest grid", **GRID)
+    runs_dir = tiny_experiment["root"] / "runs"
+    specs = plan_grid(ENV, "bc,cmz", 2, runs_dir, demos_dir=tiny_experiment["demos_dir"],
+                      hyperparams=tiny_experiment["hp"], command="pytest grid", **GRID)
     interrupted = next(s for s in specs if s.method == "cmz" and s.seed == 1)
     with pytest.raises(KeyboardInterrupt):
         run_experiment(interrupted, callbacks=[Interrupt(at=192)])
     before = (Path(interrupted.output_dir) / "eval.csv").read_text()
 
-    bad_hp = setup["root"] / "bad.yml"
+    bad_hp = tiny_experiment["root"] / "bad.yml"
     bad_hp.write_text(TINY_YAML.replace("n_demos: 1", "n_demos: 1\n  ensemble_size: 1"))  # fails in the worker
     failing = dataclasses.replace(specs[0], method="zero", hyperparams=str(bad_hp),
                                   output_dir=str(runs_dir / "broken" / "zero" / "trial0"))
@@ -126,12 +83,13 @@ def grid_runs(setup):
             "before": before, "failing": failing}
 
 
+@pytest.mark.slow
 def test_grid_runs_every_spec_and_reports_the_failure(grid_runs):
-    statuses = [o["status"] for o in grid_runs["outcomes"]]
+    statuses = [o.status for o in grid_runs["outcomes"]]
     assert statuses == ["done"] * 4 + ["failed"]
     error = Path(grid_runs["failing"].output_dir) / "error.txt"
     assert "Traceback" in error.read_text() and "at least 2 members" in error.read_text()
-    assert "at least 2 members" in grid_runs["outcomes"][-1]["error"]
+    assert "at least 2 members" in grid_runs["outcomes"][-1].error
     for spec in grid_runs["specs"]:
         out = Path(spec.output_dir)
         assert out == grid_runs["runs_dir"] / ENV / spec.method / f"trial{spec.seed}"
@@ -141,6 +99,7 @@ def test_grid_runs_every_spec_and_reports_the_failure(grid_runs):
         assert epochs == ([0] if spec.method == "bc" else [0, 1, 2, 3, 4])
 
 
+@pytest.mark.slow
 def test_every_method_of_a_trial_uses_the_same_data(grid_runs):
     by_trial = {}
     for spec in grid_runs["specs"]:
@@ -161,6 +120,7 @@ def test_every_method_of_a_trial_uses_the_same_data(grid_runs):
         assert row_a == row_b
 
 
+@pytest.mark.slow
 def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
     out = Path(grid_runs["interrupted"].output_dir)
     state = json.loads((out / "state.json").read_text())
@@ -177,6 +137,7 @@ def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
     assert done["num_timesteps"] == 256 and done["segments"] == 2
 
 
+@pytest.mark.slow
 def test_final_evaluation_on_every_held_out_episode_and_lowest_u_choice(grid_runs):
     for spec in grid_runs["specs"]:
         out = Path(spec.output_dir)
@@ -207,11 +168,12 @@ def test_final_evaluation_on_every_held_out_episode_and_lowest_u_choice(grid_run
             assert final["lowest_u"]["rollout_u"] == pytest.approx(min(u.values()), rel=1e-5)
 
 
+@pytest.mark.slow
 def test_finished_runs_are_skipped(grid_runs):
     done = {s.output_dir: (Path(s.output_dir) / "done.json").stat().st_mtime_ns for s in grid_runs["specs"]}
     csvs = {s.output_dir: (Path(s.output_dir) / "eval.csv").read_bytes() for s in grid_runs["specs"]}
     outcomes = run_grid(grid_runs["specs"], workers=2, progress=False)
-    assert [o["status"] for o in outcomes] == ["skipped"] * 4
+    assert [o.status for o in outcomes] == ["skipped"] * 4
     for spec in grid_runs["specs"]:
         assert (Path(spec.output_dir) / "done.json").stat().st_mtime_ns == done[spec.output_dir]
         assert (Path(spec.output_dir) / "eval.csv").read_bytes() == csvs[spec.output_dir]
@@ -228,6 +190,7 @@ def _by_hand(run_dir: Path, window: int) -> dict:
     }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("window", [100, 2])
 def test_report_numbers_equal_hand_computed_means(grid_runs, tmp_path, window):
     runs_dir = grid_runs["runs_dir"]
@@ -275,9 +238,10 @@ def test_report_numbers_equal_hand_computed_means(grid_runs, tmp_path, window):
     assert (tmp_path / "fig3_final_eval.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_report_expert_scale_comes_from_the_held_out_episodes(grid_runs, setup, tmp_path):
+@pytest.mark.slow
+def test_report_expert_scale_comes_from_the_held_out_episodes(grid_runs, tiny_experiment, tmp_path):
     records = report.load_runs(grid_runs["runs_dir"])
-    pool = Demonstrations.load(setup["pool"])
+    pool = Demonstrations.load(tiny_experiment["pool"])
     per_trial = []
     for trial in (0, 1):
         held_out = _config(grid_runs["runs_dir"] / ENV / "cmz" / f"trial{trial}")["eval_episodes"]
@@ -288,6 +252,7 @@ def test_report_expert_scale_comes_from_the_held_out_episodes(grid_runs, setup, 
     assert "| Expert (held-out demos) | " + report.fmt_mean_std(mean, std) + " |" in text
 
 
+@pytest.mark.slow
 def test_report_expert_scale_skips_a_pool_that_changed(grid_runs, tmp_path):
     records = report.load_runs(grid_runs["runs_dir"])
     for r in records:
@@ -296,15 +261,16 @@ def test_report_expert_scale_skips_a_pool_that_changed(grid_runs, tmp_path):
 
 
 # -- Ray backend ------------------------------------------------------------------------------------------
-def test_ray_backend_runs_the_grid(setup, tmp_path):
+@pytest.mark.slow
+def test_ray_backend_runs_the_grid(tiny_experiment, tmp_path):
     ray = pytest.importorskip("ray")
     specs = plan_grid(
         ENV,
         "bc,cmz",
         2,
         tmp_path / "runs",
-        demos_dir=setup["demos_dir"],
-        hyperparams=setup["hp"],
+        demos_dir=tiny_experiment["demos_dir"],
+        hyperparams=tiny_experiment["hp"],
         **{**GRID, "timesteps": 128},
     )
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
@@ -312,7 +278,7 @@ def test_ray_backend_runs_the_grid(setup, tmp_path):
         outcomes = run_grid(specs, workers=2, backend="ray", progress=False)
     finally:
         ray.shutdown()
-    assert [o["status"] for o in outcomes] == ["done"] * 4
+    assert [o.status for o in outcomes] == ["done"] * 4
     for spec in specs:
         assert json.loads((Path(spec.output_dir) / "done.json").read_text())["num_timesteps"] == (
             0 if spec.method == "bc" else 128
@@ -320,7 +286,8 @@ def test_ray_backend_runs_the_grid(setup, tmp_path):
 
 
 # -- the train / evaluate CLI ---------------------------------------------------------------------------------
-def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
+@pytest.mark.slow
+def test_train_cli_end_to_end_then_evaluate(tiny_experiment, tmp_path, capsys):
     out = tmp_path / "cmz"
     args = [
         "train",
@@ -329,7 +296,7 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
         "--reward",
         "cmz",
         "--demos",
-        str(setup["pool"]),
+        str(tiny_experiment["pool"]),
         "--n-demos",
         "2",
         "--eval-episodes",
@@ -339,7 +306,7 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
         "--timesteps",
         "128",
         "--hyperparams",
-        str(setup["hp"]),
+        str(tiny_experiment["hp"]),
         "-o",
         str(out),
         "--no-progress",
@@ -364,7 +331,7 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
                 "--env",
                 ENV,
                 "--demos",
-                str(setup["pool"]),
+                str(tiny_experiment["pool"]),
                 "--episodes",
                 episodes,
             ]
@@ -378,7 +345,8 @@ def test_train_cli_end_to_end_then_evaluate(setup, tmp_path, capsys):
     assert f"{float(last['return_mean']):.2f}" in printed
 
 
-def test_train_cli_bc_and_normalize(setup, tmp_path):
+@pytest.mark.slow
+def test_train_cli_bc_and_normalize(tiny_experiment, tmp_path):
     bc = tmp_path / "bc"
     assert (
         main(
@@ -389,11 +357,11 @@ def test_train_cli_bc_and_normalize(setup, tmp_path):
                 "--reward",
                 "bc",
                 "--demos",
-                str(setup["pool"]),
+                str(tiny_experiment["pool"]),
                 "--eval-episodes",
                 "1",
                 "--hyperparams",
-                str(setup["hp"]),
+                str(tiny_experiment["hp"]),
                 "-o",
                 str(bc),
                 "--no-progress",
@@ -410,7 +378,7 @@ def test_train_cli_bc_and_normalize(setup, tmp_path):
         ENV,
         "env",
         0,
-        demos=setup["pool"],
+        demos=tiny_experiment["pool"],
         n_eval_episodes=1,
         timesteps=192,
         hyperparams=hp,
@@ -440,7 +408,7 @@ def test_train_cli_bc_and_normalize(setup, tmp_path):
                 "--env",
                 ENV,
                 "--demos",
-                str(setup["pool"]),
+                str(tiny_experiment["pool"]),
                 "--episodes",
                 "0",
             ]
@@ -461,7 +429,7 @@ def test_train_cli_bc_and_normalize(setup, tmp_path):
         (["--hyperparams", "TYPO"], "\\['n_step'\\] are not CMZDRIL/PPO arguments"),
     ],
 )
-def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
+def test_benchmark_errors(tiny_experiment, tmp_path, capsys, extra, message):
     args = [
         "benchmark",
         "--env",
@@ -473,9 +441,9 @@ def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
         "--eval-episodes",
         "2",
         "--demos-dir",
-        str(setup["demos_dir"]),
+        str(tiny_experiment["demos_dir"]),
         "--hyperparams",
-        str(setup["hp"]),
+        str(tiny_experiment["hp"]),
         "-o",
         str(tmp_path / "r"),
     ]
@@ -491,7 +459,7 @@ def test_benchmark_errors(setup, tmp_path, capsys, extra, message):
     assert not (tmp_path / "r" / ENV).exists()  # nothing started
 
 
-def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
+def test_ray_missing_and_train_errors(tiny_experiment, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
     assert (
         main(
@@ -506,9 +474,9 @@ def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
                 "--eval-episodes",
                 "2",
                 "--demos-dir",
-                str(setup["demos_dir"]),
+                str(tiny_experiment["demos_dir"]),
                 "--hyperparams",
-                str(setup["hp"]),
+                str(tiny_experiment["hp"]),
                 "-o",
                 str(tmp_path / "r"),
                 "--backend",
@@ -524,15 +492,16 @@ def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
         "--env",
         ENV,
         "--demos",
-        str(setup["pool"]),
+        str(tiny_experiment["pool"]),
         "--hyperparams",
-        str(setup["hp"]),
+        str(tiny_experiment["hp"]),
         "--eval-episodes",
         "1",
     ]
     assert main([*base, "--reward", "gail", "-o", str(tmp_path / "x")]) == 2
     assert "unknown method 'gail'" in capsys.readouterr().err
-    assert main(["train", "--env", "sb3_cmzdril:Nope-v0", "--reward", "cmz", "--demos", str(setup["pool"])]) == 2
+    nope = ["train", "--env", "sb3_cmzdril:Nope-v0", "--reward", "cmz", "--demos", str(tiny_experiment["pool"])]
+    assert main(nope) == 2
     assert "unknown environment" in capsys.readouterr().err
     # A folder holding another run is not silently mixed with a new one.
     out = tmp_path / "bc"
@@ -542,9 +511,9 @@ def test_ray_missing_and_train_errors(setup, tmp_path, capsys, monkeypatch):
     assert "holds a different run" in capsys.readouterr().err
 
 
-def test_run_experiment_checks_a_spec_made_by_hand_before_writing(setup, tmp_path):
-    spec = plan_run(ENV, "cmz", 0, demos=setup["pool"], n_eval_episodes=1, timesteps=128, hyperparams=setup["hp"],
-                    output_dir=tmp_path / "run")
+def test_run_experiment_checks_a_spec_made_by_hand_before_writing(tiny_experiment, tmp_path):
+    spec = plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], n_eval_episodes=1, timesteps=128,
+                    hyperparams=tiny_experiment["hp"], output_dir=tmp_path / "run")
     bad = tmp_path / "bad.yml"
     bad.write_text(TINY_YAML + "  n_epochs: 0\n")
     with pytest.raises(ValueError, match="n_epochs must be >= 1, got 0"):
@@ -566,20 +535,6 @@ def test_a_published_run_folder_is_still_the_same_run():
     assert check_finished(spec) == json.loads((out / "done.json").read_text())
     with pytest.raises(ValueError, match="holds a different, finished run \\(seed: 0 there, 1 now"):
         check_finished(dataclasses.replace(spec, seed=1))
-
-
-def test_the_flat_module_paths_of_before_the_split_are_the_same_modules():
-    import importlib
-
-    from sb3_cmzdril.experiments import report as reporting
-    from sb3_cmzdril.experiments.report import report as report_module
-
-    for old, new in [("runs", "run.runs"), ("spec", "run.spec"), ("grid", "run.grid"), ("records", "report.records"),
-                     ("final_eval", "report.final_eval"), ("tables", "report.tables")]:
-        moved = importlib.import_module(f"sb3_cmzdril.experiments.{new}")
-        assert importlib.import_module(f"sb3_cmzdril.experiments.{old}") is moved
-    assert reporting.write_report is report_module.write_report
-    assert set(report_module.__all__) <= set(reporting.__all__)
 
 
 def test_grid_module_names():

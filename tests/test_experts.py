@@ -10,6 +10,7 @@ import pytest
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
+from helpers import SHORT_EPISODES, TINY_SAC, zoo_yaml
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experts import (
@@ -23,17 +24,7 @@ from sb3_cmzdril.experts import (
 
 ENV = "Pendulum-v1"
 # Tiny SAC, 50-step episodes: a few hundred steps train in a couple of seconds.
-TINY_YAML = """
-Pendulum-v1:
-  n_timesteps: 20000
-  policy: 'MlpPolicy'
-  learning_rate: !!float 1e-3
-  learning_starts: 50
-  buffer_size: 2000
-  batch_size: 32
-  env_kwargs: "dict(max_episode_steps=50)"
-  policy_kwargs: "dict(net_arch=[16, 16])"
-"""
+TINY_YAML = zoo_yaml(ENV, TINY_SAC, n_timesteps=20000, learning_rate=1e-3, env_kwargs=SHORT_EPISODES)
 FAST = dict(eval_freq=100, n_eval_episodes=1, checkpoint_freq=100, final_eval_episodes=2, progress_bar=False)
 
 
@@ -67,6 +58,7 @@ def _buffer(out: Path):
     return model
 
 
+@pytest.mark.slow
 def test_train_expert_writes_model_and_metadata(trained):
     assert sorted(p.name for p in trained.iterdir()) == ["checkpoints", "metadata.json", "model.zip"]
     model = SAC.load(trained / "model.zip", device="cpu")
@@ -87,6 +79,7 @@ def test_train_expert_writes_model_and_metadata(trained):
     assert not [p for p in trained.rglob(".*") if p.is_file()]
 
 
+@pytest.mark.slow
 def test_resume_continues_to_total(tiny_yaml, tmp_path):
     out = tmp_path / "run"
     train_expert(ENV, timesteps=200, seed=0, hyperparams_path=tiny_yaml, output_dir=out, **FAST)
@@ -137,6 +130,7 @@ class _Crash(BaseCallback):
         return True
 
 
+@pytest.mark.slow
 def test_interruption_leaves_resumable_checkpoint_and_keeps_best(tiny_yaml, tmp_path):
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
@@ -223,6 +217,7 @@ def test_collect_demos_zip_without_metadata(trained, tmp_path):
     assert demos.n_episodes == 1 and list(demos.seeds) == [0]
 
 
+@pytest.mark.slow
 def test_demos_beside_the_expert_keep_their_record_when_it_trains_further(trained, tmp_path, tiny_yaml):
     out = tmp_path / "expert"
     shutil.copytree(trained, out)

@@ -13,6 +13,7 @@ from sb3_cmzdril.extras import EXTRAS, MissingExtraError, require_extra
 EXTRA_ONLY = ("matplotlib", "mujoco", "ray", "tqdm", "rich", "minari", "rl_zoo3", "tensorboard", "jax")
 
 
+@pytest.mark.slow
 def test_import_and_training_need_no_extra():
     # A fresh interpreter in which every extra-only package fails to import, as in a core install.
     script = textwrap.dedent(
@@ -39,6 +40,7 @@ def test_import_and_training_need_no_extra():
     assert result.stdout.split()[:3] == ["OK", "32", "[]"]
 
 
+@pytest.mark.slow
 def test_progress_bars_and_the_command_line_name_the_experiments_extra():
     script = textwrap.dedent(
         f"""

@@ -22,13 +22,12 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_experiments import ENV, Interrupt
-from test_experiments import setup as _tiny_paths  # noqa: F401  (registers that module's fixture here)
 
+from helpers import ENV, Interrupt
 from sb3_cmzdril import io
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.experiments import grid
-from sb3_cmzdril.experiments.runs import latest_epoch, plan_run, run_experiment
+from sb3_cmzdril.experiments.run import grid, worker
+from sb3_cmzdril.experiments.run.runs import latest_epoch, plan_run, run_experiment
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and process groups")
 
@@ -40,8 +39,8 @@ REPO = Path(__file__).resolve().parent.parent
 
 @pytest.fixture
 def tiny(request) -> dict[str, Path]:
-    """test_experiments' demo pool (<demos_dir>/<EnvName>/demos.npz) and tiny hyperparameters."""
-    return request.getfixturevalue("_tiny_paths")
+    """The tiny experiment's demo pool (<demos_dir>/<EnvName>/demos.npz) and hyperparameters."""
+    return request.getfixturevalue("tiny_experiment")
 
 
 def _env() -> dict[str, str]:
@@ -159,6 +158,7 @@ def _flatten(prefix: str, value) -> dict[str, torch.Tensor]:
     return {prefix: torch.tensor(float(value))} if isinstance(value, (int, float)) else {}
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc")
 def test_killed_benchmark_and_train_leave_nothing_behind_and_resume_to_clean_stops(tiny, tmp_path):
     """One run killed three times (a benchmark's worker with its benchmark, the train command), then
@@ -232,7 +232,7 @@ def test_run_held_by_another_process_is_skipped_not_failed(tiny, tmp_path, capsy
         # A worker that finds the folder taken after the grid looked: busy too, no error.txt.
         spec = grid.plan_grid(ENV, "cmz", 1, runs, timesteps=TIMESTEPS, demos_dir=tiny["demos_dir"],
                               hyperparams=tiny["hp"])[0]
-        assert grid.execute_run(spec)["status"] == grid.BUSY
+        assert worker.execute_run(spec).status is worker.RunStatus.BUSY
         assert not (run / "error.txt").exists()
     finally:
         io.unlock_output(run, held)

@@ -211,7 +211,7 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     from stable_baselines3 import PPO, SAC
 
     from sb3_cmzdril.algorithm import CMZDRIL
-    from sb3_cmzdril.experiments.runs import load_run_hyperparams
+    from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
     from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
 
     sac = default_hyperparams_path("sac")

@@ -1,20 +1,19 @@
-"""benchmarks/new_tasks.py: the ablation tables of docs/new_tasks.md, paired by trial."""
+"""The study tables of docs/new_tasks.md (sb3_cmzdril.experiments.report.studies), paired by trial,
+and benchmarks/studies/new_tasks.py, the script that writes the page, run as a user runs it."""
 from __future__ import annotations
 
-import importlib.util
 import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from test_report import write_run
 
-_PATH = Path(__file__).resolve().parent.parent / "benchmarks" / "new_tasks.py"
-_spec = importlib.util.spec_from_file_location("new_tasks", _PATH)
-assert _spec is not None and _spec.loader is not None
-new_tasks = importlib.util.module_from_spec(_spec)
-sys.modules["new_tasks"] = new_tasks  # dataclasses look their module up there
-_spec.loader.exec_module(new_tasks)
+from helpers import write_run
+from sb3_cmzdril.experiments.report import studies
+
+REPO = Path(__file__).resolve().parent.parent
 
 ENV = "Walker2d-v5"
 
@@ -34,11 +33,13 @@ def root(tmp_path: Path) -> Path:
 
 
 def _variants(*folders: str):
-    return tuple(new_tasks.Variant(ENV, "cmz", f"from {f}", f, "pytest") for f in folders)
+    return tuple(studies.Variant(ENV, "cmz", f"from {f}", f, "pytest") for f in folders)
 
 
 def test_percent_of_expert_and_paired_count_by_hand(root):
-    text = new_tasks.render(root, _variants("ref", "var", "missing"))
+    # A sweep of the demonstrations over the grid's folder, whose runs do not record n_demos.
+    demos = studies.Sweep(ENV, ("bc",), "n_demos", "demos", ("results/runs",), "d.png", "pytest")
+    text = studies.render(root, _variants("ref", "var", "missing"), sweeps=(demos,))
     lines = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| from")}
     # Trial t's expert mean over episodes 0 and 1: 1000.5 + 10 t. Reference: 100 / 1000.5, 200 / 1010.5,
     # 300 / 1020.5 -> 9.995, 19.79, 29.40 %: mean 19.73.
@@ -53,12 +54,16 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     assert "config.json has no n_demos" in text  # the demo sweep leaves out a run that does not say
 
 
-def test_refuses_to_replace_without_force(root, capsys):
-    (root / "docs").mkdir(exist_ok=True)
-    (root / "docs" / "new_tasks.md").write_text("mine")
-    assert new_tasks.main([], root=root) == 2
-    assert "exists; pass --force" in capsys.readouterr().err
-    assert (root / "docs" / "new_tasks.md").read_text() == "mine"
+@pytest.mark.slow
+def test_the_script_refuses_to_replace_the_page_without_force(tmp_path):
+    (tmp_path / "new_tasks.md").write_text("mine")
+    script = REPO / "benchmarks" / "studies" / "new_tasks.py"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    result = subprocess.run([sys.executable, str(script), "--output", str(tmp_path)], capture_output=True, text=True,
+                            cwd=tmp_path, env=env, timeout=120)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert "exists; pass --force" in result.stderr
+    assert (tmp_path / "new_tasks.md").read_text() == "mine"
 
 
 def test_episode_lengths_by_hand(tmp_path):
@@ -70,11 +75,11 @@ def test_episode_lengths_by_hand(tmp_path):
         rows = ["time/iterations,rollout/ep_len_mean"] + [f"{i},{n}" for i, n in enumerate(lengths)]
         (run / "logs" / "progress_0.csv").write_text("\n".join(rows) + "\n")
     write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0, 5.0]})
-    table = new_tasks.RolloutTable("rollout/ep_len_mean", "length", (ENV,), "runs", final_column="length")
-    text = new_tasks.rollout_markdown(tmp_path, [], (table,))
+    table = studies.RolloutTable("rollout/ep_len_mean", "length", (ENV,), "runs", final_column="length")
+    text = studies.rollout_markdown(tmp_path, [], (table,))
     cmz = next(line for line in text.splitlines() if line.startswith("| CMZ-DRIL")).removesuffix(" |")
-    assert cmz.split(" | ")[1:5] == ["2", f"{new_tasks.fmt(222.5)} [n/a]", f"{new_tasks.fmt(232.5)} [n/a]",
-                                     f"{new_tasks.fmt(1000.0)} [n/a]"]
+    assert cmz.split(" | ")[1:5] == ["2", f"{studies.fmt(222.5)} [n/a]", f"{studies.fmt(232.5)} [n/a]",
+                                     f"{studies.fmt(1000.0)} [n/a]"]
     assert next(line for line in text.splitlines() if line.startswith("| BC")).split(" | ")[2:4] == ["—", "—"]
 
 
@@ -83,8 +88,8 @@ def test_a_rollout_only_table_leaves_out_methods_without_rollouts(tmp_path):
     (run / "logs").mkdir()
     (run / "logs" / "progress_0.csv").write_text("rollout/disagreement_mean\n0.5\n0.25\n")
     write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0]})
-    table = new_tasks.RolloutTable("rollout/disagreement_mean", "u", (ENV,), "runs")
-    lines = [line for line in new_tasks.rollout_markdown(tmp_path, [], (table,)).splitlines() if line.startswith("| ")]
+    table = studies.RolloutTable("rollout/disagreement_mean", "u", (ENV,), "runs")
+    lines = [line for line in studies.rollout_markdown(tmp_path, [], (table,)).splitlines() if line.startswith("| ")]
     # Header, then DRIL alone: two epochs, so both ends average both values (0.375).
     assert len(lines) == 2 and lines[1].startswith("| DRIL | 1 | 0.375")
 
@@ -116,9 +121,9 @@ def test_a_sweep_groups_by_the_config_value_and_pairs_by_trial(tmp_path):
         _sweep_run(tmp_path / "three", "cmz", trial, cmz, "n_demos", 3, lowest_u=lowest)
     _sweep_run(tmp_path / "again", "cmz", 0, 999.0, "n_demos", 3)
     folders = ("one", "three", "again", "gone")
-    sweep = new_tasks.Sweep(ENV, ("bc", "cmz"), "n_demos", "demos", folders, "s.png", "pytest")
+    sweep = studies.Sweep(ENV, ("bc", "cmz"), "n_demos", "demos", folders, "s.png", "pytest")
     skipped: list = []
-    text = new_tasks.sweeps_markdown(tmp_path, skipped, tmp_path / "figures", (sweep,))
+    text = studies.sweeps_markdown(tmp_path, skipped, tmp_path / "figures", (sweep,))
     cmz3 = _table_line(text, "CMZ-DRIL", "3")
     # Trial t's expert mean over its two episodes: 1000.5 + 10 t.
     assert cmz3[2:4] == ["2", "2"]
@@ -139,10 +144,10 @@ def test_a_sweep_groups_by_the_config_value_and_pairs_by_trial(tmp_path):
 def test_a_budget_sweep_draws_its_curves_and_a_sweep_without_runs_says_so(tmp_path):
     for trial in range(2):
         _sweep_run(tmp_path / "short", "dril", trial, 100.0, "timesteps", 4096)
-    sweep = new_tasks.Sweep(ENV, ("dril",), "timesteps", "steps", ("short",), "b.png", "pytest")
-    text = new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (sweep,))
+    sweep = studies.Sweep(ENV, ("dril",), "timesteps", "steps", ("short",), "b.png", "pytest")
+    text = studies.sweeps_markdown(tmp_path, [], tmp_path / "figures", (sweep,))
     assert _table_line(text, "DRIL", "4,096")[2] == "2" and (tmp_path / "figures" / "b.png").is_file()
-    empty = new_tasks.Sweep(ENV, ("cmz",), "timesteps", "steps", ("short",), "e.png", "pytest", fixed="clip")
-    empty_text = new_tasks.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
+    empty = studies.Sweep(ENV, ("cmz",), "timesteps", "steps", ("short",), "e.png", "pytest", fixed="clip")
+    empty_text = studies.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
     assert f"### {ENV}: steps, clip\n\nNo finished runs yet." in empty_text
     assert not (tmp_path / "figures" / "e.png").exists()

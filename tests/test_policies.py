@@ -10,7 +10,7 @@ import torch as th
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from conftest import TINY
+from helpers import TINY
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.policies import MIN_OBS_STD, DemoStandardizer, observation_statistics
 

@@ -12,13 +12,14 @@ import pytest
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+from helpers import TINY_SAC
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experts import collect_demos, load_expert_model
 from sb3_cmzdril.experts.loading import NormalizedObservationExpert, resolve_expert
 from sb3_cmzdril.extras import MissingExtraError
 
 ENV = "Pendulum-v1"
-TINY = dict(policy_kwargs=dict(net_arch=[8, 8]), buffer_size=100, learning_starts=10, device="cpu", seed=0)
+TINY = dict(TINY_SAC, device="cpu", seed=0)
 #: A pickle of ``gym.spaces.box.Box()``: what an SB3 1.x zip holds, naming a module not installed here.
 GYM_PICKLE = base64.b64encode(b"\x80\x02cgym.spaces.box\nBox\n)\x81}b.").decode()
 OBSERVATIONS = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, -3.0], [-0.6, 0.8, 7.0]], dtype=np.float32)

@@ -18,15 +18,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from test_experiments import ENV, POOL_EPISODES, TINY_YAML, Interrupt
 
-from conftest import pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, Interrupt, pendulum_expert, record
+from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.experiments import report
 from sb3_cmzdril.experiments.run import remote
 from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
 from sb3_cmzdril.experiments.run.runs import run_experiment, train_command
 
 ray = pytest.importorskip("ray")
+pytestmark = pytest.mark.slow  # every test starts or uses a two-node Ray cluster
 
 #: Set on the worker node only: the folder its processes must not touch.
 DENIED = "SB3_CMZDRIL_TEST_DENIED_ROOT"
@@ -122,8 +123,8 @@ def _read(run_dir: str, name: str) -> bytes | None:
 def test_ray_grid_equals_the_local_grid(grids):
     specs, outcomes = grids["specs"], grids["outcomes"]
     for backend in ("local", "ray"):
-        assert [o["status"] for o in outcomes[backend]] == ["done", "done", "failed"], outcomes[backend]
-        assert [o["run_dir"] for o in outcomes[backend]] == [s.output_dir for s in specs[backend]]
+        assert [o.status for o in outcomes[backend]] == ["done", "done", "failed"], outcomes[backend]
+        assert [o.run_dir for o in outcomes[backend]] == [s.output_dir for s in specs[backend]]
     for local, ray_spec in zip(specs["local"][:2], specs["ray"][:2], strict=True):
         for name in RUN_FILES:
             assert _read(ray_spec.output_dir, name) == _read(local.output_dir, name), name
@@ -135,11 +136,11 @@ def test_ray_grid_equals_the_local_grid(grids):
 
 def test_worker_errors_come_back_as_on_the_local_backend(grids):
     (_, _, local), (_, _, on_ray) = grids["outcomes"]["local"], grids["outcomes"]["ray"]
-    assert on_ray["error"] == local["error"] and "at least 2 members" in local["error"]
-    text = (Path(on_ray["run_dir"]) / "error.txt").read_text()
+    assert on_ray.error == local.error and "at least 2 members" in local.error
+    text = (Path(on_ray.run_dir) / "error.txt").read_text()
     # error.txt says where the run ran: the worker's copy of the YAML, so compare what follows the path.
-    assert local["error"].split("bad.yml", 1)[1] in text
-    assert not (Path(on_ray["run_dir"]) / ".lock").exists()
+    assert local.error.split("bad.yml", 1)[1] in text
+    assert not (Path(on_ray.run_dir) / ".lock").exists()
 
 
 def test_interrupted_run_resumed_on_the_worker(grids):
@@ -172,14 +173,14 @@ def test_lost_worker_leaves_its_last_checkpoint_on_the_driver(cluster, grids, mo
     killer.start()
     [outcome] = run_grid([spec], workers=1, backend="ray", progress=False)
     killer.join()
-    assert outcome["status"] == "failed" and (Path(spec.output_dir) / "error.txt").is_file()
+    assert outcome.status == "failed" and (Path(spec.output_dir) / "error.txt").is_file()
     # The model may be a checkpoint newer than state.json (it is read after it), never older.
     with zipfile.ZipFile(Path(spec.output_dir) / "model.zip") as model:
         reached = json.loads(model.read("data"))["num_timesteps"]
     assert 0 < json.loads(state.read_text())["num_timesteps"] <= reached < spec.timesteps
 
     [outcome] = run_grid([dataclasses.replace(spec, timesteps=reached + 64)], backend="ray", progress=False)
-    assert outcome["status"] == "done"
+    assert outcome.status == "done"
     resumed = json.loads(state.read_text())
     assert [s["from_timesteps"] for s in resumed["segments"]] == [0, reached]
     assert resumed["num_timesteps"] == reached + 64

@@ -47,6 +47,7 @@ def test_training_lengths_shrink_and_nothing_else_changes():
     assert len(readme_blocks()) >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(readme_blocks())))
 def test_readme_block_runs_from_an_empty_folder(index, tmp_path):
     (script,) = [p for p in write_blocks(tmp_path / "blocks") if p.name == f"readme_{index}.py"]

@@ -8,7 +8,6 @@ test_experiments.py.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import shutil
 from collections.abc import Sequence
@@ -18,48 +17,14 @@ import numpy as np
 import pytest
 from scipy.stats import bootstrap
 
+from helpers import write_run
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.final_eval import expert_level_share, expert_percent, final_table, mean_ci
-from sb3_cmzdril.experiments.records import NOT_SET, load_runs, read_final_eval, setting_differences
+from sb3_cmzdril.experiments.report.final_eval import expert_level_share, expert_percent, final_table, mean_ci
+from sb3_cmzdril.experiments.report.records import NOT_SET, load_runs, read_final_eval, setting_differences
 
 ENV = "HalfCheetah-v5"
-EVAL_HEADER = "epoch,timesteps,return_mean,return_std,frechet_mean,frechet_std,action_mse,length_mean,n_episodes"
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-def write_run(root: Path, method: str, trial: int, returns: Sequence[float], frechet: Sequence[float] | None = None,
-              mse: Sequence[float] | None = None, *, env: str = ENV, final: dict[str, list[float]] | None = None,
-              done: bool = True, lowest_epoch: int | None = None, hyperparams: dict | None = None,
-              expert: float = 1000.0) -> Path:
-    """A run folder with hand-written records (the report must not care who wrote them).
-
-    ``returns`` etc. are eval.csv's per-epoch values; ``final`` maps a policy to the returns of its
-    held-out episodes (Fréchet 10 + trial + episode, action MSE 0.01 (1 + trial), expert return
-    ``expert`` + 10 trial + episode); ``done=False`` leaves the run unfinished (a checkpoint, no done.json).
-    """
-    out = root / env / method / f"trial{trial}"
-    out.mkdir(parents=True)
-    frechet = frechet or [1.0] * len(returns)
-    mse = mse or [0.1] * len(returns)
-    lines = [EVAL_HEADER] + [f"{e},{e * 2048},{r},0,{f},0,{m},1000,5"
-                             for e, (r, f, m) in enumerate(zip(returns, frechet, mse, strict=True))]
-    (out / "eval.csv").write_text("\n".join(lines) + "\n")
-    config = {"env_name": env, "method": method, "seed": trial, "command": f"pytest {root.name}",
-              "hyperparams_values": hyperparams or {"bc_pretrain_epochs": 1000}}
-    (out / "config.json").write_text(json.dumps(config))
-    if final:
-        rows = ["policy,episode,seed,return,length,frechet,action_mse,expert_return"]
-        for policy, values in final.items():
-            rows += [f"{policy},{i},{i},{v!r},1000,{10 + trial + i},{0.01 * (1 + trial)!r},{expert + 10 * trial + i!r}"
-                     for i, v in enumerate(values)]
-        (out / "final_eval.csv").write_text("\n".join(rows) + "\n")
-    if done:
-        summary = {"status": "done", "final_evaluation": {"lowest_u": {"epoch": lowest_epoch}} if lowest_epoch else {}}
-        (out / "done.json").write_text(json.dumps(summary))
-    else:
-        (out / "model.zip").write_bytes(b"checkpoint")
-    return out
 
 
 def by_hand_ci(values: Sequence[float]):
@@ -97,6 +62,7 @@ def main_grid(tmp_path) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_final_table_means_and_cis_equal_hand_computed(main_grid, tmp_path):
     path = report.write_report(main_grid, tmp_path / "docs", references=())
     text = path.read_text()
@@ -127,6 +93,7 @@ def test_final_table_means_and_cis_equal_hand_computed(main_grid, tmp_path):
     assert "](fig3_final_eval.png)" in text
 
 
+@pytest.mark.slow
 def test_expert_level_share_counts_episodes_at_half_the_expert_return(main_grid, tmp_path):
     # The fixture's expert returns are 1000 + 10 trial + episode: only CMZ-DRIL's trial 2 (500, 600, 700
     # against 1020, 1021, 1022) has episodes at half of it or more, two of three.
@@ -213,6 +180,7 @@ def test_partial_grid_reports_trials_per_cell(tmp_path):
     assert "![" not in text and not list((tmp_path / "docs").glob("*.png"))  # figures=False: tables only
 
 
+@pytest.mark.slow
 def test_grid_without_final_evaluation(tmp_path):
     root = tmp_path / "runs"
     for trial in (0, 1):
@@ -309,6 +277,7 @@ def _reference_grid(root: Path) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
     ref = _reference_grid(tmp_path / "paper_faithful")
     out = tmp_path / "docs"

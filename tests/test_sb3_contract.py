@@ -11,7 +11,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-from conftest import TINY
+from helpers import TINY
 from sb3_cmzdril import CMZDRIL
 
 
@@ -73,6 +73,7 @@ def test_callbacks_see_final_rewards_at_rollout_end_and_can_stop(pendulum_demos)
     assert model.rollout_disagreement == pytest.approx(_expected_rollout_u(model), rel=1e-5)
 
 
+@pytest.mark.slow
 def test_set_env_and_subprocvecenv(pendulum_demos):
     model = CMZDRIL("MlpPolicy", _pendulums(), demonstrations=pendulum_demos, **TINY)
     model.learn(128)

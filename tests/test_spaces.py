@@ -21,6 +21,7 @@ from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, NatureCNN
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
+from helpers import TINY
 from sb3_cmzdril import CMZDRIL, BCEnsemble, Demonstrations
 from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
 from sb3_cmzdril.scoring import buffer_actions
@@ -49,17 +50,6 @@ OBS_SPACES: dict[str, spaces.Space] = {
 # 36 pixels: the smallest NatureCNN (CnnPolicy's extractor) takes.
 IMAGE = spaces.Box(0, 255, (36, 36, 1), np.uint8)
 
-TINY: dict[str, Any] = dict(
-    n_steps=32,
-    batch_size=32,
-    n_epochs=1,
-    policy_kwargs=dict(net_arch=[8]),
-    ensemble_size=3,
-    ensemble_hidden=(8,),
-    ensemble_epochs=3,
-    bc_pretrain_epochs=3,
-    seed=0,
-)
 
 
 class SpacesEnv(gym.Env):
@@ -269,6 +259,7 @@ def test_images_through_a_cnn_trunk(vector, caplog):
 
 
 # -- PPO's other promises ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_vecnormalize_on_dict_observations_and_subprocvecenv():
     space = OBS_SPACES["dict"]
     make = [lambda: SpacesEnv(space, ACTION_SPACES["box"])] * 2

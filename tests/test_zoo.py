@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import TINY
+from helpers import TINY, zoo_hyperparams
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.hyperparams import default_hyperparams_path
@@ -21,21 +21,7 @@ from sb3_cmzdril import zoo  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 #: a zoo YAML for a run of a few seconds: no `demonstrations`, so the pool in ./experts is used
-TINY_YAML = {
-    "Pendulum-v1": {
-        "n_timesteps": 256,
-        "policy": "MlpPolicy",
-        "policy_kwargs": "dict(net_arch=[16, 16])",
-        "n_steps": 64,
-        "batch_size": 32,
-        "n_epochs": 2,
-        "ensemble_size": 2,
-        "ensemble_hidden": [16, 16],
-        "ensemble_epochs": 2,
-        "bc_pretrain_epochs": 2,
-        "n_demos": 1,
-    }
-}
+TINY_YAML = {"Pendulum-v1": zoo_hyperparams(TINY, n_timesteps=256, ensemble_size=2, n_demos=1)}
 
 
 @pytest.fixture
@@ -81,6 +67,7 @@ def test_the_shipped_yaml_builds_the_model_in_the_zoo(env_id):
     env.close()
 
 
+@pytest.mark.slow
 def test_zoo_trains_cmzdril_via_python_m(pool_dir, pendulum_demos):
     conf = pool_dir / "tiny.yml"
     conf.write_text(yaml.safe_dump(TINY_YAML))

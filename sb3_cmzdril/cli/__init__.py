@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="sb3-cmzdril",
         description="CMZ-DRIL imitation learning for stable-baselines3: experts, demos, training, benchmarks.",
     )
-    from sb3_cmzdril import __version__
+    from sb3_cmzdril._version import __version__
 
     parser.add_argument("--version", action="version", version=f"sb3-cmzdril {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -161,6 +161,7 @@ def add_benchmark(sub) -> None:
 
 def _run_benchmark(args) -> int:
     from sb3_cmzdril.experiments.run.grid import benchmark, summarize_outcomes
+    from sb3_cmzdril.experiments.run.worker import RunStatus
     from sb3_cmzdril.experts import command_line
 
     outcomes = benchmark(
@@ -182,7 +183,7 @@ def _run_benchmark(args) -> int:
         hyperparams=args.hyperparams,
     )
     print(summarize_outcomes(outcomes))
-    return 1 if any(o["status"] == "failed" for o in outcomes) else 0
+    return 1 if any(o.status is RunStatus.FAILED for o in outcomes) else 0
 
 
 __all__ = ["add_benchmark", "add_train"]

@@ -18,8 +18,8 @@ def check_env_id(env_id: str) -> str:
     """The env id if gymnasium knows it (importing a ``module:`` prefix first), else a ValueError."""
     import importlib
 
-    import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0, which a bare id may name)
-
+    # A bare WaypointNav-v0 needs no import here: the package's __init__, which Python runs before
+    # any of its modules, has registered it.
     module, sep, name = env_id.rpartition(":")
     if sep:
         try:

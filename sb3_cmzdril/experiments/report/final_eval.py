@@ -2,7 +2,7 @@
 
 Five evaluation episodes per epoch cannot tell methods apart on HalfCheetah (one BC policy scored 188
 on one machine and 242 on another), so each run ends with an evaluation on every pool episode not
-used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.runs`). Here:
+used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.run.runs`). Here:
 
 * :func:`final_table` — per env, method and policy ("final", or "lowest_u": the policy whose own
   training rollout had the lowest ensemble disagreement), the mean over trials of each run's mean

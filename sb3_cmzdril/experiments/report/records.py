@@ -1,6 +1,6 @@
 """What the report reads from a runs folder: each run's records, named and ordered for tables.
 
-A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.experiments.runs`).
+A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.experiments.run.run_folder`).
 :func:`load_runs` reads, per run: eval.csv (the per-epoch evaluation), final_eval.csv when the run has
 one (the final evaluation on every held-out pool episode; grids made before it existed have none),
 config.json and done.json. A run is known by its config.json (env, method, trial seed), not by its

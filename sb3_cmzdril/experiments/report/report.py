@@ -1,21 +1,21 @@
 """results.md, its tables' CSVs and its figures, from one runs folder or two side by side.
 
 :func:`write_report` reads a grid (``<RUNS_DIR>/<EnvName>/<method>/trial<t>/``, see
-:mod:`~sb3_cmzdril.experiments.records`) and, optionally, a reference grid (``reference_runs``: e.g.
+:mod:`~sb3_cmzdril.experiments.report.records`) and, optionally, a reference grid (``reference_runs``: e.g.
 the paper-faithful grid of an earlier version), and writes into the output folder:
 
 * results.md — the headline (each grid's final evaluation with its confidence interval and its Table I,
   beside the paper's Table I), then per grid: the final evaluation
-  (:mod:`~sb3_cmzdril.experiments.final_eval`), Table I, the gap closed by CMZ-DRIL, the expert's scale
-  and the reward signal (:mod:`~sb3_cmzdril.experiments.tables`); the figures; the reference numbers
-  (:mod:`~sb3_cmzdril.experiments.paper`); the run folders behind every number; the commands.
+  (:mod:`~sb3_cmzdril.experiments.report.final_eval`), Table I, the gap closed by CMZ-DRIL, the expert's scale
+  and the reward signal (:mod:`~sb3_cmzdril.experiments.report.tables`); the figures; the reference numbers
+  (:mod:`~sb3_cmzdril.experiments.report.paper`); the run folders behind every number; the commands.
 * table1.csv and final_table.csv (``table1_reference.csv``, ``final_table_reference.csv`` for the
   reference grid): the tables at full precision, with their run folders.
 * fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves) and fig3_final_eval.png (the
-  final evaluation; :mod:`~sb3_cmzdril.experiments.figures`).
+  final evaluation; :mod:`~sb3_cmzdril.experiments.report.figures`).
 
 With ``readme`` the README's results block is replaced by the headline
-(:mod:`~sb3_cmzdril.experiments.readme`). Reference numbers from elsewhere (the paper's Table I:
+(:mod:`~sb3_cmzdril.experiments.report.readme`). Reference numbers from elsewhere (the paper's Table I:
 :data:`PAPER_TABLE_I`) enter only through ``references`` and are printed labelled, apart from ours.
 """
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """The paper's trial grid (envs x methods x trials), run by a local process pool or by Ray.
 
 Trial ``t`` draws its training and evaluation episodes from the env's demo pool with
-``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.spec.split_episodes`) and uses ``t``
+``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.run.spec.split_episodes`) and uses ``t``
 as network and env seed, so every method of a trial sees the same data and starts from the same
 BC-pretrained policy (the paper: "The same training and evaluation data were used for BC, DRIL, and
 CMZ-DRIL"). Runs go to ``RUNS_DIR/<EnvName>/<method>/trial<t>/`` (layout: :mod:`.run_folder`).
 
-Both backends execute :func:`execute_run` one run per worker (one CPU and one torch thread each):
+Both backends execute :func:`~.worker.execute_run` one run per worker (one CPU and one torch thread each):
 
 * ``local``: a ``ProcessPoolExecutor`` with the ``spawn`` context (no forked torch/OpenMP state);
 * ``ray``: the same function as a ``ray.remote(num_cpus=1)`` task, on ``ray.init(address=...)`` or
@@ -45,8 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_cmzdril.experiments.run.progress import GridProgress
-from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, LOG_FILE, check_finished
-from sb3_cmzdril.experiments.run.runs import run_experiment
+from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, check_finished
 from sb3_cmzdril.experiments.run.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
@@ -58,8 +57,9 @@ from sb3_cmzdril.experiments.run.spec import (
     missing_pool_error,
     plan_run,
 )
+from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus, execute_run, init_worker, write_error
 from sb3_cmzdril.experts import check_env_id, env_name
-from sb3_cmzdril.io import LockHeld, PathLike, atomic_write_text, lock_output, unlock_output
+from sb3_cmzdril.io import LockHeld, PathLike, lock_output, unlock_output
 
 BACKENDS = ("local", "ray")
 #: One line per benchmark invocation in RUNS_DIR (command, grid, outcome): the runs' history.
@@ -142,21 +142,11 @@ _PR_SET_PDEATHSIG = 1
 _WATCHDOG_PERIOD_S = 0.5
 
 
-def _init_worker(parent_pid: int | None = None) -> None:
-    """One torch thread per run: two single-threaded runs beat one two-threaded run (DESIGN.md).
-
-    MuJoCo's warnings go to the run's log.txt, minus known noise, instead of MUJOCO_LOG.TXT in the
-    working directory (see :mod:`sb3_cmzdril._mujoco_log`). With ``parent_pid`` (the local pool's
-    workers) the worker ends when that process does (:func:`die_with_parent`).
-    """
-    if parent_pid is not None:
-        die_with_parent(parent_pid)
-    import torch
-
-    from sb3_cmzdril._mujoco_log import route_mujoco_warnings
-
-    torch.set_num_threads(1)
-    route_mujoco_warnings()
+def _init_pool_worker(parent_pid: int) -> None:
+    """A local pool's worker: it ends when ``parent_pid``, the grid's process, does
+    (:func:`die_with_parent`), and runs as every worker runs (:func:`.worker.init_worker`)."""
+    die_with_parent(parent_pid)
+    init_worker()
 
 
 def die_with_parent(parent_pid: int) -> None:
@@ -194,50 +184,6 @@ def held_elsewhere(output_dir: PathLike) -> bool:
     return False
 
 
-def _write_error(spec: RunSpec, text: str) -> None:
-    out = Path(spec.output_dir)
-    header = f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} {spec.label} failed\n{spec}\n\n"
-    atomic_write_text(out / ERROR_FILE, header + text)
-
-
-#: The outcome of a run another process holds.
-BUSY = "busy"
-
-
-def _outcome(spec: RunSpec, status: str, seconds: float, error: str | None = None) -> dict[str, Any]:
-    return {
-        "label": spec.label,
-        "run_dir": spec.output_dir,
-        "status": status,
-        "seconds": round(seconds, 1),
-        "error": error,
-    }
-
-
-def execute_run(spec: RunSpec) -> dict[str, Any]:
-    """Worker entry point of both backends: one run, its output in ``<run>/log.txt``, never raising
-    for a failed run (the traceback goes to ``<run>/error.txt``; the outcome says ``failed``)."""
-    _init_worker()
-    t0 = time.time()
-    out = Path(spec.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        with (
-            open(out / LOG_FILE, "a", encoding="utf-8") as log,
-            contextlib.redirect_stdout(log),
-            contextlib.redirect_stderr(log),
-        ):
-            print(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} {spec.label}", flush=True)
-            result = run_experiment(spec)
-            print(f"=== {result['status']} after {time.time() - t0:.0f} s", flush=True)
-    except LockHeld:  # another process took the folder since run_grid looked: its run, not a failure
-        return _outcome(spec, BUSY, time.time() - t0)
-    except Exception as e:  # any failure is this run's alone: record it and let the grid go on
-        _write_error(spec, traceback.format_exc())
-        return _outcome(spec, "failed", time.time() - t0, f"{type(e).__name__}: {e}")
-    return _outcome(spec, result["status"], time.time() - t0)
-
-
 # -- backends --------------------------------------------------------------------------------------
 class _LocalBackend:
     """A spawn-context process pool, rebuilt if a worker dies (BrokenProcessPool); its workers die
@@ -250,7 +196,7 @@ class _LocalBackend:
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=self.context, initializer=_init_worker, initargs=(os.getpid(),)
+            max_workers=self.workers, mp_context=self.context, initializer=_init_pool_worker, initargs=(os.getpid(),)
         )
 
     def submit(self, spec: RunSpec) -> concurrent.futures.Future:
@@ -265,7 +211,7 @@ class _LocalBackend:
         done, _ = concurrent.futures.wait(handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
         return list(done)
 
-    def result(self, handle: concurrent.futures.Future) -> dict[str, Any]:
+    def result(self, handle: concurrent.futures.Future) -> RunOutcome:
         return handle.result()
 
     def close(self, interrupted: bool = False) -> None:
@@ -284,7 +230,8 @@ class _LocalBackend:
 
 
 class _RayBackend:
-    """``execute_run`` as Ray tasks with one CPU each (:mod:`.remote`); starts (and stops) a local Ray if none is up."""
+    """:func:`~.worker.execute_run` as Ray tasks with one CPU each (:mod:`.remote`); starts (and
+    stops) a local Ray if none is up."""
 
     def __init__(self, workers: int, address: str | None) -> None:
         try:
@@ -312,7 +259,7 @@ class _RayBackend:
         ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
         return ready
 
-    def result(self, handle: Any) -> dict[str, Any]:
+    def result(self, handle: Any) -> RunOutcome:
         return self.runs.result(handle)
 
     def close(self, interrupted: bool = False) -> None:
@@ -337,13 +284,13 @@ def run_grid(
     backend: str = "local",
     ray_address: str | None = None,
     progress: bool = True,
-) -> list[dict[str, Any]]:
+) -> list[RunOutcome]:
     """Execute the runs, ``workers`` at a time; returns one outcome per spec, in spec order.
 
-    Outcome: ``{"label", "run_dir", "status", "seconds", "error"}`` with status ``skipped`` (done
-    before), ``busy`` (another process holds its folder: it goes on with it), ``done``, ``stopped``
-    or ``failed``. An interruption (KeyboardInterrupt, SIGTERM's exception) ends the running workers
-    before it propagates.
+    Each :class:`~.worker.RunOutcome` has a status: ``skipped`` (done before), ``busy`` (another
+    process holds its folder: it goes on with it), ``done``, ``stopped`` or ``failed``. An
+    interruption (KeyboardInterrupt, SIGTERM's exception) ends the running workers before it
+    propagates.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
@@ -353,14 +300,14 @@ def run_grid(
     labels = [s.output_dir for s in specs]
     if len(set(labels)) != len(labels):
         raise ValueError("two runs of the grid share an output folder")
-    outcomes: dict[str, dict[str, Any]] = {}
+    outcomes: dict[str, RunOutcome] = {}
     todo: collections.deque = collections.deque()
     skipped = []
     for spec in specs:
         # Raises for a finished folder of another run, or one finished short of the steps asked:
         # before anything starts, rather than counting foreign numbers as this grid's.
         if check_finished(spec) is not None:
-            outcomes[spec.output_dir] = _outcome(spec, "skipped", 0.0)
+            outcomes[spec.output_dir] = RunOutcome.of(spec, RunStatus.SKIPPED)
             skipped.append(spec)
         else:
             todo.append(spec)
@@ -374,7 +321,7 @@ def run_grid(
             while todo and len(running) < workers:
                 spec = todo.popleft()
                 if held_elsewhere(spec.output_dir):
-                    outcomes[spec.output_dir] = _outcome(spec, BUSY, 0.0)
+                    outcomes[spec.output_dir] = RunOutcome.of(spec, RunStatus.BUSY)
                     display.finished(spec, outcomes[spec.output_dir])
                     continue
                 runner = runner or _backend(backend, workers, ray_address)
@@ -387,8 +334,8 @@ def run_grid(
                 try:
                     outcome = runner.result(handle)
                 except Exception as e:  # the worker itself died (killed, out of memory, Ray task error)
-                    _write_error(spec, "".join(traceback.format_exception(type(e), e, e.__traceback__)))
-                    outcome = _outcome(spec, "failed", 0.0, f"{type(e).__name__}: {e}")
+                    write_error(spec, "".join(traceback.format_exception(type(e), e, e.__traceback__)))
+                    outcome = RunOutcome.of(spec, RunStatus.FAILED, 0.0, f"{type(e).__name__}: {e}")
                 outcomes[spec.output_dir] = outcome
                 display.finished(spec, outcome)
             display.refresh()
@@ -412,7 +359,7 @@ def benchmark(
     progress: bool = True,
     command: str | None = None,
     **plan_kwargs: Any,
-) -> list[dict[str, Any]]:
+) -> list[RunOutcome]:
     """:func:`plan_grid` + :func:`run_grid`, and a line in ``RUNS_DIR/benchmark.jsonl`` recording
     the command, the grid and the outcome of this invocation. ``plan_kwargs`` go to :func:`plan_grid`."""
     if backend not in BACKENDS:  # before planning: a typo should not wait for the pool checks
@@ -421,7 +368,7 @@ def benchmark(
     started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     t0 = time.time()
     outcomes = run_grid(specs, workers=workers, backend=backend, ray_address=ray_address, progress=progress)
-    counts = collections.Counter(o["status"] for o in outcomes)
+    counts = collections.Counter(o.status.value for o in outcomes)
     record = {
         "started_at": started,
         "wall_time_s": round(time.time() - t0, 1),
@@ -432,7 +379,7 @@ def benchmark(
         "workers": workers,
         "backend": backend,
         "outcome": dict(counts),
-        "failed": [o["label"] for o in outcomes if o["status"] == "failed"],
+        "failed": [o.label for o in outcomes if o.status is RunStatus.FAILED],
     }
     log = Path(runs_dir) / BENCHMARK_LOG
     log.parent.mkdir(parents=True, exist_ok=True)
@@ -441,33 +388,30 @@ def benchmark(
     return outcomes
 
 
-def summarize_outcomes(outcomes: Iterable[dict[str, Any]]) -> str:
+def summarize_outcomes(outcomes: Iterable[RunOutcome]) -> str:
     """One line: how many runs ended how, and which failed (with their error files)."""
     outcomes = list(outcomes)
-    counts = collections.Counter(o["status"] for o in outcomes)
+    counts = collections.Counter(o.status.value for o in outcomes)
     text = f"{len(outcomes)} runs: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
-    busy = [o for o in outcomes if o["status"] == BUSY]
+    busy = [o for o in outcomes if o.status is RunStatus.BUSY]
     if busy:
-        text += f"\n{BUSY} (another process is running them; run this again once it ends): " + ", ".join(
-            o["label"] for o in busy
-        )
-    failed = [o for o in outcomes if o["status"] == "failed"]
+        waiting = ", ".join(o.label for o in busy)
+        text += f"\n{RunStatus.BUSY.value} (another process is running them; run this again once it ends): {waiting}"
+    failed = [o for o in outcomes if o.status is RunStatus.FAILED]
     if failed:
         text += "\nfailed:\n" + "\n".join(
-            f"  {o['label']}: {o['error']} ({Path(o['run_dir']) / ERROR_FILE})" for o in failed
+            f"  {o.label}: {o.error} ({Path(o.run_dir) / ERROR_FILE})" for o in failed
         )
     return text
 
 
 __all__ = [
     "BACKENDS",
-    "BUSY",
     "die_with_parent",
     "held_elsewhere",
     "plan_grid",
     "run_grid",
     "benchmark",
-    "execute_run",
     "parse_list",
     "summarize_outcomes",
     "GridProgress",

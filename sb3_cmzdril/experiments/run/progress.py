@@ -2,7 +2,7 @@
 
 On a terminal a rich progress bar with one line per running run; elsewhere (nohup, CI, a notebook
 log) one plain line per event with the grid's status, and a heartbeat line while nothing happens.
-:func:`~sb3_cmzdril.experiments.grid.run_grid` drives it.
+:func:`~sb3_cmzdril.experiments.run.grid.run_grid` drives it.
 """
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from typing import Any
 
 from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, latest_epoch
 from sb3_cmzdril.experiments.run.spec import RunSpec
+from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus
 from sb3_cmzdril.io import LOCK_FILE
 
 
@@ -92,15 +93,15 @@ class GridProgress:
             self.counts["skipped"] += len(specs)
             self._line(f"{len(specs)} runs already finished (done.json), skipped")
 
-    def finished(self, spec: RunSpec, result: dict[str, Any]) -> None:
+    def finished(self, spec: RunSpec, outcome: RunOutcome) -> None:
         self.running.pop(spec.label, None)
-        self.counts[result["status"]] += 1
-        if result["status"] == "busy":
+        self.counts[outcome.status.value] += 1
+        if outcome.status is RunStatus.BUSY:
             self._line(f"skipped {spec.label}: another process is running it ({Path(spec.output_dir) / LOCK_FILE})")
             return
-        detail = f": {result['error']} (see {Path(spec.output_dir) / ERROR_FILE})" if result.get("error") else ""
-        took = f" in {result['seconds']:.0f} s" if result.get("seconds") else ""
-        self._line(f"{result['status']} {spec.label}{took}{detail}")
+        detail = f": {outcome.error} (see {Path(spec.output_dir) / ERROR_FILE})" if outcome.error else ""
+        took = f" in {outcome.seconds:.0f} s" if outcome.seconds else ""
+        self._line(f"{outcome.status.value} {spec.label}{took}{detail}")
 
     def refresh(self) -> None:
         if self._progress is not None and self._task is not None:

@@ -7,7 +7,7 @@ A task carries everything its run reads, and its run folder comes back to the dr
   from its checkpoint as on the local backend); the demo pool's bytes go to Ray's object store once
   per pool file and reach every task of that env from there;
 * the worker writes them into a temporary directory of its own, points the spec there
-  (:func:`relocate`) and calls the local backend's :func:`~sb3_cmzdril.experiments.run.grid.execute_run`;
+  (:func:`relocate`) and calls :func:`~sb3_cmzdril.experiments.run.worker.execute_run`, as the local backend does;
 * after every checkpoint the worker sends the run folder's changed files to a small actor on the
   driver's node (:class:`FolderSink`), so that checkpoints outlive a lost worker or an interrupted
   driver; at the end the task returns the files changed since it started (:class:`RunResult`), and
@@ -34,6 +34,7 @@ from typing import IO, Any
 
 from sb3_cmzdril.experiments.run.run_folder import STATE_FILE
 from sb3_cmzdril.experiments.run.spec import RunSpec, file_mtime_ns
+from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus, execute_run
 from sb3_cmzdril.io import LOCK_FILE, PathLike, atomic_path, lock_output, unlock_output
 
 logger = logging.getLogger(__name__)
@@ -62,7 +63,7 @@ class RunResult:
     """What a task returns: the outcome as the local backend reports it (driver paths), the run
     folder's files written or changed by the task, and those it deleted."""
 
-    outcome: dict[str, Any]
+    outcome: RunOutcome
     files: Mapping[str, bytes]
     removed: Sequence[str]
 
@@ -234,8 +235,6 @@ class _Snapshots:
 
 def run_shipped(package: RunPackage, pool: bytes, sink: Any = None) -> RunResult:
     """The Ray task: one run in a temporary directory of this worker, nothing read from the driver's disk."""
-    from sb3_cmzdril.experiments.run.grid import execute_run
-
     driver_spec = package.spec
     with tempfile.TemporaryDirectory(prefix="sb3-cmzdril-run-") as tmp:
         spec = relocate(driver_spec, Path(tmp))
@@ -253,7 +252,7 @@ def run_shipped(package: RunPackage, pool: bytes, sink: Any = None) -> RunResult
         now = _listing(out)
         changed = [name for name, stamp in now.items() if shipped.get(name) != stamp]
         return RunResult(
-            outcome=_restore_paths(outcome, moved),
+            outcome=RunOutcome.from_dict(_restore_paths(outcome.as_dict(), moved)),
             files=read_files(out, changed, moved),
             removed=sorted(name for name in shipped if name not in now),
         )
@@ -304,14 +303,12 @@ class RemoteRuns:
 
     def submit(self, spec: RunSpec) -> Any:
         """Start ``spec``'s run on some worker; returns the handle for :meth:`result`."""
-        from sb3_cmzdril.experiments.run.grid import _outcome
-
         out = Path(spec.output_dir)
         out.mkdir(parents=True, exist_ok=True)
         try:
             lock = lock_output(out)
         except ValueError as e:  # as the local backend reports it, from run_experiment's own lock
-            handle = self.ray.put(RunResult(_outcome(spec, "failed", 0.0, f"ValueError: {e}"), {}, []))
+            handle = self.ray.put(RunResult(RunOutcome.of(spec, RunStatus.FAILED, 0.0, f"ValueError: {e}"), {}, []))
             self.in_flight[handle] = (spec, None)
             return handle
         try:
@@ -322,7 +319,7 @@ class RemoteRuns:
         self.in_flight[handle] = (spec, lock)
         return handle
 
-    def result(self, handle: Any) -> dict[str, Any]:
+    def result(self, handle: Any) -> RunOutcome:
         """The run's outcome, once its files are in the driver's run folder; raises what the task raised."""
         spec, lock = self.in_flight.pop(handle)
         out = Path(spec.output_dir)

@@ -1,8 +1,8 @@
 """The reactive expert on WaypointNav-v0: success, collisions, return and length over seeded episodes.
 
-    python benchmarks/waypoint_expert.py                       # seeds 0..199
-    python benchmarks/waypoint_expert.py --episodes 50 --n-beams 16
-    python benchmarks/waypoint_expert.py --figure docs/figures/waypoint_expert_paths.png
+    python benchmarks/studies/waypoint_expert.py                       # seeds 0..199
+    python benchmarks/studies/waypoint_expert.py --episodes 50 --n-beams 16
+    python benchmarks/studies/waypoint_expert.py --figure docs/figures/waypoint_expert_paths.png
 
 Episode ``i`` is reset with seed ``i``. The figure shows the expert's paths on the first four seeds.
 """

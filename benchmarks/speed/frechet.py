@@ -12,7 +12,7 @@ Compares, on two random walks of n = m points (default 1000, d = 2):
 Checks that all values agree and prints timings (best of ``--repeats``); the last line is
 ``speedup_vs_python_loop: <x>x`` against the list-based Python loop. Usage::
 
-    python benchmarks/frechet.py [--n 1000] [--dim 2] [--repeats 5] [--seed 0]
+    python benchmarks/speed/frechet.py [--n 1000] [--dim 2] [--repeats 5] [--seed 0]
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Training throughput: CMZ-DRIL against plain SB3 PPO with identical settings on HalfCheetah-v5.
 
-    python benchmarks/throughput.py [--steps 20480] [--repeats 3] [--per-step-scoring]
+    python benchmarks/speed/throughput.py [--steps 20480] [--repeats 3] [--per-step-scoring]
 
 Both run in this one process, interleaved (PPO, CMZ-DRIL, PPO, ...), each for the same number of
 steps with PPO's default settings and one env; the median of the repeats is reported. CMZ-DRIL uses
@@ -33,7 +33,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sb3_cmzdril import CMZDRIL, Demonstrations
 
 ENV_ID = "HalfCheetah-v5"
-SHIPPED_DEMOS = Path(__file__).resolve().parents[1] / "experts" / ENV_ID / "demos.npz"
+SHIPPED_DEMOS = Path(__file__).resolve().parents[2] / "experts" / ENV_ID / "demos.npz"
 
 
 class LoopTimer(BaseCallback):
@@ -103,7 +103,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=20480, help="environment steps per run (default 10 PPO updates)")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (DESIGN.md: 1 is fastest here)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 was fastest on our machines)")
     parser.add_argument(
         "--per-step-scoring", action="store_true", help="CMZ-DRIL scores every env step (batch_scoring=False)"
     )

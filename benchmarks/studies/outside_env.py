@@ -7,10 +7,10 @@ demonstration policy), run deterministically. So neither the env nor the expert 
 by this project, and the claim "CMZ-DRIL improves on BC" is tested outside WaypointNav-v0,
 HalfCheetah-v5 and Hopper-v5.
 
-    python benchmarks/outside_env.py                  # 5 trials x (bc, cmz, zero), 200k steps, 2 workers
-    python benchmarks/outside_env.py --trials 1 --timesteps 4096 --pool-episodes 10 -o /tmp/outside_env
+    python benchmarks/studies/outside_env.py                  # 5 trials x (bc, cmz, zero), 200k steps, 2 workers
+    python benchmarks/studies/outside_env.py --trials 1 --timesteps 4096 --pool-episodes 10 -o /tmp/outside_env
                                                       # a smoke test (a few minutes)
-    python benchmarks/outside_env.py --report-only    # rewrite results.md/results.csv from the finished runs
+    python benchmarks/studies/outside_env.py --report-only    # rewrite results.md/results.csv from the finished runs
 
 It needs Box2D: ``pip install "gymnasium[box2d]"`` (on Python < 3.14 that is the ``box2d==2.3.10``
 wheel and ``pygame-ce``, both with manylinux wheels; no swig).
@@ -21,7 +21,7 @@ no-reward run then stepped 108-436 env steps per wall second (SB3's time/fps, on
 BC pretraining to convergence took 30-79 s. At that load the full run (10 PPO runs of 200k steps, 5
 BC runs, 2 workers) needs about 40 min to 2.7 hours; on an idle machine a fraction of that (the raw
 env stepped 4,000 steps per CPU second; HalfCheetah-v5 stepped 3,200 at the same time against 14,600
-on an idle core, DESIGN.md, where PPO on it ran ~1,660 steps/s).
+on an idle core, where PPO on it ran ~1,660 steps/s).
 Each run's wall time is in the "Runs" table of results.md (from its done.json).
 
 What it does, into OUTPUT (default results/outside_env), resumable at every step:
@@ -30,14 +30,14 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
    registered as the scripted expert ``lunar-heuristic``): ``--pool-episodes`` deterministic episodes,
    episode ``i`` reset with seed ``--pool-seed + i``; provenance in the metadata.json beside it. An
    existing pool is kept if it is the one asked for (same expert, episodes and seeds);
-2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.grid.benchmark`) for ``bc``, ``cmz``
-   and ``zero`` x trials 0..T-1 with the hyperparameters of ``benchmarks/outside_env.yml`` (CMZDRIL's
+2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``
+   and ``zero`` x trials 0..T-1 with the hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's
    constructor defaults, PPO's defaults): trial t trains on ``--n-demos`` pool episodes drawn with
    ``default_rng(t)``, every method of a trial from the same data, seeds and BC start. Finished runs
    are skipped, interrupted ones continue from their checkpoints. Each run ends with the final
    evaluation: every pool episode it did not train on, replayed from its reset seed (final_eval.csv);
 3. writes ``OUTPUT/results.md`` and ``OUTPUT/results.csv`` with the report's own tables
-   (:mod:`sb3_cmzdril.experiments.final_eval`): per method, the mean over trials of the final
+   (:mod:`sb3_cmzdril.experiments.report.final_eval`): per method, the mean over trials of the final
    evaluation (return, Fréchet distance, action MSE) with a 95% bootstrap confidence interval, also
    for the reward-free lowest-disagreement policy; trial by trial, CMZ-DRIL and no reward against BC
    and CMZ-DRIL against no reward; the share of episodes with return >= 200 (gymnasium's "solved"
@@ -56,7 +56,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "LunarLander-v3"
 EXPERT_NAME = "lunar-heuristic"
 METHODS = ("bc", "cmz", "zero")
@@ -98,8 +98,8 @@ def register_expert() -> None:
 
 
 def env_kwargs() -> dict[str, Any]:
-    """The env's kwargs from benchmarks/outside_env.yml: the pool and the runs use the same ones."""
-    from sb3_cmzdril.experiments.runs import load_run_hyperparams
+    """The env's kwargs from benchmarks/studies/outside_env.yml: the pool and the runs use the same ones."""
+    from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
 
     hp, _ = load_run_hyperparams(HYPERPARAMS, ENV_ID)
     return dict(hp.env_kwargs or {})
@@ -108,7 +108,7 @@ def env_kwargs() -> dict[str, Any]:
 # -- 1. the demo pool ---------------------------------------------------------------------------------
 def record_pool(output: Path, n_episodes: int, seed: int) -> Path:
     """The pool ``OUTPUT/LunarLander-v3/demos.npz``: recorded, or kept if it is the one asked for."""
-    from sb3_cmzdril.experiments.runs import default_demos_path
+    from sb3_cmzdril.experiments.run.runs import default_demos_path
     from sb3_cmzdril.experts import collect_demos, load_demonstrations
 
     path = default_demos_path(ENV_ID, output)
@@ -133,7 +133,7 @@ def record_pool(output: Path, n_episodes: int, seed: int) -> Path:
 
 def _pool_record(pool_path: Path) -> dict[str, Any]:
     """The ``demos`` section collect_demos wrote into the metadata.json beside the pool ({} if none)."""
-    from sb3_cmzdril.experiments.records import read_json_or_empty
+    from sb3_cmzdril.experiments.report.records import read_json_or_empty
 
     record = read_json_or_empty(pool_path.parent / "metadata.json")
     record = record.get("demos") if isinstance(record, dict) else None
@@ -154,7 +154,7 @@ def _box2d_version() -> str:
 # -- 3. the results -----------------------------------------------------------------------------------
 def finished_runs(output: Path) -> list:
     """The finished runs (done.json) of :data:`METHODS` on the env below ``output``, as the report reads them."""
-    from sb3_cmzdril.experiments.records import load_runs
+    from sb3_cmzdril.experiments.report.records import load_runs
     from sb3_cmzdril.experts import env_name
 
     if not (output / env_name(ENV_ID)).is_dir():
@@ -165,8 +165,8 @@ def finished_runs(output: Path) -> list:
 def solved_markdown(rows: Sequence) -> str:
     """Per method (final policies) and for the expert on the same episodes: the share of held-out
     episodes with return >= :data:`SOLVED_RETURN`, mean [CI] over trials."""
-    from sb3_cmzdril.experiments.final_eval import mean_ci
-    from sb3_cmzdril.experiments.formatting import fmt_ci, md_table
+    from sb3_cmzdril.experiments.report.final_eval import mean_ci
+    from sb3_cmzdril.experiments.report.formatting import fmt_ci, md_table
 
     def share(returns) -> float:
         return 100.0 * float(np.mean(np.asarray(returns) >= SOLVED_RETURN))
@@ -185,7 +185,7 @@ def solved_markdown(rows: Sequence) -> str:
 
 def runs_markdown(records: Sequence, output: Path) -> str:
     """One line per run: its steps, wall time and final evaluation (the numbers behind the tables)."""
-    from sb3_cmzdril.experiments.formatting import fmt, md_table
+    from sb3_cmzdril.experiments.report.formatting import fmt, md_table
 
     body = []
     for r in records:
@@ -200,10 +200,16 @@ def runs_markdown(records: Sequence, output: Path) -> str:
 
 def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, str]:
     """(results.md, results.csv) from the finished runs below ``output`` and the demo pool."""
-    from sb3_cmzdril.experiments.final_eval import final_csv, final_markdown, final_table, method_text, paired_markdown
-    from sb3_cmzdril.experiments.formatting import fmt, fmt_mean_std, md_table
-    from sb3_cmzdril.experiments.records import label, relative
-    from sb3_cmzdril.experiments.tables import table_one
+    from sb3_cmzdril.experiments.report.final_eval import (
+        final_csv,
+        final_markdown,
+        final_table,
+        method_text,
+        paired_markdown,
+    )
+    from sb3_cmzdril.experiments.report.formatting import fmt, fmt_mean_std, md_table
+    from sb3_cmzdril.experiments.report.records import label, relative
+    from sb3_cmzdril.experiments.report.tables import table_one
     from sb3_cmzdril.experts import load_demonstrations
 
     records = finished_runs(output)
@@ -217,7 +223,7 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
         "# BC, CMZ-DRIL and no reward outside the paper's grid: LunarLanderContinuous",
         "",
         f"Written by `{command}` at {time.strftime('%Y-%m-%d %H:%M')} from the finished runs below this folder "
-        "(benchmarks/outside_env.py; not edited by hand).",
+        "(benchmarks/studies/outside_env.py; not edited by hand).",
         "",
         f"- Env: `{ENV_ID}` with `{env_kwargs()}` (gymnasium {gym.__version__}, Box2D {_box2d_version()}): "
         f"{pool.observations.shape[1]} "
@@ -231,7 +237,7 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
         f"{fmt(float(np.mean(pool.episode_lengths)))}; recorded by `{recorded.get('command', 'n/a')}`.",
         f"- Each trial t trains on {first.get('n_demos', 'n/a')} pool episodes drawn with `default_rng(t)`; "
         "all methods of a trial share them, the seeds and the BC start. Hyperparameters: "
-        "`benchmarks/outside_env.yml` (CMZDRIL's constructor defaults and PPO's otherwise). BC is the "
+        "`benchmarks/studies/outside_env.yml` (CMZDRIL's constructor defaults and PPO's otherwise). BC is the "
         "early-stopped NLL-pretrained policy; CMZ-DRIL and no reward (PPO + BC epochs, reward 0) fine-tune it for "
         f"{', '.join(steps) or 'n/a'} PPO steps.",
         "",
@@ -280,15 +286,15 @@ def write_results(output: Path, pool_path: Path, command: str) -> Path:
 
 # -- the command ----------------------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    from sb3_cmzdril.experiments.grid import parse_list
+    from sb3_cmzdril.experiments.run.grid import parse_list
     from sb3_cmzdril.experts import command_line
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5)")
     parser.add_argument("--timesteps", type=int, default=None,
-                        help="PPO steps of cmz and zero (default: n_timesteps of benchmarks/outside_env.yml)")
+                        help="PPO steps of cmz and zero (default: n_timesteps of benchmarks/studies/outside_env.yml)")
     parser.add_argument("--n-demos", type=int, default=None,
-                        help="training episodes per trial (default: n_demos of benchmarks/outside_env.yml)")
+                        help="training episodes per trial (default: n_demos of benchmarks/studies/outside_env.yml)")
     parser.add_argument("--workers", type=int, default=2, help="runs at a time, one CPU each (default 2)")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from {', '.join(METHODS)}")
     parser.add_argument("--pool-episodes", type=int, default=50,
@@ -307,14 +313,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = sorted(set(parse_list(args.methods)) - set(METHODS))
     if unknown:
         parser.error(f"--methods: {unknown} are not among {', '.join(METHODS)}")
-    command = command_line(["python", "benchmarks/outside_env.py", *sys.argv[1:]])
+    command = command_line(["python", "benchmarks/studies/outside_env.py", *sys.argv[1:]])
     output = args.output.resolve()
     output.mkdir(parents=True, exist_ok=True)
 
     pool_path = record_pool(output, args.pool_episodes, args.pool_seed)
     status = 0
     if not args.report_only:
-        from sb3_cmzdril.experiments.grid import benchmark, summarize_outcomes
+        from sb3_cmzdril.experiments.run.grid import benchmark, summarize_outcomes
 
         outcomes = benchmark(
             ENV_ID, args.methods, args.trials, output, workers=args.workers, command=command,
@@ -322,7 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             eval_every=args.eval_every, demos_dir=output, hyperparams=HYPERPARAMS,
         )
         print(summarize_outcomes(outcomes), flush=True)
-        status = 1 if any(o["status"] == "failed" for o in outcomes) else 0
+        status = 1 if any(o.status == "failed" for o in outcomes) else 0
     path = write_results(output, pool_path, command)
     print(path.read_text(encoding="utf-8"), flush=True)
     print(f"wrote {path} and {output / 'results.csv'}", flush=True)

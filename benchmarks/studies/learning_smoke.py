@@ -1,6 +1,6 @@
 """A real learning check: BC-only against CMZ-DRIL on a task with a scripted expert.
 
-    python benchmarks/learning_smoke.py [--env sb3_cmzdril:WaypointNav-v0] [--expert waypoint-reactive]
+    python benchmarks/studies/learning_smoke.py [--env sb3_cmzdril:WaypointNav-v0] [--expert waypoint-reactive]
         [--n-demos 5] [--eval-episodes 20] [--timesteps 100000] [--seeds 0,1,2] [--methods bc,cmz]
 
 For each seed: record ``--n-demos`` expert episodes for training (reset seeds 0..K-1) and

@@ -1,7 +1,7 @@
 """Single-env steps/s of WaypointNav-v0 against HalfCheetah-v5, random actions, resets included.
 
-    python benchmarks/env_speed.py                 # 20,000 steps each
-    python benchmarks/env_speed.py --steps 50000 --repeats 3
+    python benchmarks/speed/env_speed.py                 # 20,000 steps each
+    python benchmarks/speed/env_speed.py --steps 50000 --repeats 3
 
 Both envs come from ``gym.make`` with their registered wrappers, step the same number of times with
 actions sampled beforehand (so sampling is not timed), and reset when an episode ends. The two alternate for

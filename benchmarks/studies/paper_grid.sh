@@ -5,8 +5,8 @@
 # runs' small records (config, state, eval.csv, final_eval.csv, pretrain.csv, progress logs) are
 # tracked by git.
 #
-#   bash benchmarks/paper_grid.sh               # the shipped defaults (hyperparams/cmzdril.yml) -> results/runs
-#   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=results/runs_paper_faithful bash benchmarks/paper_grid.sh
+#   bash benchmarks/studies/paper_grid.sh               # the shipped defaults (hyperparams/cmzdril.yml) -> results/runs
+#   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=results/runs_paper_faithful bash benchmarks/studies/paper_grid.sh
 #                                                # the paper-faithful setting (raw inputs, 100 BC epochs)
 #
 # BC, CMZ-DRIL and no reward (the comparisons the claims rest on) run first on every env and trial,
@@ -14,7 +14,7 @@
 # evaluation costs more than a training epoch there), WaypointNav-v0 after every update; each run ends
 # with a final evaluation of every pool episode it did not train on.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 workers=${WORKERS:-2}
 hyperparams=${HYPERPARAMS:-hyperparams/cmzdril.yml}
 runs=${RUNS:-results/runs}

@@ -1,28 +1,21 @@
-"""Issue 19 (tasks nobody here tuned for): sweeps and ablations, compared trial by trial: docs/new_tasks.md.
+"""Studies beside the main grid: variants of a setting (ablations) and sweeps of one setting across
+runs folders, compared trial by trial, and what the agent does in training (rollout quantities).
 
-    python benchmarks/new_tasks.py [--output docs] [--force]
-
-Sweeps (:data:`SWEEPS`): the same env and methods in several runs folders that differ in one setting
-of their config.json (training demonstrations, training budget); a table per sweep and a figure of %
-of expert against the setting in ``<output>/figures``, with the per-epoch evaluation curves for a
-sweep of the budget.
-
-Each variant is a runs folder made by ``sb3-cmzdril benchmark`` (or ``benchmarks/tune.py``) for one
-env and method. Variants of an env share trials: trial t has the same seed, demo split and held-out
+A study page (docs/new_tasks.md) is written by a script under ``benchmarks/studies/`` that names its
+runs folders (:class:`Variant`, :class:`Sweep`, :class:`RolloutTable`) and hands them to
+:func:`render`. Variants of an env share trials: trial t has the same seed, demo split and held-out
 episodes in every folder, so two variants are compared on the trials both have. Per variant: the
 final policy's % of the expert's return on the held-out episodes (mean over trials [bootstrap CI],
 and trial by trial), the lowest-u policy's, the Table I window's return, and in how many shared
 trials the final policy beats the env's reference variant (the first listed). The numbers come from
-the runs' final_eval.csv and done.json through :mod:`sb3_cmzdril.experiments.report`; a hand-written
-reading is appended from ``docs/new_tasks_discussion.md`` when it exists.
+the runs' final_eval.csv and done.json (:mod:`.final_eval`, :mod:`.records`); a hand-written reading
+is appended from ``docs/new_tasks_discussion.md`` when it exists.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import math
-import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -39,12 +32,9 @@ from sb3_cmzdril.experiments.report.records import (
     load_runs,
     relative,
 )
-from sb3_cmzdril.io import atomic_write_text
 
-ROOT = Path(__file__).resolve().parent.parent
 #: the published grid: the BC and DRIL runs every ablation is paired with
 GRID = "results/runs"
-COMMAND = "python benchmarks/new_tasks.py --force"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,58 +48,6 @@ class Variant:
     made_by: str  #: the command (and commit) that made the runs
 
 
-NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
-ABS_NORMREW = "--set absorbing=auto " + NORMREW
-CLIP98 = "--set cmz_clip_quantile=0.98"
-
-
-def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
-    """The benchmarks/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
-    return (f"python benchmarks/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
-            f"--timesteps 300000 --eval-every 5 --workers {workers}")
-
-
-#: The variants, reference first per env. Add a variant by adding a line.
-ABLATIONS: tuple[Variant, ...] = (
-    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "results/runs",
-            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to results/runs)"),
-    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
-            tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
-    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)",
-            "results/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "10 ensemble members (`ensemble_size: 10`)",
-            "results/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
-            "results/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
-            "results/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/W-absorbing",
-            "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
-            "the default (moved here)"),
-    Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "results/tuning/W-abs-normrew",
-            tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
-            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
-    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
-    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
-            "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
-            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
-    Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
-    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
-            tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
-    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
-    Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
-)
-
 
 @dataclasses.dataclass(frozen=True)
 class RolloutTable:
@@ -121,17 +59,6 @@ class RolloutTable:
     runs: str = "results/runs"
     final_column: str | None = None  #: final_eval.csv column for the final policy's value, if any
 
-
-ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
-    RolloutTable("rollout/ep_len_mean", "episode length by method", ("Walker2d-v5", "Hopper-v5"),
-                 final_column="length"),
-    RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
-                 ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
-    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
-                 ("HalfCheetah-v5",), runs="results/tuning/HC-clip98"),
-    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
-                 ("Walker2d-v5",), runs="results/tuning/W-clip98"),
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,23 +75,6 @@ class Sweep:
     fixed: str = ""  #: what the folders share that is not the package defaults, for the heading
 
 
-SWEEPS: tuple[Sweep, ...] = (
-    Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
-          ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
-          "the main grid's command (1 demo, results/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
-          "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
-          "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`"),
-    Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
-          ("results/runs", "results/runs_1m"), "new_tasks_budget.png",
-          "the main grid's command (300k, results/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
-          "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
-          "hyperparams/cmzdril.yml -o results/runs_1m`"),
-    Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
-          ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
-          f"`{tune_command('W-abs-normrew', ABS_NORMREW, 'Walker2d-v5')}` (1 demo; see its ablation row) and "
-          f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
-          fixed="absorbing state + reward normalisation"),
-)
 
 #: Epochs (PPO rollouts) averaged at each end of training.
 EDGE_EPOCHS = 10
@@ -184,7 +94,7 @@ def rollout_edges(run: Path, key: str) -> tuple[float, float]:
     return sum(first) / len(first), sum(last) / len(last)
 
 
-def rollout_markdown(root: Path, skipped: list[Skipped], tables: tuple[RolloutTable, ...] = ROLLOUT_TABLES) -> str:
+def rollout_markdown(root: Path, skipped: list[Skipped], tables: tuple[RolloutTable, ...] = ()) -> str:
     """Per table and env, per method: the quantity in the first and last training epochs (and the final
     policy's, where the table has a final_eval.csv column), mean over trials [CI]."""
     parts = []
@@ -243,13 +153,14 @@ def above_reference(row: FinalRow, reference: FinalRow) -> str:
 
 
 def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
+    """A variant's paired count against its env's reference: "reference" for the reference itself."""
     if row is reference:
         return "reference"
     return "no reference runs" if reference is None else above_reference(row, reference)
 
 
 def ablation_markdown(
-    root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = ABLATIONS, grid: str = GRID
+    root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = (), grid: str = GRID
 ) -> str:
     """One table per env: each variant's numbers, its paired count against the env's first variant
     and against BC and DRIL of the published grid (``grid``): the issue's targets are paired ones."""
@@ -286,7 +197,6 @@ def ablation_markdown(
         ))
         parts.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`, made by `{v.made_by}`" for v in variants))
     return "\n\n".join(parts)
-
 
 
 def sweep_rows(sweep: Sweep, root: Path, skipped: list[Skipped]) -> dict[tuple[str, int], FinalRow]:
@@ -412,7 +322,7 @@ def _plot_budget_curves(ax, sweep: Sweep, rows: dict[tuple[str, int], FinalRow])
 
 
 def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
-                    sweeps: tuple[Sweep, ...] = SWEEPS) -> str:
+                    sweeps: tuple[Sweep, ...] = ()) -> str:
     """A section per sweep: its table and, when ``figures`` is given, its figure written there."""
     parts = []
     for sweep in sweeps:
@@ -432,21 +342,24 @@ def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
 
 def render(
     root: Path,
-    ablations: tuple[Variant, ...] = ABLATIONS,
-    rollouts: tuple[RolloutTable, ...] = ROLLOUT_TABLES,
-    sweeps: tuple[Sweep, ...] = SWEEPS,
+    ablations: tuple[Variant, ...] = (),
+    rollouts: tuple[RolloutTable, ...] = (),
+    sweeps: tuple[Sweep, ...] = (),
     figures: Path | None = None,
+    command: str = "",
+    grid: str = GRID,
 ) -> str:
-    """docs/new_tasks.md's text, from the runs below ``root``; the sweeps' figures go to ``figures``
-    (none are drawn without it)."""
+    """The page's text (docs/new_tasks.md), from the runs below ``root``; the sweeps' figures go to
+    ``figures`` (none are drawn without it). ``command`` is what the page says wrote it; ``grid``
+    the published grid every ablation is paired with."""
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
-    tables = ablation_markdown(root, skipped, ablations)
+    tables = ablation_markdown(root, skipped, ablations, grid)
     rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
         "# Beyond the three tuned tasks: demonstrations, budget and ablations",
-        f"Written by `{COMMAND}` on {stamp} from the runs named under each table; no number is typed in. "
+        f"Written by `{command}` on {stamp} from the runs named under each table; no number is typed in. "
         "The main grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs) is in [results.md](results.md).",
         "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
         "start state. % of expert: 100 x the run's mean return / the expert's mean return on the same "
@@ -478,20 +391,17 @@ def render(
     return "\n\n".join(text) + "\n"
 
 
-def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--output", default=str(root / "docs"), help="folder for new_tasks.md (default: docs)")
-    parser.add_argument("--force", action="store_true", help="replace an existing new_tasks.md")
-    args = parser.parse_args(argv)
-    out = Path(args.output) / "new_tasks.md"
-    if out.exists() and not args.force:
-        print(f"error: {out} exists; pass --force to replace it", file=sys.stderr)
-        return 2
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out, render(root, figures=out.parent / "figures"))
-    print(out)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+__all__ = [
+    "EDGE_EPOCHS",
+    "GRID",
+    "RolloutTable",
+    "Sweep",
+    "Variant",
+    "ablation_markdown",
+    "render",
+    "rollout_edges",
+    "rollout_markdown",
+    "sweep_markdown",
+    "sweep_rows",
+    "sweeps_markdown",
+]

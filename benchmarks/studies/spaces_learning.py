@@ -1,6 +1,6 @@
 """BC against CMZ-DRIL beyond flat vectors: one image-observation task, one Dict-observation task.
 
-    python benchmarks/spaces_learning.py [--trials 3] [--timesteps 20000] [--n-demos 5,10]
+    python benchmarks/studies/spaces_learning.py [--trials 3] [--timesteps 20000] [--n-demos 5,10]
         [--eval-episodes 30] [--output docs/spaces_learning.md]
 
 The task, defined here: a point on an 8x8 grid must walk to a goal cell. Start and goal are drawn
@@ -43,7 +43,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from sb3_cmzdril import CMZDRIL, Demonstrations
 from sb3_cmzdril.io import atomic_write_text, command_line
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 GRID = 8
 CELL_PX = 2
 HORIZON = 3 * GRID
@@ -318,7 +318,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--tasks must name some of {TASKS}, got {args.tasks!r}")
     th.set_num_threads(1)
 
-    command = command_line(["python", "benchmarks/spaces_learning.py", *(sys.argv[1:] if argv is None else argv)])
+    arguments = sys.argv[1:] if argv is None else argv
+    command = command_line(["python", "benchmarks/studies/spaces_learning.py", *arguments])
     start = time.perf_counter()
     sections = []
     for view in tasks:

@@ -1,6 +1,6 @@
 """Where is the ensemble's disagreement u informative? A diagnostic for the paper grid's results.
 
-    python benchmarks/disagreement_coverage.py [--env HalfCheetah-v5,Hopper-v5,sb3_cmzdril:WaypointNav-v0]
+    python benchmarks/studies/disagreement_coverage.py [--env HalfCheetah-v5,Hopper-v5,sb3_cmzdril:WaypointNav-v0]
         [--trials 0,1] [--hyperparams hyperparams/cmzdril.yml] [--demos-dir experts]
 
 For each env and trial, with the benchmark's own data split (``split_episodes``) and hyperparameters,
@@ -28,7 +28,7 @@ import torch
 
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments.runs import (
+from sb3_cmzdril.experiments.run.runs import (
     check_env_id,
     default_demos_path,
     load_run_hyperparams,

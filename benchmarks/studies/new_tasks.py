@@ -1,0 +1,130 @@
+"""Issue 19 (tasks nobody here tuned for): sweeps and ablations, compared trial by trial: docs/new_tasks.md.
+
+    python benchmarks/studies/new_tasks.py [--output docs] [--force]
+
+Sweeps (:data:`SWEEPS`): the same env and methods in several runs folders that differ in one setting
+of their config.json (training demonstrations, training budget); a table per sweep and a figure of %
+of expert against the setting in ``<output>/figures``, with the per-epoch evaluation curves for a
+sweep of the budget.
+
+Each variant (:data:`ABLATIONS`) is a runs folder made by ``sb3-cmzdril benchmark`` (or
+``benchmarks/studies/tune.py``) for one env and method; the rollout tables (:data:`ROLLOUT_TABLES`)
+compare what the agent logged in training. This script holds the study's data, which folders and
+why; the tables, figures and the page's text come from
+:mod:`sb3_cmzdril.experiments.report.studies`, which says how variants are paired by trial.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sb3_cmzdril.experiments.report.studies import GRID, RolloutTable, Sweep, Variant, render
+from sb3_cmzdril.io import atomic_write_text
+
+ROOT = Path(__file__).resolve().parents[2]
+COMMAND = "python benchmarks/studies/new_tasks.py --force"
+
+
+NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+ABS_NORMREW = "--set absorbing=auto " + NORMREW
+CLIP98 = "--set cmz_clip_quantile=0.98"
+
+
+def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
+    """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
+    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
+            f"--timesteps 300000 --eval-every 5 --workers {workers}")
+
+
+#: The variants, reference first per env. Add a variant by adding a line.
+ABLATIONS: tuple[Variant, ...] = (
+    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "results/runs",
+            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to results/runs)"),
+    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
+            tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
+    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
+            "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)",
+            "results/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "10 ensemble members (`ensemble_size: 10`)",
+            "results/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
+            "results/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
+            "results/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/W-absorbing",
+            "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
+            "the default (moved here)"),
+    Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
+            "results/tuning/W-abs-normrew",
+            tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
+            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
+    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
+            "the published grid (CONTRIBUTING.md)"),
+    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
+            "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
+            "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
+    Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
+            "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
+    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
+            tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
+    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
+            "the published grid (CONTRIBUTING.md)"),
+    Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
+            "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
+            "the published grid (CONTRIBUTING.md)"),
+)
+
+
+ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
+    RolloutTable("rollout/ep_len_mean", "episode length by method", ("Walker2d-v5", "Hopper-v5"),
+                 final_column="length"),
+    RolloutTable("rollout/disagreement_mean", "ensemble disagreement u on the agent's own states",
+                 ("HalfCheetah-v5", "Walker2d-v5", "Hopper-v5")),
+    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
+                 ("HalfCheetah-v5",), runs="results/tuning/HC-clip98"),
+    RolloutTable("rollout/disagreement_mean", "u with the CMZ reward's u clipped at its 0.98-quantile on the demos",
+                 ("Walker2d-v5",), runs="results/tuning/W-clip98"),
+)
+
+SWEEPS: tuple[Sweep, ...] = (
+    Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
+          ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
+          "the main grid's command (1 demo, results/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
+          "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
+          "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`"),
+    Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
+          ("results/runs", "results/runs_1m"), "new_tasks_budget.png",
+          "the main grid's command (300k, results/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
+          "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
+          "hyperparams/cmzdril.yml -o results/runs_1m`"),
+    Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
+          ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
+          f"`{tune_command('W-abs-normrew', ABS_NORMREW, 'Walker2d-v5')}` (1 demo; see its ablation row) and "
+          f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
+          fixed="absorbing state + reward normalisation"),
+)
+
+
+def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
+    """Write ``<output>/new_tasks.md`` and its figures; 2 if it exists and ``--force`` is not given."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--output", default=str(root / "docs"), help="folder for new_tasks.md (default: docs)")
+    parser.add_argument("--force", action="store_true", help="replace an existing new_tasks.md")
+    args = parser.parse_args(argv)
+    out = Path(args.output) / "new_tasks.md"
+    if out.exists() and not args.force:
+        print(f"error: {out} exists; pass --force to replace it", file=sys.stderr)
+        return 2
+    out.parent.mkdir(parents=True, exist_ok=True)
+    page = render(root, ABLATIONS, ROLLOUT_TABLES, SWEEPS, figures=out.parent / "figures", command=COMMAND, grid=GRID)
+    atomic_write_text(out, page)
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
