@@ -47,6 +47,24 @@ def test_training_lengths_shrink_and_nothing_else_changes():
     assert len(readme_blocks()) >= 2
 
 
+#: The README's commands, verbatim: the main job, the test suite (the one CI runs) and the docs build.
+COMMANDS = (
+    'python3 -m pip install torch==2.13.0 && python3 -m pip install -e ".[experiments]" && sb3-cmzdril train '
+    "--env HalfCheetah-v5 --reward cmz --timesteps 300000 --eval-every 5",
+    'python3 -m pip install torch==2.13.0 && python3 -m pip install -e ".[test]" && python3 -m pytest',
+    'python3 -m pip install -e ".[docs]" && python3 -m mkdocs build --strict',
+)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_readme_shows_its_commands_verbatim(command):
+    assert f"\n    {command}\n" in README.read_text(encoding="utf-8")
+
+
+def test_readme_fits_on_a_screen_or_three():
+    assert len(README.read_text(encoding="utf-8").splitlines()) <= 150
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(readme_blocks())))
 def test_readme_block_runs_from_an_empty_folder(index, tmp_path):

@@ -334,12 +334,17 @@ def test_readme_block_shows_the_headline(main_grid, tmp_path, capsys):
     text = readme.read_text()
     assert "old table" not in text and text.startswith("# X\n\n") and text.endswith(f"{report.README_END}\n\nafter\n")
     block = text[text.index(report.README_BEGIN):text.index(report.README_END)]
-    assert f"| {ENV} | CMZ-DRIL | {report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4 |" in block
-    assert "| 25.0 (5.00), n=2 | 1690 (360) |" in block
-    expert = report.fmt_ci(*mean_ci([1001 + 10 * t for t in range(4)]))  # 1000 + 10 trial + mean of episodes 0-2
-    assert f"| {ENV} | Expert (held-out demos) | {expert}, n=4 |" in block
-    assert f"From 12 runs in `{main_grid}` and 3 runs in `{ref}`" in block
+    # Small: one row per env, one column per method (final policies, then CMZ-DRIL's lowest u), each cell
+    # the final evaluation's % of the expert; nothing of the reference grid or the paper.
+    assert "| Env | BC | CMZ-DRIL | No reward | CMZ-DRIL (lowest u) |" in block
+    expert = [1001 + 10 * t for t in range(4)]  # 1000 + 10 trial + mean of episodes 0-2
+    cmz = report.fmt_ci(*mean_ci([100 * r / e for r, e in zip([300, 110, 600, 90], expert, strict=True)]))
+    (row,) = [line for line in block.splitlines() if line.startswith(f"| {ENV} |")]
+    assert row.split(" | ")[2] == cmz
+    assert "1690" not in block and "old:" not in block
+    assert f"From 12 runs in `{main_grid}`;" in block
     assert "details in [results.md](docs/results.md)" in block
+    assert len(block.splitlines()) <= 12
     readme.write_text("no block here\n")
     assert main(["report", str(main_grid), "-o", str(tmp_path / "again"), "--readme", str(readme)]) == 2
     assert "has no results block" in capsys.readouterr().err

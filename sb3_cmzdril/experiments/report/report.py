@@ -14,9 +14,10 @@ the paper-faithful grid of an earlier version), and writes into the output folde
 * fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves) and fig3_final_eval.png (the
   final evaluation; :mod:`~sb3_cmzdril.experiments.report.figures`).
 
-With ``readme`` the README's results block is replaced by the headline
-(:mod:`~sb3_cmzdril.experiments.report.readme`). Reference numbers from elsewhere (the paper's Table I:
-:data:`PAPER_TABLE_I`) enter only through ``references`` and are printed labelled, apart from ours.
+With ``readme`` the README's results block is replaced by a small headline: the main grid's final
+evaluation as % of the expert, env by method (:mod:`~sb3_cmzdril.experiments.report.readme`). Reference
+numbers from elsewhere (the paper's Table I: :data:`PAPER_TABLE_I`) enter only through ``references``
+and are printed labelled, apart from ours.
 """
 from __future__ import annotations
 
@@ -54,6 +55,8 @@ from sb3_cmzdril.experiments.report.sections import (
     final_sections,
     headline_markdown,
     headline_text,
+    readme_markdown,
+    readme_text,
     sources_sections,
     status_lines,
     table_sections,
@@ -178,23 +181,20 @@ def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | N
 
 def _readme_text(
     reports: Sequence[GridReport],
-    reference: ReferenceTable | None,
     window: int,
     command: str | None,
     results: Path,
     readme: PathLike,
 ) -> str:
-    sources = []
-    for rep in reports:
-        unfinished = sum(r.status != "done" for r in rep.grid.records)
-        sources.append(
-            f"{len(rep.grid.records)} runs in `{rep.root}`" + (f" ({unfinished} not finished)" if unfinished else "")
-        )
+    """The README block: the main grid's headline in small (the full one is in results.md)."""
+    rep = reports[0]
+    unfinished = sum(r.status != "done" for r in rep.grid.records)
+    source = f"{len(rep.grid.records)} runs in `{rep.root}`" + (f" ({unfinished} not finished)" if unfinished else "")
     return (
-        headline_markdown(reports, reference)
+        readme_markdown(rep)
         + "\n\n"
-        + headline_text(reports, reference, window)
-        + f" From {' and '.join(sources)}; written by `{short_command(command)}`; details in "
+        + readme_text(rep, window)
+        + f" From {source}; written by `{short_command(command)}`; details in "
         f"[results.md]({link(results, Path(readme).parent)})."
     )
 
@@ -223,7 +223,8 @@ def write_report(
     :param discussion: a markdown file written by a person (what the numbers mean), included as the
         report's "Discussion" section.
     :param readme: a README holding the :data:`README_BEGIN`/:data:`README_END` block: it is replaced
-        by the headline table and a line naming this report.
+        by a small headline (the main grid's final evaluation as % of the expert, env by method) and a
+        line naming this report.
     :param reference_runs: a second runs folder (e.g. the paper-faithful grid) reported beside the first.
     :param label: how tables name the grid of ``runs_dir`` (default: the path as given);
         ``reference_label`` the same for ``reference_runs``.
@@ -273,9 +274,7 @@ def write_report(
     if readme is not None:
         update_readme(
             readme,
-            _readme_text(
-                reports, references[0] if references else None, int(window), command, out / "results.md", readme
-            ),
+            _readme_text(reports, int(window), command, out / "results.md", readme),
         )
     return out / "results.md"
 

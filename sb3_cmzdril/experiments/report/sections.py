@@ -125,6 +125,43 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
     return md_table(["Env", "Method", *columns], body)
 
 
+def readme_markdown(rep: GridReport) -> str:
+    """The README's headline, small enough for a README: one row per env, one column per method, each
+    cell the final evaluation's % of the expert (mean over trials [CI]) of the method's final policy,
+    then CMZ-DRIL's lowest-u policy. A grid without a final evaluation gets Table I's mean (std) return."""
+    envs = sorted({r.env for r in rep.rows}, key=env_key)
+    methods = [m for m in METHOD_ORDER if any(r.method == m for r in rep.rows)]
+    columns: list[tuple[str, str]] = [(m, "final") for m in methods]
+    if rep.final and any(r.method == "cmz" and r.policy == "lowest_u" for r in rep.final):
+        columns.append(("cmz", "lowest_u"))
+    body = []
+    for env in envs:
+        cells = []
+        for method, policy in columns:
+            if rep.final:
+                row = find(rep.final, env, method, policy)
+                cells.append("—" if row is None else fmt_ci(*row.stat("pct_of_expert")))
+            else:
+                table_row = next((r for r in rep.rows if (r.env, r.method) == (env, method)), None)
+                cells.append("—" if table_row is None
+                             else fmt_mean_std(table_row.mean("return"), table_row.std("return")))
+        body.append([env, *cells])
+    header = [METHOD_LABELS[m] + ("" if p == "final" else " (lowest u)") for m, p in columns]
+    return md_table(["Env", *header], body)
+
+
+def readme_text(rep: GridReport, window: int) -> str:
+    """What :func:`readme_markdown`'s cells are, in words."""
+    if not rep.final:
+        return (f"The env's true return of each run's per-epoch evaluation averaged over its last {window} epochs, "
+                "mean (population std) over trials.")
+    return ("Final evaluation, % of the expert: 100 times a run's mean return over the expert's on the same "
+            "held-out episodes (every pool episode the run did not train on), mean over "
+            f"{trials_text(rep.final)} trials [{100 * CONFIDENCE:g}% bootstrap CI over trials]; the final policy of "
+            "each method, and \"(lowest u)\": the CMZ-DRIL policy whose own training rollout had the lowest "
+            "ensemble disagreement (chosen without the env reward).")
+
+
 def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int) -> str:
     """What the headline's columns are, in words."""
     parts = [f"The env's true return. Table I: each run's per-epoch evaluation (eval.csv) averaged over its last "
