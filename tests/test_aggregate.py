@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import trim_mean
-from test_report import write_run
 
+from helpers import write_run
 from sb3_cmzdril.experiments.report import aggregate as agg
 from sb3_cmzdril.experiments.report.final_eval import final_table
 from sb3_cmzdril.experiments.report.records import load_runs
