@@ -6,7 +6,8 @@ from sb3_cmzdril import envs  # noqa: F401  (registers WaypointNav-v0 with gymna
 from sb3_cmzdril.algorithm import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.rewards import CMZReward, DisagreementReward, DRILReward
 
 __version__ = "0.1.0"
-__all__ = ["CMZDRIL", "Demonstrations", "BCEnsemble", "DisagreementReward", "CMZReward", "DRILReward"]
+__all__ = ["CMZDRIL", "Demonstrations", "BCEnsemble", "DisagreementReward", "CMZReward", "DRILReward", "UserError"]

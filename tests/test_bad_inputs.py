@@ -21,7 +21,7 @@ import pytest
 from test_experiments import ENV, POOL_EPISODES
 from test_experiments import TINY_YAML as TINY_PPO
 
-from conftest import TINY, pendulum_expert, record
+from conftest import TINY, cartpole_expert, pendulum_expert, record
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
@@ -70,6 +70,11 @@ def _cmz(ws: Path, out: Path | str, demos: str = "demos.npz", hyperparams: str |
     """``train --reward cmz`` on a workspace demo pool and hyperparameters (the tiny ones by default)."""
     return _train(out, "--reward", "cmz", "--demos", str(ws / demos),
                   "--hyperparams", hyperparams or str(ws / "cmzdril.yml"))
+
+
+def _cmz_yaml(ws: Path, case: Path, entry: str) -> list[str]:
+    """``train --reward cmz`` into the case's folder, with ``entry`` added to the tiny YAML."""
+    return _cmz(ws, case / "out", hyperparams=_yaml(ws, case, entry))
 
 
 def _expert(ws: Path, out: Path | str, *extra: str) -> list[str]:
@@ -123,10 +128,10 @@ def _evaluate(ws: Path, model: str, *extra: str, demos: str | None = "demos.npz"
     return ["evaluate", "--model", model, "--env", ENV, "--env-kwargs", "dict(max_episode_steps=50)", *pool, *extra]
 
 
-def _benchmark(ws: Path, case: Path, *extra: str) -> list[str]:
+def _benchmark(ws: Path, case: Path, *extra: str, pool: str | None = None) -> list[str]:
     demos_dir = case / "experts" / ENV
     demos_dir.mkdir(parents=True)
-    shutil.copy(ws / "demos.npz", demos_dir / "demos.npz")
+    shutil.copy(pool or ws / "demos.npz", demos_dir / "demos.npz")
     return ["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--timesteps", "128", "--no-progress",
             "--demos-dir", str(case / "experts"), "--hyperparams", str(ws / "cmzdril.yml"), "-o", str(case / "runs"),
             *extra]
@@ -194,7 +199,8 @@ CASES = [
     Case("train", "YAML ensemble_epochs 0",
          lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  ensemble_epochs: 0\n")), "ensemble_epochs"),
     Case("train", "YAML learning_rate nan",
-         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")), "learning rate: nan"),
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")),
+         "learning_rate must be finite, got nan"),
     Case("train", "demo pool without reset seeds", lambda ws, c: _cmz(ws, c / "out", demos="noseeds.npz"), "seed"),
     Case("train", "-o holds someone's config.json", lambda ws, c: _cmz(ws, _foreign_config(c)), "config.json"),
     Case("train", "-o is an expert folder", lambda ws, c: _cmz(ws, ws / "experts" / ENV), ""),
@@ -236,7 +242,8 @@ CASES = [
          "model file .*model.zip is corrupt, truncated or not an SB3 model zip"),
     Case("evaluate", "model not a zip", lambda ws, c: _evaluate(ws, _damaged_model(ws, c, b"hello")),
          "model file .*model.zip"),
-    Case("evaluate", "model of another env", lambda ws, c: _evaluate(ws, _cartpole_model(c)), "observation shape"),
+    Case("evaluate", "model of another env", lambda ws, c: _evaluate(ws, _cartpole_model(c)),
+         "cartpole.zip was trained on another environment: its observation space"),
     Case("evaluate", "model missing", lambda ws, c: _evaluate(ws, str(c / "none.zip")), "none.zip"),
     Case("evaluate", "demo file of a newer format", lambda ws, c: _evaluate(ws, _model(ws), demos="future.npz"),
          "future.npz has format_version"),
@@ -267,7 +274,101 @@ CASES = [
          lambda ws, c: ["report", str(ws / "cmzrun"), "--reference-runs", str(c / "nowhere"), "-o", str(c / "rep")],
          "nowhere"),
     Case("report", "zero window", lambda ws, c: ["report", str(ws / "cmzrun"), "--window", "0", "-o", str(c / "rep")]),
+    # -- issue 30's probe -----------------------------------------------------------------------------
+    Case("train", "-o holds the user's error.txt, log.txt and .draft.tmp.md (30.1)",
+         lambda ws, c: _cmz(ws, _users_folder(c)), "holds files that are not an sb3-cmzdril run's"),
+    Case("train", "pool with a negative reset seed (30.4)", lambda ws, c: _cmz(ws, c / "out", demos=_pool(ws, c, -5)),
+         r"pool.npz: reset seeds must be integers in \[0, 2\*\*32\)"),
+    Case("evaluate", "pool with a negative reset seed (30.4)",
+         lambda ws, c: _evaluate(ws, _model(ws), demos=_pool(ws, c, -5)), r"reset seeds must be integers"),
+    Case("train", "done.json num_timesteps null (30.6)", lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps=None)),
+         "done.json is not what sb3-cmzdril wrote: num_timesteps is None"),
+    Case("train", "done.json num_timesteps [1] (30.6)", lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps=[1])),
+         r"done.json is not what sb3-cmzdril wrote: num_timesteps is \[1\]"),
+    Case("train", "done.json num_timesteps 'abc' (30.15)",
+         lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps="abc")),
+         "run/done.json is not what sb3-cmzdril wrote: num_timesteps is 'abc'"),
+    Case("train", "YAML n_envs 2.5 (30.7)", lambda ws, c: _cmz_yaml(ws, c, "  n_envs: 2.5\n"),
+         "n_envs must be an integer >= 1, got 2.5"),
+    Case("train", "YAML n_envs '3' (30.7)",
+         lambda ws, c: _cmz_yaml(ws, c, '  n_envs: "3"\n'),
+         "n_envs must be an integer >= 1, got '3'"),
+    Case("train", "YAML n_envs true (30.7)",
+         lambda ws, c: _cmz_yaml(ws, c, "  n_envs: true\n"),
+         "n_envs must be an integer >= 1, got True"),
+    Case("train", "-o empty (30.8)", lambda ws, c: _cmz(ws, ""), r"-o/--output is empty"),
+    Case("train-expert", "-o empty (30.8)", lambda ws, c: _expert(ws, ""), r"-o/--output is empty"),
+    Case("collect-demos", "-o empty (30.8)",
+         lambda ws, c: ["collect-demos", "--expert", _model(ws), "--env", ENV, "-o", ""], r"-o/--output is empty"),
+    Case("benchmark", "-o empty (30.8)", lambda ws, c: [*_benchmark(ws, c), "-o", ""], r"-o/--output is empty"),
+    Case("report", "-o empty (30.8)", lambda ws, c: ["report", str(ws / "cmzrun"), "-o", ""], r"-o/--output is empty"),
+    Case("train", "pool whose seeds do not reproduce its starts (30.9)",
+         lambda ws, c: _cmz(ws, c / "out", demos=_pool(ws, c, None, shift=1000)),
+         "pool.npz was not recorded on Pendulum-v1 with these env_kwargs: resetting its episode"),
+    Case("benchmark", "pool whose seeds do not reproduce its starts (30.9)",
+         lambda ws, c: _benchmark(ws, c, pool=_pool(ws, c, None, shift=1000)), "was not recorded on Pendulum-v1"),
+    Case("train", "YAML alpha .inf (30.11)",
+         lambda ws, c: _cmz_yaml(ws, c, "  alpha: .inf\n"),
+         "alpha must be finite, got inf"),
+    Case("train", "YAML alpha .nan (30.11)",
+         lambda ws, c: _cmz_yaml(ws, c, "  alpha: .nan\n"),
+         "alpha must be finite, got nan"),
+    Case("train-expert", "YAML tau .inf (30.11)",
+         lambda ws, c: _expert(ws, c / "e", "--hyperparams", _yaml(ws, c, "  tau: .inf\n", "sac.yml")),
+         "tau must be finite, got inf"),
+    Case("train", "YAML of random bytes (30.12)", lambda ws, c: _cmz(ws, c / "out", hyperparams=_bytes(c)),
+         r"hyperparameter file .*random.yml is not UTF-8 text"),
+    Case("train-expert", "YAML of random bytes (30.12)", lambda ws, c: _expert(ws, c / "e", "--hyperparams", _bytes(c)),
+         r"random.yml is not UTF-8 text"),
+    Case("evaluate", "model and demos of another env (30.14)",
+         lambda ws, c: _evaluate(ws, _cartpole_model(c), demos=_cartpole_pool(c)),
+         r"cartpole.zip was trained on another environment: its observation space is Box of shape \(4,\), "
+         r"Pendulum-v1's is Box of shape \(3,\)"),
+    Case("train-expert", "timesteps -1 (30.16)", lambda ws, c: _expert(ws, c / "e", "--timesteps", "-1"),
+         r"timesteps \(--timesteps\) must be a positive integer, got -1"),
 ]
+
+
+def _users_folder(case: Path) -> Path:
+    """A folder holding the user's own files, named as a run's would be."""
+    out = case / "out"
+    out.mkdir()
+    (out / "error.txt").write_text("what went wrong with my robot\n")
+    (out / "log.txt").write_text("my lab notes\n")
+    (out / ".draft.tmp.md").write_text("a draft\n")
+    return out
+
+
+def _pool(ws: Path, case: Path, seed: int | None, shift: int = 0) -> str:
+    """The workspace pool with episode 0's reset seed set to ``seed`` and every seed moved by ``shift``."""
+    with np.load(ws / "demos.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["seeds"] = arrays["seeds"] + shift
+    if seed is not None:
+        arrays["seeds"][0] = seed
+    path = case / "pool.npz"
+    np.savez(path, **arrays)
+    return str(path)
+
+
+def _done_with(ws: Path, case: Path, **changes: object) -> Path:
+    """A copy of the finished run whose done.json has ``changes`` edited in by hand."""
+    run = _run_copy(ws, case)
+    done = json.loads((run / "done.json").read_text())
+    (run / "done.json").write_text(json.dumps({**done, **changes}))
+    return run
+
+
+def _bytes(case: Path) -> str:
+    path = case / "random.yml"
+    path.write_bytes(bytes(np.random.default_rng(0).integers(128, 256, size=200, dtype=np.uint8)))
+    return str(path)
+
+
+def _cartpole_pool(case: Path) -> str:
+    path = case / "cartpole.npz"
+    record("CartPole-v1", cartpole_expert, n_episodes=2, max_steps=20).save(path)
+    return str(path)
 
 
 def _hand_edited(ws: Path, case: Path, name: str, text: str) -> Path:
