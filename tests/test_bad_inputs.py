@@ -22,7 +22,7 @@ from test_experiments import ENV, POOL_EPISODES
 from test_experiments import TINY_YAML as TINY_PPO
 
 from conftest import TINY, cartpole_expert, pendulum_expert, record
-from sb3_cmzdril import CMZDRIL
+from sb3_cmzdril import CMZDRIL, CMZReward, UserError
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
 
@@ -436,3 +436,44 @@ def test_every_command_has_cases():
 
     commands = set(build_parser()._subparsers._group_actions[0].choices)
     assert commands == {c.command for c in CASES}
+
+
+# -- the library's side of the same causes -------------------------------------------------------------
+@pytest.mark.parametrize("final_evaluation", [[1], "lowest", {"lowest_u": 3}, {"lowest_u": {"epoch": "x"}}])
+def test_report_leaves_out_a_done_json_final_evaluation_of_another_shape(final_evaluation, ws, tmp_path, capsys):
+    """Issue 30, cause 5: a hand-edited final_evaluation in done.json ended `report` with an
+    AttributeError; the run still counts, its selected epoch is left out with a note naming the file."""
+    run = tmp_path / "runs" / "cmzrun"
+    shutil.copytree(ws / "cmzrun", run)
+    done = json.loads((run / "done.json").read_text())
+    (run / "done.json").write_text(json.dumps({**done, "final_evaluation": final_evaluation}))
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report")]) == 0
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    results = (tmp_path / "report" / "results.md").read_text()
+    assert "done.json" in results and "its final_evaluation" in results, results
+
+
+@pytest.mark.parametrize("option", ["alpha", "ema", "u0", "dril_quantile", "ensemble_learning_rate", "bc_learning_rate",
+                                    "learning_rate", "gamma", "ent_coef", "vf_coef", "max_grad_norm", "target_kl"])
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_every_float_option_of_cmzdril_must_be_finite(option, value, pendulum_demos):
+    """Issue 30, cause 11: CMZDRIL(alpha=inf) passed (``not alpha > 0``) and failed in torch once
+    training ran; every float option is refused, named, before anything is built."""
+    with pytest.raises(UserError, match=f"^{option} must be finite, got {value}$"):
+        CMZDRIL("MlpPolicy", ENV, demonstrations=pendulum_demos, **{**TINY, option: value})
+    with pytest.raises(UserError, match="alpha must be finite and > 0"):
+        CMZReward(alpha=float("inf"))
+
+
+@pytest.mark.parametrize("seed", [-5, -2, 2**32])
+def test_reset_seeds_outside_what_gymnasium_takes_are_refused_up_front(seed, pendulum_demos, tmp_path):
+    """Issue 30, cause 4: only -1 (unknown) was checked; -5 failed deep inside gymnasium's reset,
+    after a run's files were written. A pool with such a seed is refused when built or loaded."""
+    d = pendulum_demos
+    with pytest.raises(UserError, match=r"reset seeds must be integers in \[0, 2\*\*32\)"):
+        Demonstrations(d.observations, d.actions, d.episode_lengths, seeds=[seed, 0])
+    np.savez(tmp_path / "d.npz", format_version=np.asarray(FORMAT_VERSION), observations=d.observations,
+             actions=d.actions, episode_lengths=d.episode_lengths, seeds=np.asarray([0, seed]))
+    with pytest.raises(UserError, match=r"d.npz: reset seeds must be integers .* episodes \[1\]"):
+        Demonstrations.load(tmp_path / "d.npz")

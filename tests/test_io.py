@@ -75,10 +75,17 @@ def test_suffix_keeps_the_writers_extension(tmp_path):
 
 def test_remove_stale_temporaries_removes_only_temporaries(tmp_path):
     (tmp_path / ".model.zip.abc.tmp.zip").write_bytes(b"half")
+    (tmp_path / ".eval.csv.k3x9_q2a.tmp").write_bytes(b"half")
     (tmp_path / "model.zip").write_bytes(b"whole")
     (tmp_path / ".lock").write_text("")
+    # Issue 30, cause 1: hidden files of the user's with ".tmp" in their names are not ours to remove.
+    for name in (".draft.tmp.md", ".notes.x.tmp.md", ".tmp", ".x.tmp"):
+        (tmp_path / name).write_text("the user's")
     io.remove_stale_temporaries(tmp_path)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "model.zip"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".draft.tmp.md", ".lock", ".notes.x.tmp.md", ".tmp",
+                                                          ".x.tmp", "model.zip"]
+    with io.atomic_path(tmp_path / "d.npz", suffix=".npz") as tmp:
+        assert io.is_temporary(tmp.name)  # what atomic_path makes is what it removes
 
 
 def test_jsonable_and_round_trip(tmp_path):
@@ -149,8 +156,8 @@ def test_a_second_process_fails_at_once_naming_the_folder_and_gets_it_once_relea
 
 def test_a_lock_dies_with_its_process(tmp_path):
     # A holder killed without any chance to clean up (SIGKILL) leaves no lock behind.
-    script = "import sys, time; from sb3_cmzdril import io; lock = io.lock_output(sys.argv[1]); print('held', flush=True); " \
-             "time.sleep(600)"
+    script = ("import sys, time; from sb3_cmzdril import io; lock = io.lock_output(sys.argv[1]); "
+              "print('held', flush=True); time.sleep(600)")  # the lock kept referenced: dropped, it is released
     holder = subprocess.Popen([sys.executable, "-c", script, str(tmp_path)], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout is not None and holder.stdout.readline() == "held\n"
