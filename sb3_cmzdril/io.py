@@ -231,6 +231,9 @@ def lock_output(folder: PathLike, message: str | None = None, name: str = LOCK_F
     removing a locked path lets a waiter that opened it lock the removed file while a newcomer locks
     a new one, and both would believe they hold the folder.
 
+    Keep the returned lock referenced until :func:`unlock_output`: filelock releases a lock that is
+    garbage-collected.
+
     :param message: the :class:`LockHeld` error's text when another process holds the lock.
     :raises LockHeld: another process holds it.
     """

@@ -296,6 +296,8 @@ CASES = [
     Case("train", "YAML n_envs true (30.7)",
          lambda ws, c: _cmz_yaml(ws, c, "  n_envs: true\n"),
          "n_envs must be an integer >= 1, got True"),
+    Case("train", "YAML n_demos 'x'", lambda ws, c: _cmz_yaml(ws, c, '  n_demos: "x"\n'),
+         "n_demos must be a positive integer, got 'x'"),
     Case("train", "-o empty (30.8)", lambda ws, c: _cmz(ws, ""), r"-o/--output is empty"),
     Case("train-expert", "-o empty (30.8)", lambda ws, c: _expert(ws, ""), r"-o/--output is empty"),
     Case("collect-demos", "-o empty (30.8)",

@@ -25,7 +25,7 @@ import torch
 from test_experiments import ENV, Interrupt
 from test_experiments import setup as _tiny_paths  # noqa: F401  (registers that module's fixture here)
 
-from conftest import pendulum_expert
+from conftest import TINY, pendulum_expert
 from sb3_cmzdril import io
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import grid
@@ -261,22 +261,31 @@ gym.register("ConstructorFails-v0", entry_point=ConstructorFails, max_episode_st
 '''
 
 
-@pytest.mark.parametrize("env", ["StepFails-v0", "ConstructorFails-v0"])
-def test_an_envs_own_key_error_keeps_its_traceback_and_is_no_user_error(env, tiny, tmp_path):
+@pytest.mark.parametrize("command, env", [("train", "StepFails-v0"), ("train", "ConstructorFails-v0"),
+                                          ("evaluate", "ConstructorFails-v0")])
+def test_an_envs_own_key_error_keeps_its_traceback_and_is_no_user_error(command, env, tiny, tmp_path):
     """Issue 30, cause 10: a bug in the env (here a KeyError, in step() or in its constructor) is not
     the user's mistake: exit 1 with its traceback, not "error: velocity_x" and exit 2, and never
     blamed on env_kwargs/normalize the YAML holds."""
+    from sb3_cmzdril import CMZDRIL, Demonstrations
+
     (tmp_path / "faulty_envs.py").write_text(FAULTY_ENVS)
     environ = _env()
     environ["PYTHONPATH"] = os.pathsep.join([str(tmp_path), environ["PYTHONPATH"]])
-    command = [sys.executable, "-m", "sb3_cmzdril", "train", "--env", f"faulty_envs:{env}", "--reward", "cmz",
-               "--demos", str(tiny["pool"]), "--hyperparams", str(tiny["hp"]), "--timesteps", str(2 * EPOCH),
-               "--eval-episodes", "1", "--no-progress", "-o", str(tmp_path / "out")]
-    done = subprocess.run(command, capture_output=True, text=True, env=environ, timeout=300)
+    options = ["--env", f"faulty_envs:{env}", "--demos", str(tiny["pool"])]
+    if command == "train":
+        options += ["--reward", "cmz", "--hyperparams", str(tiny["hp"]), "--timesteps", str(2 * EPOCH),
+                    "--eval-episodes", "1", "--no-progress", "-o", str(tmp_path / "out")]
+    else:
+        model = tmp_path / "model.zip"
+        CMZDRIL("MlpPolicy", ENV, demonstrations=Demonstrations.load(tiny["pool"]), **TINY).save(model)
+        options += ["--model", str(model)]
+    done = subprocess.run([sys.executable, "-m", "sb3_cmzdril", command, *options], capture_output=True, text=True,
+                          env=environ, timeout=300)
     assert done.returncode == 1, done.stderr[-3000:]
     assert "Traceback (most recent call last)" in done.stderr
     assert done.stderr.strip().splitlines()[-1] == "KeyError: 'velocity_x'", done.stderr[-3000:]
-    assert not any(line.startswith("sb3-cmzdril train: error") for line in done.stderr.splitlines())
+    assert not any(line.startswith(f"sb3-cmzdril {command}: error") for line in done.stderr.splitlines())
     assert "cannot make" not in done.stderr  # the old wrapper's "cannot make ... with the env_kwargs/normalize of"
 
 

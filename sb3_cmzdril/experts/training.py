@@ -105,7 +105,7 @@ def train_expert(
     # Whichever gave the number is named: "no number" for a number given would send the user looking elsewhere.
     given, source = (timesteps, "timesteps (--timesteps)") if timesteps is not None else (
         hp.n_timesteps, f"n_timesteps in {hp_path}")
-    if isinstance(given, bool) or not isinstance(given, int) or given < 1:
+    if isinstance(given, bool) or not isinstance(given, (int, float)) or not float(given).is_integer() or given < 1:
         raise UserError(f"{source} must be a positive integer, got {given!r}")
     total = int(given)
     if final_eval_episodes < 1 or n_eval_episodes < 1:

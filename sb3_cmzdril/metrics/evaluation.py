@@ -104,13 +104,18 @@ def same_observation(reset_observation: Any, episode_observations: Any) -> bool:
 
 
 def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
-    """``gym.make(env_id, **env_kwargs)``, or a ValueError naming the env and the kwargs when it
-    cannot be made with them (an unknown keyword, a bad value: each env raises its own type)."""
+    """``gym.make(env_id, **env_kwargs)``, or a UserError naming the env and the kwargs when it
+    cannot be made with them (an unknown keyword, a bad value: a TypeError, ValueError or assertion).
+
+    Without kwargs, or with another exception, the failure is the env's own and propagates as it is.
+    """
     kwargs = dict(env_kwargs or {})
     try:
         with mujoco_warnings_routed():
             return gym.make(env_id, **kwargs)
-    except Exception as e:
+    except (TypeError, ValueError, AssertionError) as e:
+        if not kwargs:
+            raise
         raise UserError(f"cannot make {env_id} with env_kwargs {kwargs}: {type(e).__name__}: {e}") from None
 
 

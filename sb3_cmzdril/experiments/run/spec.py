@@ -159,7 +159,12 @@ def missing_pool_error(env_id: str, path: PathLike, alternative: str) -> Missing
 
 
 def _positive_int(name: str, value: int) -> int:
-    if isinstance(value, bool) or int(value) != value or int(value) < 1:
+    """``value`` as an int when it is a whole number >= 1 (3.0 passes, "3", 2.5, true and inf do not)."""
+    try:
+        whole = not isinstance(value, bool) and int(value) == value
+    except (TypeError, ValueError, OverflowError):  # a string, None, inf or nan: not a count
+        whole = False
+    if not whole or int(value) < 1:
         raise UserError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
 
