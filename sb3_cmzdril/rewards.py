@@ -80,7 +80,7 @@ class CMZReward(RewardRule):
 
     def __init__(self, alpha: float = 10.0, ema: float = 0.99, u0: float = 0.0, u_max: float | None = None) -> None:
         if not (np.isfinite(alpha) and alpha > 0):
-            raise UserError(f"alpha must be finite and > 0, got {alpha}")
+            raise UserError(f"alpha must be > 0 and finite, got {alpha}")
         if not 0.0 < ema < 1.0:
             raise UserError(f"ema must lie in (0, 1), got {ema}")
         if not np.isfinite(u0):

@@ -464,7 +464,7 @@ def test_every_float_option_of_cmzdril_must_be_finite(option, value, pendulum_de
     training ran; every float option is refused, named, before anything is built."""
     with pytest.raises(UserError, match=f"^{option} must be finite, got {value}$"):
         CMZDRIL("MlpPolicy", ENV, demonstrations=pendulum_demos, **{**TINY, option: value})
-    with pytest.raises(UserError, match="alpha must be finite and > 0"):
+    with pytest.raises(UserError, match="alpha must be > 0 and finite"):
         CMZReward(alpha=float("inf"))
 
 
