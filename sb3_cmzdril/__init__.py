@@ -7,6 +7,7 @@ from sb3_cmzdril._version import __version__ as __version__
 from sb3_cmzdril.algorithm import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.rewards import CMZReward, DisagreementReward, DRILReward
 
-__all__ = ["CMZDRIL", "Demonstrations", "BCEnsemble", "DisagreementReward", "CMZReward", "DRILReward"]
+__all__ = ["CMZDRIL", "Demonstrations", "BCEnsemble", "DisagreementReward", "CMZReward", "DRILReward", "UserError"]

@@ -47,6 +47,7 @@ from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
@@ -68,6 +69,24 @@ _SAVED_TENSORS = (
     "_saved_reward_state",
     "_saved_absorbing_u",
 )
+
+
+def _check_finite(**values: Any) -> None:
+    """UserError naming the first numeric option that is inf or nan.
+
+    Range checks written as ``not value > 0`` let inf through, and PPO's own checks none of them:
+    such a value trains on nan, or fails inside torch once a run has written its files. None (an
+    option switched off) and schedules (callables, checked when training starts) pass.
+    """
+    for name, value in values.items():
+        if value is None or callable(value) or isinstance(value, bool):
+            continue
+        try:
+            finite = math.isfinite(value)
+        except TypeError:  # not a number: the option's own check (or PPO's) reports it
+            continue
+        if not finite:
+            raise UserError(f"{name} must be finite, got {value}")
 
 
 class CMZDRIL(PPO):
@@ -188,24 +207,31 @@ class CMZDRIL(PPO):
         _init_setup_model: bool = True,
     ) -> None:
         if reward not in REWARD_MODES:
-            raise ValueError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
+            raise UserError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
+        _check_finite(
+            alpha=alpha, ema=ema, u0=u0, dril_quantile=dril_quantile, cmz_clip_quantile=cmz_clip_quantile,
+            ensemble_learning_rate=ensemble_learning_rate, bc_validation_fraction=bc_validation_fraction,
+            bc_learning_rate=bc_learning_rate, log_std_floor=log_std_floor, learning_rate=learning_rate,
+            gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, clip_range_vf=clip_range_vf,
+            ent_coef=ent_coef, vf_coef=vf_coef, max_grad_norm=max_grad_norm, target_kl=target_kl,
+        )
         if reward == "cmz":
             make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
         if not 0.0 < dril_quantile <= 1.0:
-            raise ValueError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
+            raise UserError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
         if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
-            raise ValueError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
+            raise UserError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
         for name, value in (("bc_pretrain_epochs", bc_pretrain_epochs), ("bc_epochs_per_update", bc_epochs_per_update)):
             if int(value) < 0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
+                raise UserError(f"{name} must be >= 0, got {value}")
         if not 0.0 <= bc_validation_fraction < 1.0:
-            raise ValueError(f"bc_validation_fraction must lie in [0, 1), got {bc_validation_fraction}")
+            raise UserError(f"bc_validation_fraction must lie in [0, 1), got {bc_validation_fraction}")
         if int(bc_patience) < 1:
-            raise ValueError(f"bc_patience must be >= 1, got {bc_patience}")
+            raise UserError(f"bc_patience must be >= 1, got {bc_patience}")
         if log_std_floor is not None and not np.isfinite(log_std_floor):
-            raise ValueError(f"log_std_floor must be finite or None, got {log_std_floor}")
+            raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
         if absorbing not in (True, False, "auto"):
-            raise ValueError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
+            raise UserError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
         self.demonstrations: Demonstrations | None = (
             None if demonstrations is None else as_demonstrations(demonstrations)
         )
@@ -463,7 +489,7 @@ class CMZDRIL(PPO):
         policy's log-std and timings of what ran; the per-epoch curve is in ``pretrain_history``.
         The values reach the logger as ``pretrain/*`` at the next ``learn()``'s first dump."""
         if self.demonstrations is None:
-            raise ValueError(
+            raise UserError(
                 "CMZDRIL needs demonstrations: pass demonstrations=... (a Demonstrations, a path to a "
                 "demos.npz, or a list of episode dicts) to the constructor or to load()"
             )
@@ -569,7 +595,7 @@ class CMZDRIL(PPO):
         if self.reward == "cmz" and self.cmz_clip_quantile is not None and (remake_rule or self.cmz_u_max is None):
             u_max = quantile_of_disagreement(self.ensemble, self.demonstrations, self.cmz_clip_quantile)
             if not u_max > 0:  # an ensemble that agrees exactly on most demo steps: a clip at 0 erases the reward
-                raise ValueError(
+                raise UserError(
                     f"cmz_clip_quantile={self.cmz_clip_quantile} clips u at {u_max:.4g}, the ensemble's disagreement "
                     "on that share of the demos; choose a higher quantile or None"
                 )
@@ -596,7 +622,7 @@ class CMZDRIL(PPO):
         """Per-step scoring only: put the wrapper above every monitor (they report the true return)
         and right below a VecNormalize (which must see the shaped reward and the wrapper raw obs)."""
         if self.env is None:
-            raise ValueError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
+            raise UserError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
         assert self.reward_rule is not None
         self.absorbing_active = self._absorbing_applies()
         absorbing_gamma = self._absorbing_gamma()

@@ -17,6 +17,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.spaces import actions_as_indices
 
 ObsTransform = Callable[[Any], Any]
@@ -45,9 +46,9 @@ class BehaviourCloner:
         seed: int | None = None,
     ) -> None:
         if batch_size < 1:
-            raise ValueError(f"bc batch_size must be >= 1, got {batch_size}")
+            raise UserError(f"bc batch_size must be >= 1, got {batch_size}")
         if learning_rate <= 0:
-            raise ValueError(f"bc learning_rate must be > 0, got {learning_rate}")
+            raise UserError(f"bc learning_rate must be > 0, got {learning_rate}")
         self.policy = policy
         self.batch_size = int(batch_size)
         self.max_grad_norm = float(max_grad_norm)
@@ -124,9 +125,9 @@ class BehaviourCloner:
         a fifth of its only episode (see :attr:`EarlyStopping.refit_epochs`).
         """
         if not 0.0 <= validation_fraction < 1.0:
-            raise ValueError(f"validation_fraction must lie in [0, 1), got {validation_fraction}")
+            raise UserError(f"validation_fraction must lie in [0, 1), got {validation_fraction}")
         if int(max_epochs) < 0 or int(patience) < 1:
-            raise ValueError(f"need max_epochs >= 0 and patience >= 1, got {max_epochs} and {patience}")
+            raise UserError(f"need max_epochs >= 0 and patience >= 1, got {max_epochs} and {patience}")
         self._observations(obs_transform)  # refuses a cloner without demonstrations
         n = len(self._actions)
         n_val = int(round(validation_fraction * n))

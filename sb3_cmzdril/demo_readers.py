@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.extras import require_extra
 
 #: Seeds are stored as int64 (-1 = unknown); Minari's automatic seeds are 64-bit unsigned.
@@ -33,13 +34,13 @@ def _field(trajectory: Any, name: str) -> Any:
 def _steps_array(value: Any, what: str) -> np.ndarray:
     """A numeric array of per-step values, or ValueError naming ``what`` (Dict/Tuple spaces)."""
     if isinstance(value, (Mapping, tuple)) or type(value).__name__ == "DictObs":
-        raise ValueError(
+        raise UserError(
             f"{what} are a Dict or Tuple space's values; only flat arrays are supported "
             "(record through gymnasium.wrappers.FlattenObservation)"
         )
     array = np.asarray(value)
     if array.dtype == object:
-        raise ValueError(f"{what} are not a numeric array (got dtype object; nested or ragged values?)")
+        raise UserError(f"{what} are not a numeric array (got dtype object; nested or ragged values?)")
     return array
 
 
@@ -54,27 +55,27 @@ def trajectory_episodes(trajectories: Iterable[Any]) -> list[dict[str, Any]]:
         match, rewards on some trajectories only, or Dict observations.
     """
     if _field(trajectories, "obs") is not None and _field(trajectories, "acts") is not None:
-        raise ValueError("from_trajectories needs a list of trajectories, not a single trajectory: wrap it in [ ]")
+        raise UserError("from_trajectories needs a list of trajectories, not a single trajectory: wrap it in [ ]")
     trajectories = list(trajectories)
     if not trajectories:
-        raise ValueError("demonstrations are empty: from_trajectories got no trajectories")
+        raise UserError("demonstrations are empty: from_trajectories got no trajectories")
     episodes = []
     for i, traj in enumerate(trajectories):
         obs, acts, rews = _field(traj, "obs"), _field(traj, "acts"), _field(traj, "rews")
         if obs is None or acts is None:
             missing = [name for name, value in (("obs", obs), ("acts", acts)) if value is None]
-            raise ValueError(f"trajectory {i} lacks {missing} (expected imitation's obs/acts fields)")
+            raise UserError(f"trajectory {i} lacks {missing} (expected imitation's obs/acts fields)")
         obs = _steps_array(obs, f"trajectory {i}: observations")
         acts = _steps_array(acts, f"trajectory {i}: actions")
         if len(acts) == 0:
-            raise ValueError(f"trajectory {i} has no actions")
+            raise UserError(f"trajectory {i} has no actions")
         if len(obs) != len(acts) + 1:
-            raise ValueError(
+            raise UserError(
                 f"trajectory {i}: {len(obs)} observations for {len(acts)} actions; imitation-style "
                 "trajectories hold one more observation than actions (the final one)"
             )
         if rews is not None and len(rews) != len(acts):
-            raise ValueError(f"trajectory {i}: {len(rews)} rewards for {len(acts)} actions")
+            raise UserError(f"trajectory {i}: {len(rews)} rewards for {len(acts)} actions")
         episodes.append({"observations": obs[:-1], "actions": acts, "rewards": rews})
     return episodes
 
@@ -115,7 +116,7 @@ def minari_episodes(dataset_or_id: Any) -> list[dict[str, Any]]:
     source = f"Minari dataset {dataset.id!r}"
     indices = [int(i) for i in dataset.episode_indices]
     if not indices:
-        raise ValueError(f"demonstrations are empty: {source} has no episodes")
+        raise UserError(f"demonstrations are empty: {source} has no episodes")
     metadata = list(dataset.storage.get_episode_metadata(indices))
     seeds = _storable_seeds([None if m.get("seed") is None else int(m["seed"]) for m in metadata], source)
     episodes = []
@@ -123,7 +124,7 @@ def minari_episodes(dataset_or_id: Any) -> list[dict[str, Any]]:
         obs = _steps_array(episode.observations, f"{source}, episode {episode.id}: observations")
         acts = _steps_array(episode.actions, f"{source}, episode {episode.id}: actions")
         if len(obs) != len(acts) + 1:
-            raise ValueError(
+            raise UserError(
                 f"{source}, episode {episode.id}: {len(obs)} observations for {len(acts)} actions "
                 "(Minari stores one more observation than actions)"
             )

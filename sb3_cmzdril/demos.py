@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 from sb3_cmzdril.spaces import check_action_space, concatenate, match_observations, n_steps, take
 
@@ -33,20 +34,20 @@ def _observation_arrays(observations: Any) -> np.ndarray | dict[str, np.ndarray]
     """Observations as float32 (floats) or integer arrays, checked; a dict (Dict spaces) key by key."""
     if isinstance(observations, Mapping):
         if not observations:
-            raise ValueError("dict observations have no entries")
+            raise UserError("dict observations have no entries")
         arrays: dict[str, np.ndarray] = {}
         for key, value in observations.items():
             if isinstance(value, Mapping):
-                raise ValueError(f"nested dict observations (key {key!r}) are not supported, as in SB3")
+                raise UserError(f"nested dict observations (key {key!r}) are not supported, as in SB3")
             arrays[str(key)] = _observation_arrays(value)  # type: ignore[assignment]
         if len({len(v) for v in arrays.values()}) > 1:
-            raise ValueError("the entries of the dict observations differ in their number of steps")
+            raise UserError("the entries of the dict observations differ in their number of steps")
         return arrays
     obs = np.asarray(observations)
     if obs.ndim < 1:
-        raise ValueError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
+        raise UserError(f"observations must be (n_steps, *obs_shape); got shape {obs.shape}")
     if obs.dtype.kind not in "fiub":
-        raise ValueError(f"observations and actions must be numeric; got {obs.dtype}")
+        raise UserError(f"observations and actions must be numeric; got {obs.dtype}")
     obs = obs.astype(np.float32, copy=False) if obs.dtype.kind == "f" else obs
     if obs.dtype.kind == "b":
         obs = obs.astype(np.int8)
@@ -62,7 +63,7 @@ def _obs_shape(obs: np.ndarray | dict[str, np.ndarray]) -> Any:
 def _finite(name: str, array: np.ndarray) -> None:
     if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
         bad = np.argwhere(~np.isfinite(array.reshape(len(array), -1)))[0, 0]
-        raise ValueError(f"{name} contains NaN or inf (first at step {bad})")
+        raise UserError(f"{name} contains NaN or inf (first at step {bad})")
 
 
 class Demonstrations:
@@ -89,17 +90,17 @@ class Demonstrations:
         act = np.asarray(actions)
         lengths = np.asarray(episode_lengths, dtype=np.int64).reshape(-1)
         if lengths.size == 0 or obs.size == 0 or len(obs) == 0:
-            raise ValueError("demonstrations are empty: at least one episode with one step is needed")
+            raise UserError("demonstrations are empty: at least one episode with one step is needed")
         if np.any(lengths <= 0):
-            raise ValueError(f"every episode needs at least one step; got lengths {lengths.tolist()}")
+            raise UserError(f"every episode needs at least one step; got lengths {lengths.tolist()}")
         if len(act) != len(obs):
             with_final = len(obs) == len(act) + lengths.size
             hint = " (observations include the final observation? drop it)" if with_final else ""
-            raise ValueError(f"observations and actions differ in length: {len(obs)} vs {len(act)} steps{hint}")
+            raise UserError(f"observations and actions differ in length: {len(obs)} vs {len(act)} steps{hint}")
         if int(lengths.sum()) != len(obs):
-            raise ValueError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
+            raise UserError(f"episode lengths sum to {int(lengths.sum())} but there are {len(obs)} steps")
         if act.dtype.kind not in "fiu":
-            raise ValueError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
+            raise UserError(f"observations and actions must be numeric; got {obs.dtype} and {act.dtype}")
         self.observations: np.ndarray | dict[str, np.ndarray] = obs_in
         self.actions: np.ndarray = (
             act.astype(np.float32, copy=False) if act.dtype.kind == "f" else act.astype(np.int64, copy=False)
@@ -108,7 +109,7 @@ class Demonstrations:
         if rewards is not None:
             rew = np.asarray(rewards, dtype=np.float32).reshape(-1)
             if len(rew) != len(obs):
-                raise ValueError(f"rewards have {len(rew)} entries but there are {len(obs)} steps")
+                raise UserError(f"rewards have {len(rew)} entries but there are {len(obs)} steps")
             _finite("rewards", rew)
             rewards = rew
         self.rewards: np.ndarray | None = rewards
@@ -118,9 +119,17 @@ class Demonstrations:
         try:
             self.seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
         except OverflowError:
-            raise ValueError(f"seeds must fit in int64 (-1 for unknown); got {list(seeds)}") from None
+            raise UserError(f"seeds must fit in int64 (-1 for unknown); got {list(seeds)}") from None
         if self.seeds.size != lengths.size:
-            raise ValueError(f"{self.seeds.size} seeds given for {lengths.size} episodes")
+            raise UserError(f"{self.seeds.size} seeds given for {lengths.size} episodes")
+        # numpy and gymnasium reset only with seeds in [0, 2**32): anything else fails at the first
+        # replay, after a run has written its files.
+        bad = np.flatnonzero((self.seeds != UNKNOWN_SEED) & ((self.seeds < 0) | (self.seeds >= 2**32)))
+        if bad.size:
+            raise UserError(
+                f"reset seeds must be integers in [0, 2**32) (-1 for unknown); episodes {bad.tolist()[:5]} have "
+                f"{self.seeds[bad].tolist()[:5]}"
+            )
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -128,20 +137,20 @@ class Demonstrations:
         """Build from dicts with ``observations`` and ``actions`` (and optional ``rewards``, ``seed``)."""
         episodes = list(episodes)
         if not episodes:
-            raise ValueError("demonstrations are empty: from_episodes got no episodes")
+            raise UserError("demonstrations are empty: from_episodes got no episodes")
         for i, ep in enumerate(episodes):
             missing = {"observations", "actions"} - set(ep)
             if missing:
-                raise ValueError(f"episode {i} lacks {sorted(missing)}")
+                raise UserError(f"episode {i} lacks {sorted(missing)}")
             if n_steps(ep["observations"]) != len(ep["actions"]):
-                raise ValueError(
+                raise UserError(
                     f"episode {i}: {n_steps(ep['observations'])} observations but {len(ep['actions'])} actions"
                 )
             if len(ep["actions"]) == 0:
-                raise ValueError(f"episode {i} is empty")
+                raise UserError(f"episode {i} is empty")
         with_rewards = [ep.get("rewards") is not None for ep in episodes]
         if any(with_rewards) and not all(with_rewards):
-            raise ValueError("rewards must be given for every episode or for none")
+            raise UserError("rewards must be given for every episode or for none")
         rewards = [np.asarray(ep["rewards"]).reshape(-1) for ep in episodes] if all(with_rewards) else None
         return cls(
             observations=concatenate([ep["observations"] for ep in episodes]),
@@ -179,12 +188,12 @@ class Demonstrations:
         """Load a file written by :meth:`save`; clear errors for a missing or corrupt file."""
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"demonstrations file not found: {path}")
+            raise MissingFileError(f"demonstrations file not found: {path}")
         try:
             with np.load(path, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in data.files}
         except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
-            raise ValueError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
+            raise UserError(f"demonstrations file {path} is corrupt or not an npz file: {e}") from e
         _check_format_version(path, arrays.get("format_version"))
         # Dict observations are saved one array per key, as "observations.<key>".
         dict_obs = {k.partition(".")[2]: v for k, v in arrays.items() if k.startswith("observations.")}
@@ -192,7 +201,7 @@ class Demonstrations:
             arrays["observations"] = dict_obs
         missing = {"observations", "actions", "episode_lengths"} - set(arrays)
         if missing:
-            raise ValueError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
+            raise UserError(f"demonstrations file {path} lacks arrays {sorted(missing)}")
         try:
             return cls(
                 observations=arrays["observations"],
@@ -202,7 +211,7 @@ class Demonstrations:
                 seeds=arrays.get("seeds"),
             )
         except ValueError as e:
-            raise ValueError(f"demonstrations file {path}: {e}") from e
+            raise UserError(f"demonstrations file {path}: {e}") from e
 
     def save(self, path: PathLike) -> None:
         """Write a compressed npz atomically (temp file + rename)."""
@@ -259,7 +268,7 @@ class Demonstrations:
         """A new Demonstrations holding only those episodes, in the order given."""
         indices = [int(i) for i in episode_indices]
         if not indices:
-            raise ValueError("select() needs at least one episode index")
+            raise UserError("select() needs at least one episode index")
         for i in indices:
             if not 0 <= i < self.n_episodes:
                 raise IndexError(f"episode {i} out of range for {self.n_episodes} episodes")
@@ -289,14 +298,14 @@ class Demonstrations:
         if isinstance(action_space, spaces.Discrete):
             acts = self.actions.reshape(len(self.actions), -1)
             if acts.shape[1] != 1:
-                raise ValueError(
+                raise UserError(
                     f"Discrete action space needs scalar actions; demos have shape {self.actions.shape[1:]}"
                 )
             if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
-                raise ValueError("Discrete action space needs integer actions; the demonstrations hold fractions")
+                raise UserError("Discrete action space needs integer actions; the demonstrations hold fractions")
             lo, hi = int(action_space.start), int(action_space.start + action_space.n - 1)
             if acts.min() < lo or acts.max() > hi:
-                raise ValueError(
+                raise UserError(
                     f"demonstration actions span [{acts.min()}, {acts.max()}] "
                     f"but the Discrete space allows [{lo}, {hi}]"
                 )
@@ -310,7 +319,7 @@ class Demonstrations:
             check_action_space(action_space)  # refuses, naming it: the supported others are handled above
         assert isinstance(action_space, spaces.Box)
         if self.actions.shape[1:] != action_space.shape:
-            raise ValueError(
+            raise UserError(
                 f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
                 f"the action space shape {action_space.shape}"
             )
@@ -333,13 +342,13 @@ class Demonstrations:
     def _check_multi_actions(self, action_space: spaces.MultiDiscrete | spaces.MultiBinary) -> Demonstrations:
         shape = tuple(action_space.shape)
         if self.actions.shape[1:] != shape:
-            raise ValueError(
+            raise UserError(
                 f"action shape {self.actions.shape[1:]} of the demonstrations does not match "
                 f"the action space shape {shape}"
             )
         if self.actions.dtype.kind == "f" and not np.all(self.actions == np.round(self.actions)):
             name = type(action_space).__name__
-            raise ValueError(f"{name} actions must be integers; the demonstrations hold fractions")
+            raise UserError(f"{name} actions must be integers; the demonstrations hold fractions")
         acts = self.actions.astype(np.int64)
         if isinstance(action_space, spaces.MultiBinary):
             low, high = np.zeros(shape, np.int64), np.ones(shape, np.int64)
@@ -347,7 +356,7 @@ class Demonstrations:
             low = np.asarray(action_space.start, np.int64)
             high = low + np.asarray(action_space.nvec, np.int64) - 1
         if np.any(acts < low) or np.any(acts > high):
-            raise ValueError(
+            raise UserError(
                 f"demonstration actions span [{acts.min()}, {acts.max()}], outside the {type(action_space).__name__} "
                 f"space's [{low.min()}, {high.max()}] in some component"
             )
@@ -364,9 +373,9 @@ def _check_format_version(path: Path, version: np.ndarray | None) -> None:
     try:
         number = int(np.asarray(version).reshape(()))
     except (TypeError, ValueError):
-        raise ValueError(f"demonstrations file {path} has an unreadable format_version {version!r}") from None
+        raise UserError(f"demonstrations file {path} has an unreadable format_version {version!r}") from None
     if number > FORMAT_VERSION:
-        raise ValueError(
+        raise UserError(
             f"demonstrations file {path} has format_version {number}, newer than this sb3-cmzdril reads "
             f"({FORMAT_VERSION}): upgrade sb3-cmzdril"
         )

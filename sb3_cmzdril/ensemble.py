@@ -47,6 +47,7 @@ from gymnasium import spaces
 from torch import nn
 
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 from sb3_cmzdril.policies import observation_statistics
 from sb3_cmzdril.spaces import (
@@ -136,12 +137,12 @@ class BCEnsemble(nn.Module):
         encoder = ObsEncoder(observation_space)
         check_action_space(action_space)
         if int(n_members) < 2:
-            raise ValueError(f"an ensemble needs at least 2 members to disagree; got n_members={n_members}")
+            raise UserError(f"an ensemble needs at least 2 members to disagree; got n_members={n_members}")
         if disagreement not in DISAGREEMENT_FORMS:
-            raise ValueError(f"disagreement must be one of {DISAGREEMENT_FORMS}, got {disagreement!r}")
+            raise UserError(f"disagreement must be one of {DISAGREEMENT_FORMS}, got {disagreement!r}")
         hidden_sizes = tuple(int(h) for h in hidden_sizes)
         if any(h < 1 for h in hidden_sizes):
-            raise ValueError(f"hidden sizes must be positive, got {hidden_sizes}")
+            raise UserError(f"hidden sizes must be positive, got {hidden_sizes}")
         self.observation_space = observation_space
         self.action_space = action_space
         self.encoder = encoder
@@ -245,7 +246,7 @@ class BCEnsemble(nn.Module):
         Returns ``self``; ``train_loss_`` holds each member's loss over the last epoch."""
         demos = demos.check_spaces(self.observation_space, self.action_space)
         if n_epochs < 1 or batch_size < 1 or learning_rate <= 0:
-            raise ValueError(
+            raise UserError(
                 "need n_epochs >= 1, batch_size >= 1, learning_rate > 0; "
                 f"got {n_epochs}, {batch_size}, {learning_rate}"
             )
@@ -486,13 +487,13 @@ class BCEnsemble(nn.Module):
         """Load an ensemble written by :meth:`save`."""
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"ensemble file not found: {path}")
+            raise MissingFileError(f"ensemble file not found: {path}")
         try:
             blob = th.load(path, map_location="cpu", weights_only=True)
             cfg = blob["config"]
             obs_space, act_space = _config_spaces(cfg)
         except Exception as e:  # torch raises several types for a damaged file
-            raise ValueError(f"ensemble file {path} is corrupt or not a BCEnsemble file: {e}") from e
+            raise UserError(f"ensemble file {path} is corrupt or not a BCEnsemble file: {e}") from e
         ens = cls(
             obs_space,
             act_space,
@@ -533,7 +534,7 @@ def _config_spaces(cfg: dict[str, Any]) -> tuple[spaces.Space, spaces.Space]:
 def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> float:
     """The q-quantile of u over the demonstration steps, with the expert's own actions."""
     if not 0.0 < q <= 1.0:
-        raise ValueError(f"quantile q must lie in (0, 1], got {q}")
+        raise UserError(f"quantile q must lie in (0, 1], got {q}")
     u = np.concatenate(
         [
             ensemble.disagreement(take(demos.observations, slice(i, i + 4096)), demos.actions[i : i + 4096])

@@ -10,12 +10,15 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from sb3_cmzdril.errors import UserError
+
 #: The extras pyproject.toml defines (``pip install 'sb3-cmzdril[<extra>]'``).
 EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "contrib", "test", "all")
 
 
-class MissingExtraError(ImportError):
-    """An optional dependency is not installed; the message names the extra that provides it."""
+class MissingExtraError(UserError, ImportError):
+    """An optional dependency is not installed; the message names the extra that provides it (an
+    install to complete, so the command line reports it in one line)."""
 
 
 def require_extra(module: str, extra: str, feature: str | None = None) -> ModuleType:

@@ -23,11 +23,14 @@ from __future__ import annotations
 import ast
 import copy
 import dataclasses
+import math
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from sb3_cmzdril.errors import MissingFileError, UserError
 
 #: Keys the zoo handles itself; everything else is an algorithm constructor argument.
 SPECIAL_KEYS = (
@@ -78,11 +81,11 @@ def parse_schedule(value: Any, key: str = "learning_rate") -> Any:
                 return LinearSchedule(float(number))
             except ValueError:
                 pass
-        raise ValueError(
+        raise UserError(
             f"invalid schedule for {key}: {value!r} (expected a number or 'lin_<float>', e.g. 'lin_7.3e-4')"
         )
     if isinstance(value, bool) or not isinstance(value, (int, float)) and not callable(value):
-        raise ValueError(f"invalid value for {key}: {value!r}")
+        raise UserError(f"invalid value for {key}: {value!r}")
     return value
 
 
@@ -130,16 +133,16 @@ def safe_eval(text: str) -> Any:
     (``nn.Module`` subclasses) or ``th.optim.X`` (optimizers). Raises ValueError otherwise.
     """
     if not isinstance(text, str):
-        raise ValueError(f"expected an expression string, got {type(text).__name__}")
+        raise UserError(f"expected an expression string, got {type(text).__name__}")
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as e:
-        raise ValueError(f"cannot parse {text!r}: {e.msg}") from e
+        raise UserError(f"cannot parse {text!r}: {e.msg}") from e
     source = text.strip()
 
-    def fail(node: ast.AST, why: str = "not allowed") -> ValueError:
+    def fail(node: ast.AST, why: str = "not allowed") -> UserError:
         segment = ast.get_source_segment(source, node) or ast.dump(node)
-        return ValueError(
+        return UserError(
             f"{why}: {segment!r} in {text!r} (only literals, lists, dicts, dict(...) and nn.<Name> are accepted)"
         )
 
@@ -220,7 +223,7 @@ class Hyperparams:
         """Raise ValueError for special keys that are set but that the caller does not implement."""
         used = [k for k in unsupported if getattr(self, k) not in (None, False)]
         if used:
-            raise ValueError(
+            raise UserError(
                 f"hyperparameters {self.key!r} in {self.path} set {used}, which {what} does not support; "
                 "remove them or use rl-zoo3 for this environment"
             )
@@ -312,8 +315,12 @@ def check_constructor_kwargs(hp: Hyperparams, classes: Sequence[type]) -> None:
     where = f"hyperparameters {hp.key!r}" + (f" in {hp.path}" if hp.path else "")
     unknown = sorted(set(hp.algo_kwargs) - set(parameters))
     if unknown:
-        raise ValueError(f"{where}: {unknown} are not {'/'.join(c.__name__ for c in classes)} arguments")
+        raise UserError(f"{where}: {unknown} are not {'/'.join(c.__name__ for c in classes)} arguments")
     for name, value in hp.algo_kwargs.items():
+        # YAML's .inf and .nan pass every range check written "not value > 0" or "value >= 0"; the
+        # model would train on them, or fail only once files are written.
+        if isinstance(value, float) and not math.isfinite(value):
+            raise UserError(f"{where}: {name} must be finite, got {hp.raw.get(name, value)!r}")
         annotation = parameters[name].annotation
         if annotation is inspect.Parameter.empty:
             continue
@@ -322,7 +329,7 @@ def check_constructor_kwargs(hp: Hyperparams, classes: Sequence[type]) -> None:
             continue
         if not any(_TYPE_CHECKS[a](value) for a in allowed):
             expected = " or ".join(dict.fromkeys(_TYPE_NAMES.get(a, a) for a in allowed))
-            raise ValueError(
+            raise UserError(
                 f"{where}: {name} must be {expected}, got {hp.raw.get(name, value)!r} ({type(value).__name__})"
             )
 
@@ -343,7 +350,7 @@ def _entry_key(available: Iterable[str], env_id: str) -> str | None:
 def split_hyperparams(entry: dict[str, Any], env_id: str = "", key: str = "", path: str | None = None) -> Hyperparams:
     """Split one zoo entry (a dict) into special keys and algorithm kwargs, with pre-processing."""
     if not isinstance(entry, dict):
-        raise ValueError(f"hyperparameters {key!r} in {path}: expected a mapping, got {type(entry).__name__}")
+        raise UserError(f"hyperparameters {key!r} in {path}: expected a mapping, got {type(entry).__name__}")
     raw = copy.deepcopy(entry)
     values = copy.deepcopy(entry)
     where = f"hyperparameters {key!r}" + (f" in {path}" if path else "")
@@ -352,13 +359,13 @@ def split_hyperparams(entry: dict[str, Any], env_id: str = "", key: str = "", pa
             try:
                 values[k] = safe_eval(values[k])
             except ValueError as e:
-                raise ValueError(f"{where}, {k}: {e}") from e
+                raise UserError(f"{where}, {k}: {e}") from e
     for k in SCHEDULE_KEYS:
         if k in values:
             try:
                 values[k] = parse_schedule(values[k], k)
             except ValueError as e:
-                raise ValueError(f"{where}: {e}") from e
+                raise UserError(f"{where}: {e}") from e
     if isinstance(values.get("train_freq"), list):
         values["train_freq"] = tuple(values["train_freq"])
     hp = Hyperparams(env_id=env_id, key=key, path=path, raw=raw)
@@ -366,21 +373,23 @@ def split_hyperparams(entry: dict[str, Any], env_id: str = "", key: str = "", pa
         try:
             hp.n_timesteps = int(float(values["n_timesteps"]))
         except (TypeError, ValueError) as e:
-            raise ValueError(f"{where}: n_timesteps must be a number, got {values['n_timesteps']!r}") from e
+            raise UserError(f"{where}: n_timesteps must be a number, got {values['n_timesteps']!r}") from e
     policy = values.get("policy")
     if policy is not None:
         if not isinstance(policy, str) or "." in policy:
-            raise ValueError(f"{where}: policy must be a registered policy name such as 'MlpPolicy', got {policy!r}")
+            raise UserError(f"{where}: policy must be a registered policy name such as 'MlpPolicy', got {policy!r}")
         hp.policy = policy
-    hp.n_envs = int(values.get("n_envs", 1))
-    if hp.n_envs < 1:
-        raise ValueError(f"{where}: n_envs must be >= 1, got {hp.n_envs}")
+    n_envs = values.get("n_envs", 1)
+    # A true integer: int() would make 2.5 two envs, "3" three and true one, each without a word.
+    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+        raise UserError(f"{where}: n_envs must be an integer >= 1, got {n_envs!r}")
+    hp.n_envs = n_envs
     for k in ("policy_kwargs", "env_kwargs"):
         v = values.get(k)
         if v is None:
             v = {}
         if not isinstance(v, dict):
-            raise ValueError(f"{where}: {k} must be a dict, got {v!r}")
+            raise UserError(f"{where}: {k} must be a dict, got {v!r}")
         setattr(hp, k, v)
     for k in ("normalize", "env_wrapper", "vec_env_wrapper", "callback", "frame_stack"):
         setattr(hp, k, values.get(k))
@@ -392,15 +401,21 @@ def read_hyperparams_file(path: str | Path) -> dict[str, Any]:
     """The whole YAML file as a dict; clear errors for a missing or malformed file."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"hyperparameter file not found: {path}")
+        raise MissingFileError(f"hyperparameter file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise UserError(f"hyperparameter file {path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except OSError as e:
+        raise UserError(f"hyperparameter file {path} cannot be read: {e.strerror or e}") from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as e:
-        raise ValueError(f"hyperparameter file {path} is not valid YAML: {e}") from e
+        raise UserError(f"hyperparameter file {path} is not valid YAML: {e}") from e
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ValueError(f"hyperparameter file {path}: top level must map env ids to settings")
+        raise UserError(f"hyperparameter file {path}: top level must map env ids to settings")
     return data
 
 
@@ -409,7 +424,7 @@ def load_hyperparams(path: str | Path, env_id: str) -> Hyperparams:
     data = read_hyperparams_file(path)
     key = _entry_key(data.keys(), env_id)
     if key is None:
-        raise ValueError(
+        raise UserError(
             f"no hyperparameters for {env_id!r} in {path} and no {DEFAULT_KEY!r} entry; "
             f"available: {sorted(map(str, data.keys()))}"
         )

@@ -18,6 +18,7 @@ import json
 import math
 import os
 import platform
+import re
 import shlex
 import signal
 import sys
@@ -25,9 +26,12 @@ import tempfile
 import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import IO, Any, Union
+from typing import Any, Union
 
+import filelock
 import numpy as np
+
+from sb3_cmzdril.errors import UserError
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -135,14 +139,29 @@ def atomic_write_text(path: PathLike, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+#: An :func:`atomic_path` temporary: ``.<name>.<mkstemp's random part>.tmp<suffix>``, where the
+#: suffix is none or the extension of ``<name>`` (``.d.npz.k3x9_q2a.tmp.npz``).
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]+\.tmp(?P<suffix>.*)$")
+
+
+def is_temporary(name: str) -> bool:
+    """Whether a file name is one of :func:`atomic_path`'s temporaries.
+
+    Exactly that form, not any hidden file with ".tmp" in its name: a user's ``.draft.tmp.md`` in an
+    output folder is theirs, and neither counts as the command's own nor is removed.
+    """
+    match = _TEMPORARY.match(name)
+    return match is not None and match["suffix"] in ("", Path(match["name"]).suffix)
+
+
 def remove_stale_temporaries(*folders: Path) -> None:
-    """Remove the temporaries of atomic writes cut short by a hard kill.
+    """Remove the temporaries of atomic writes cut short by a hard kill (:func:`is_temporary`).
 
     Call it only while holding the folder's lock: another process's write in progress looks the same.
     """
     for folder in folders:
         for p in Path(folder).glob(".*.tmp*"):
-            if p.is_file():
+            if p.is_file() and is_temporary(p.name):
                 with contextlib.suppress(OSError):
                     p.unlink()
 
@@ -178,10 +197,10 @@ def read_json(path: PathLike) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as e:
-        raise ValueError(f"{path} is unreadable or corrupt: {e}") from e
+        raise UserError(f"{path} is unreadable or corrupt: {e}") from e
     if not isinstance(data, dict):
         kind = "null" if data is None else {list: "array", str: "string", bool: "boolean"}.get(type(data), "number")
-        raise ValueError(f"{path} is not what sb3-cmzdril wrote: it holds a JSON {kind}, not an object")
+        raise UserError(f"{path} is not what sb3-cmzdril wrote: it holds a JSON {kind}, not an object")
     return data
 
 
@@ -195,56 +214,43 @@ def read_json_or_empty(path: PathLike) -> dict[str, Any]:
 
 
 # -- locks -----------------------------------------------------------------------------------------
-class LockHeld(ValueError):
+#: What :func:`lock_output` returns and :func:`unlock_output` takes.
+OutputLock = filelock.BaseFileLock
+
+
+class LockHeld(UserError):
     """Another process holds the folder's lock (:func:`lock_output`)."""
 
 
-def lock_output(folder: Path, message: str | None = None) -> IO[str] | None:
-    """Hold an exclusive lock on ``folder`` (its :data:`LOCK_FILE`) until :func:`unlock_output`.
+def lock_output(folder: PathLike, message: str | None = None, name: str = LOCK_FILE) -> OutputLock:
+    """Hold an exclusive lock on ``folder`` (its file ``name``, :data:`LOCK_FILE` by default) until
+    :func:`unlock_output`; fail at once, never wait, when another process holds it.
 
-    The lock is the operating system's (``flock``), so it ends with the process, however it ends.
-    Returns the open lock file, or None where locking is unsupported (Windows).
+    The lock is filelock's: the operating system's (``flock`` on POSIX, ``LockFileEx`` on Windows),
+    so it ends with the process, however it ends. On POSIX the lock file stays after the release:
+    removing a locked path lets a waiter that opened it lock the removed file while a newcomer locks
+    a new one, and both would believe they hold the folder.
+
+    Keep the returned lock referenced until :func:`unlock_output`: filelock releases a lock that is
+    garbage-collected.
 
     :param message: the :class:`LockHeld` error's text when another process holds the lock.
     :raises LockHeld: another process holds it.
     """
+    path = Path(folder) / name
+    # thread_local=False: the grid may take a run's lock in one thread and let it go in another.
+    lock = filelock.FileLock(str(path), timeout=0, thread_local=False)
     try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows: no locking
-        return None
-    folder = Path(folder)
-    path = folder / LOCK_FILE
-    while True:
-        handle = open(path, "a+")  # held open: it is the lock; unlock_output closes it
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.close()
-            raise LockHeld(message or f"another process is already running in {folder} (lock {path})") from None
-        # unlock_output removes the file before it lets go. A file opened before that removal and
-        # locked after it is one nobody else will open again, while a newcomer locks the new file at
-        # the path: two holders. Only a lock on the file still at the path counts; else try that one.
-        try:
-            if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
-                return handle
-        except FileNotFoundError:
-            pass
-        handle.close()
+        lock.acquire()
+    except filelock.Timeout:
+        raise LockHeld(message or f"another process is already running in {folder} (lock {path})") from None
+    return lock
 
 
-def unlock_output(folder: Path, handle: IO[str] | None) -> None:
-    """Release a lock of :func:`lock_output` and remove its file.
-
-    The file goes while the lock is still held, never after: removed after the release, it could
-    take with it a lock another process had just acquired on it, and a third would lock a new file
-    beside that one. Removed before, a process that opened the old file in between finds out in
-    :func:`lock_output` and moves on to the new file.
-    """
-    if handle is None:
-        return
-    with contextlib.suppress(OSError):
-        (Path(folder) / LOCK_FILE).unlink()
-    handle.close()
+def unlock_output(folder: PathLike, handle: OutputLock | None) -> None:
+    """Release a lock of :func:`lock_output` (None, a lock never taken: nothing to do)."""
+    if handle is not None:
+        handle.release()
 
 
 # -- provenance ------------------------------------------------------------------------------------

@@ -22,6 +22,8 @@ from gymnasium import spaces
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor, NatureCNN
 
+from sb3_cmzdril.errors import UserError
+
 #: Floor of the per-dimension std: a demo dimension that never varies (a constant sensor, a one-hot
 #: that the expert never switched) would otherwise be divided by ~0 and blow up off the demos.
 MIN_OBS_STD = 1e-2
@@ -34,7 +36,7 @@ def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_ST
     """
     obs = np.asarray(observations, dtype=np.float64)
     if len(obs) == 0:
-        raise ValueError("cannot compute observation statistics of zero observations")
+        raise UserError("cannot compute observation statistics of zero observations")
     obs = obs.reshape(len(obs), int(np.prod(obs.shape[1:])))
     mean = obs.mean(axis=0)
     std = np.maximum(obs.std(axis=0), float(min_std))
@@ -74,7 +76,7 @@ class DemoStandardizer(BaseFeaturesExtractor):
     ) -> None:
         keys = standardized_keys(observation_space)
         if not keys:
-            raise ValueError(f"DemoStandardizer needs a Box part in the observation space, got {observation_space}")
+            raise UserError(f"DemoStandardizer needs a Box part in the observation space, got {observation_space}")
         inner = features_extractor_class(observation_space, **(features_extractor_kwargs or {}))
         super().__init__(observation_space, features_dim=inner.features_dim)
         self.extractor = inner

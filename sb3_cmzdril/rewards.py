@@ -23,6 +23,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import UserError
 
 
 class DisagreementModel(Protocol):
@@ -89,14 +90,14 @@ class CMZReward(RewardRule):
     name = "cmz"
 
     def __init__(self, alpha: float = 10.0, ema: float = 0.99, u0: float = 0.0, u_max: float | None = None) -> None:
-        if not alpha > 0:
-            raise ValueError(f"alpha must be > 0, got {alpha}")
+        if not (np.isfinite(alpha) and alpha > 0):
+            raise UserError(f"alpha must be > 0 and finite, got {alpha}")
         if not 0.0 < ema < 1.0:
-            raise ValueError(f"ema must lie in (0, 1), got {ema}")
+            raise UserError(f"ema must lie in (0, 1), got {ema}")
         if not np.isfinite(u0):
-            raise ValueError(f"u0 must be finite, got {u0}")
+            raise UserError(f"u0 must be finite, got {u0}")
         if u_max is not None and not (np.isfinite(u_max) and u_max > 0):
-            raise ValueError(f"u_max must be finite and > 0, or None, got {u_max}")
+            raise UserError(f"u_max must be finite and > 0, or None, got {u_max}")
         self.alpha = float(alpha)
         self.ema = float(ema)
         self.u0 = float(u0)
@@ -160,7 +161,7 @@ class DRILReward(RewardRule):
 
     def __init__(self, threshold: float) -> None:
         if not np.isfinite(threshold):
-            raise ValueError(f"threshold must be finite, got {threshold}")
+            raise UserError(f"threshold must be finite, got {threshold}")
         self.threshold = float(threshold)
 
     @classmethod
@@ -321,7 +322,7 @@ def make_rule(name: str, **kwargs: Any) -> RewardRule:
     """Build a rule from its name: ``cmz`` (alpha, ema, u0, u_max), ``dril`` (threshold), ``zero``, ``env``."""
     rules: dict[str, Any] = {r.name: r for r in (CMZReward, DRILReward, ZeroReward, EnvReward)}
     if name not in rules:
-        raise ValueError(f"unknown reward {name!r}; choose one of {sorted(rules)}")
+        raise UserError(f"unknown reward {name!r}; choose one of {sorted(rules)}")
     return rules[name](**kwargs)
 
 

@@ -18,6 +18,7 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 
 
@@ -79,7 +80,7 @@ class LowestDisagreementPolicy(BaseCallback):
             if not isinstance(state, dict):
                 raise TypeError(f"state_dict is a {type(state).__name__}")
         except Exception as e:  # torch raises RuntimeError, OSError (errno 22), pickle errors... for damage
-            raise ValueError(
+            raise UserError(
                 f"{path} is truncated or not a lowest-u policy file ({type(e).__name__}: {e}); delete it to "
                 "resume without the earlier choice"
             ) from None

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sb3_cmzdril.errors import MissingFileError
 from sb3_cmzdril.io import PathLike
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -61,7 +62,7 @@ def shipped_demos(env_id: str) -> Path:
     """
     path = shipped_file("experts", _env_folder(env_id), "demos.npz")
     if path is None:
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"no shipped demo pool for {env_id!r}; shipped pools: {', '.join(shipped_envs()) or 'none'} "
             "(record your own with `sb3-cmzdril collect-demos`)"
         )
@@ -81,17 +82,17 @@ def shipped_expert(env_id: str) -> Path:
         return path
     metadata = shipped_file("experts", folder, "metadata.json")
     if metadata is None:
-        raise FileNotFoundError(f"no shipped expert for {env_id!r}; shipped experts: {', '.join(shipped_envs())}")
+        raise MissingFileError(f"no shipped expert for {env_id!r}; shipped experts: {', '.join(shipped_envs())}")
     import json
 
     meta = json.loads(metadata.read_text(encoding="utf-8"))
     source = meta.get("source")
     if isinstance(source, dict):
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"the expert of {folder} is not shipped (a third-party agent): get {source.get('path')} from "
             f"{source.get('repository')} (commit {source.get('commit')})"
         )
-    raise FileNotFoundError(f"the expert of {folder} is not a model file: it is {meta.get('expert')}")
+    raise MissingFileError(f"the expert of {folder} is not a model file: it is {meta.get('expert')}")
 
 
 def shipped_hyperparams(name: str) -> Path:
@@ -102,7 +103,7 @@ def shipped_hyperparams(name: str) -> Path:
     path = shipped_file("hyperparams", f"{name}.yml")
     if path is None:
         names = sorted({p.stem for root in _roots() for p in (root / "hyperparams").glob("*.yml")})
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"no shipped hyperparameter file {name}.yml (shipped: {', '.join(names) or 'none'}); "
             "pass one explicitly with --hyperparams / hyperparams_path="
         )

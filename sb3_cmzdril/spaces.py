@@ -20,6 +20,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
 
+from sb3_cmzdril.errors import UserError
+
 #: an observation batch: an array, or a dict of arrays for a Dict space
 Observations = np.ndarray | dict[str, np.ndarray]
 
@@ -35,7 +37,7 @@ def shape_of(space: spaces.Space) -> tuple[int, ...]:
 def check_action_space(space: spaces.Space) -> None:
     """ValueError naming an action space PPO (and so CMZDRIL) cannot act in."""
     if not isinstance(space, ACTION_SPACES):
-        raise ValueError(
+        raise UserError(
             f"unsupported action space {space}: Box, Discrete, MultiDiscrete and MultiBinary are supported"
         )
 
@@ -121,7 +123,7 @@ def space_to_config(space: spaces.Space) -> dict[str, Any]:
         return {"type": "MultiDiscrete", "nvec": np.asarray(space.nvec).tolist(), "start": space.start.tolist()}
     if isinstance(space, spaces.MultiBinary):
         return {"type": "MultiBinary", "n": np.asarray(space.n).tolist()}
-    raise ValueError(f"cannot describe the space {space}")
+    raise UserError(f"cannot describe the space {space}")
 
 
 def space_from_config(cfg: Mapping[str, Any]) -> spaces.Space:
@@ -141,7 +143,7 @@ def space_from_config(cfg: Mapping[str, Any]) -> spaces.Space:
         return spaces.MultiDiscrete(np.asarray(cfg["nvec"]), start=np.asarray(cfg["start"]))
     if kind == "MultiBinary":
         return spaces.MultiBinary(cfg["n"])
-    raise ValueError(f"unknown space type {kind!r}")
+    raise UserError(f"unknown space type {kind!r}")
 
 
 def match_observations(obs: Observations, space: spaces.Space) -> Observations:
@@ -153,24 +155,24 @@ def match_observations(obs: Observations, space: spaces.Space) -> Observations:
     """
     if isinstance(space, spaces.Dict):
         if not isinstance(obs, Mapping):
-            raise ValueError(
+            raise UserError(
                 f"the observation space is a Dict (keys {list(space.spaces)}) but the demonstrations hold one array"
             )
         missing = set(space.spaces) - set(obs)
         if missing:
-            raise ValueError(f"the demonstrations' observations lack the keys {sorted(missing)}")
+            raise UserError(f"the demonstrations' observations lack the keys {sorted(missing)}")
         matched = {k: _match_leaf(np.asarray(obs[k]), sub, k) for k, sub in space.spaces.items()}
         # The same object when nothing changed, so that callers can tell.
         return obs if list(obs) == list(matched) and all(matched[k] is obs[k] for k in matched) else matched
     if isinstance(obs, Mapping):
-        raise ValueError(f"the demonstrations hold dict observations but the observation space is {space}")
+        raise UserError(f"the demonstrations hold dict observations but the observation space is {space}")
     return _match_leaf(obs, space, None)
 
 
 def _match_leaf(arr: np.ndarray, space: spaces.Space, key: str | None) -> np.ndarray:
     where = f" (key {key!r})" if key is not None else ""
     if not isinstance(space, _LEAF_SPACES):
-        raise ValueError(
+        raise UserError(
             f"unsupported observation space {space}{where}: Box, Discrete, MultiDiscrete, MultiBinary "
             "or a Dict of them are supported"
         )
@@ -181,7 +183,7 @@ def _match_leaf(arr: np.ndarray, space: spaces.Space, key: str | None) -> np.nda
         return arr.reshape(-1)
     if _image(space) and is_image_space_channels_first(space) and shape == (want[1], want[2], want[0]):  # type: ignore[arg-type]
         return arr.transpose(0, 3, 1, 2)
-    raise ValueError(
+    raise UserError(
         f"observation shape {shape}{where} of the demonstrations does not match the observation space shape {want}"
     )
 
@@ -215,7 +217,7 @@ class ObsEncoder:
         for key, space in items:
             if not isinstance(space, _LEAF_SPACES):
                 where = f" (key {key!r})" if key is not None else ""
-                raise ValueError(
+                raise UserError(
                     f"unsupported observation space {space}{where}: Box, Discrete, MultiDiscrete, MultiBinary "
                     "or a Dict of them are supported"
                 )
@@ -227,7 +229,7 @@ class ObsEncoder:
                 kind, width = "discrete", int(space.n)
             elif isinstance(space, spaces.MultiDiscrete):
                 if space.nvec.ndim != 1:
-                    raise ValueError(f"MultiDiscrete observations need a 1-D nvec (as SB3's), got {space.nvec.shape}")
+                    raise UserError(f"MultiDiscrete observations need a 1-D nvec (as SB3's), got {space.nvec.shape}")
                 kind, width = "multidiscrete", int(space.nvec.sum())
             else:
                 kind, width = "multibinary", int(np.prod(space.shape))

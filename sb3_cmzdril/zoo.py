@@ -23,6 +23,7 @@ from typing import Any
 
 from sb3_cmzdril.algorithm import CMZDRIL, DemosLike
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.extras import require_extra
 
 ALGO = "cmzdril"
@@ -39,7 +40,7 @@ def env_id_of(env: Any) -> str:
         return env.rsplit(":", 1)[-1]
     spec = env.get_attr("spec", [0])[0] if hasattr(env, "get_attr") else getattr(env, "spec", None)
     if spec is None:
-        raise ValueError(
+        raise UserError(
             f"cannot tell which environment {type(env).__name__} is (it has no gymnasium spec), so there is no "
             "default demo pool: give `demonstrations: path/to/demos.npz` in the hyperparameters"
         )
@@ -52,7 +53,7 @@ def default_demos_path(env: Any) -> Path:
 
     path = local_or_shipped_demos(env_id_of(env), DEMOS_DIR)
     if not path.is_file():
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"no demonstrations given and no demo pool at {path} or shipped with sb3-cmzdril: record one with "
             "`sb3-cmzdril collect-demos`, or give `demonstrations: path/to/demos.npz` in the hyperparameters "
             "(or -params demonstrations:\"'path'\")"
@@ -65,7 +66,7 @@ def first_episodes(demos: Demonstrations, n_demos: int | None) -> Demonstrations
     if n_demos is None:
         return demos
     if isinstance(n_demos, bool) or not isinstance(n_demos, numbers.Integral) or not 1 <= n_demos <= demos.n_episodes:
-        raise ValueError(f"n_demos must be an integer in [1, {demos.n_episodes}] (episodes available), got {n_demos!r}")
+        raise UserError(f"n_demos must be an integer in [1, {demos.n_episodes}] (episodes available), got {n_demos!r}")
     return demos if n_demos == demos.n_episodes else demos.select(range(n_demos))
 
 

@@ -8,6 +8,7 @@ import pytest
 from scipy.stats import trim_mean
 
 from helpers import write_run
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.report import aggregate as agg
 from sb3_cmzdril.experiments.report.final_eval import final_table
 from sb3_cmzdril.experiments.report.records import load_runs
@@ -91,13 +92,13 @@ def test_the_report_writes_the_across_task_section_its_csv_and_figure(tmp_path):
 
 def test_a_task_and_method_in_two_grids_is_refused(tmp_path):
     rows = _grid(tmp_path / "a") + _grid(tmp_path / "b", methods=("bc",))
-    with pytest.raises(ValueError, match="Hopper-v5 BC is in two grids"):
+    with pytest.raises(UserError, match="Hopper-v5 BC is in two grids"):
         agg.score_matrix(rows)
 
 
-def test_nothing_to_aggregate_is_named():
-    with pytest.raises(ValueError, match="no task has final evaluations"):
-        agg.score_matrix([])
+def test_nothing_to_aggregate_writes_nothing(tmp_path):
+    assert agg.score_matrix([]) is None
+    assert agg.write_aggregate([], tmp_path) is None and not list(tmp_path.iterdir())
 
 
 def test_the_batched_bootstrap_statistics_are_rliables():

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import ENV, POOL_EPISODES, TINY, pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, TINY, cartpole_expert, pendulum_expert, record
 from helpers import TINY_PPO_YAML as TINY_PPO
 from helpers import TINY_SAC_YAML as TINY_SAC
-from sb3_cmzdril import CMZDRIL
+from sb3_cmzdril import CMZDRIL, CMZReward, UserError
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
 
@@ -59,6 +59,11 @@ def _cmz(ws: Path, out: Path | str, demos: str = "demos.npz", hyperparams: str |
     """``train --reward cmz`` on a workspace demo pool and hyperparameters (the tiny ones by default)."""
     return _train(out, "--reward", "cmz", "--demos", str(ws / demos),
                   "--hyperparams", hyperparams or str(ws / "cmzdril.yml"))
+
+
+def _cmz_yaml(ws: Path, case: Path, entry: str) -> list[str]:
+    """``train --reward cmz`` into the case's folder, with ``entry`` added to the tiny YAML."""
+    return _cmz(ws, case / "out", hyperparams=_yaml(ws, case, entry))
 
 
 def _expert(ws: Path, out: Path | str, *extra: str) -> list[str]:
@@ -112,10 +117,10 @@ def _evaluate(ws: Path, model: str, *extra: str, demos: str | None = "demos.npz"
     return ["evaluate", "--model", model, "--env", ENV, "--env-kwargs", "dict(max_episode_steps=50)", *pool, *extra]
 
 
-def _benchmark(ws: Path, case: Path, *extra: str) -> list[str]:
+def _benchmark(ws: Path, case: Path, *extra: str, pool: str | None = None) -> list[str]:
     demos_dir = case / "experts" / ENV
     demos_dir.mkdir(parents=True)
-    shutil.copy(ws / "demos.npz", demos_dir / "demos.npz")
+    shutil.copy(pool or ws / "demos.npz", demos_dir / "demos.npz")
     return ["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1", "--timesteps", "128", "--no-progress",
             "--demos-dir", str(case / "experts"), "--hyperparams", str(ws / "cmzdril.yml"), "-o", str(case / "runs"),
             *extra]
@@ -183,7 +188,8 @@ CASES = [
     Case("train", "YAML ensemble_epochs 0",
          lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  ensemble_epochs: 0\n")), "ensemble_epochs"),
     Case("train", "YAML learning_rate nan",
-         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")), "learning rate: nan"),
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")),
+         "learning_rate must be finite, got nan"),
     Case("train", "demo pool without reset seeds", lambda ws, c: _cmz(ws, c / "out", demos="noseeds.npz"), "seed"),
     Case("train", "-o holds someone's config.json", lambda ws, c: _cmz(ws, _foreign_config(c)), "config.json"),
     Case("train", "-o is an expert folder", lambda ws, c: _cmz(ws, ws / "experts" / ENV), ""),
@@ -225,7 +231,8 @@ CASES = [
          "model file .*model.zip is corrupt, truncated or not an SB3 model zip"),
     Case("evaluate", "model not a zip", lambda ws, c: _evaluate(ws, _damaged_model(ws, c, b"hello")),
          "model file .*model.zip"),
-    Case("evaluate", "model of another env", lambda ws, c: _evaluate(ws, _cartpole_model(c)), "observation shape"),
+    Case("evaluate", "model of another env", lambda ws, c: _evaluate(ws, _cartpole_model(c)),
+         "cartpole.zip was trained on another environment: its observation space"),
     Case("evaluate", "model missing", lambda ws, c: _evaluate(ws, str(c / "none.zip")), "none.zip"),
     Case("evaluate", "demo file of a newer format", lambda ws, c: _evaluate(ws, _model(ws), demos="future.npz"),
          "future.npz has format_version"),
@@ -256,7 +263,103 @@ CASES = [
          lambda ws, c: ["report", str(ws / "cmzrun"), "--reference-runs", str(c / "nowhere"), "-o", str(c / "rep")],
          "nowhere"),
     Case("report", "zero window", lambda ws, c: ["report", str(ws / "cmzrun"), "--window", "0", "-o", str(c / "rep")]),
+    # -- issue 30's probe -----------------------------------------------------------------------------
+    Case("train", "-o holds the user's error.txt, log.txt and .draft.tmp.md (30.1)",
+         lambda ws, c: _cmz(ws, _users_folder(c)), "holds files that are not an sb3-cmzdril run's"),
+    Case("train", "pool with a negative reset seed (30.4)", lambda ws, c: _cmz(ws, c / "out", demos=_pool(ws, c, -5)),
+         r"pool.npz: reset seeds must be integers in \[0, 2\*\*32\)"),
+    Case("evaluate", "pool with a negative reset seed (30.4)",
+         lambda ws, c: _evaluate(ws, _model(ws), demos=_pool(ws, c, -5)), r"reset seeds must be integers"),
+    Case("train", "done.json num_timesteps null (30.6)", lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps=None)),
+         "done.json is not what sb3-cmzdril wrote: num_timesteps is None"),
+    Case("train", "done.json num_timesteps [1] (30.6)", lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps=[1])),
+         r"done.json is not what sb3-cmzdril wrote: num_timesteps is \[1\]"),
+    Case("train", "done.json num_timesteps 'abc' (30.15)",
+         lambda ws, c: _cmz(ws, _done_with(ws, c, num_timesteps="abc")),
+         "run/done.json is not what sb3-cmzdril wrote: num_timesteps is 'abc'"),
+    Case("train", "YAML n_envs 2.5 (30.7)", lambda ws, c: _cmz_yaml(ws, c, "  n_envs: 2.5\n"),
+         "n_envs must be an integer >= 1, got 2.5"),
+    Case("train", "YAML n_envs '3' (30.7)",
+         lambda ws, c: _cmz_yaml(ws, c, '  n_envs: "3"\n'),
+         "n_envs must be an integer >= 1, got '3'"),
+    Case("train", "YAML n_envs true (30.7)",
+         lambda ws, c: _cmz_yaml(ws, c, "  n_envs: true\n"),
+         "n_envs must be an integer >= 1, got True"),
+    Case("train", "YAML n_demos 'x'", lambda ws, c: _cmz_yaml(ws, c, '  n_demos: "x"\n'),
+         "n_demos must be a positive integer, got 'x'"),
+    Case("train", "-o empty (30.8)", lambda ws, c: _cmz(ws, ""), r"-o/--output is empty"),
+    Case("train-expert", "-o empty (30.8)", lambda ws, c: _expert(ws, ""), r"-o/--output is empty"),
+    Case("collect-demos", "-o empty (30.8)",
+         lambda ws, c: ["collect-demos", "--expert", _model(ws), "--env", ENV, "-o", ""], r"-o/--output is empty"),
+    Case("benchmark", "-o empty (30.8)", lambda ws, c: [*_benchmark(ws, c), "-o", ""], r"-o/--output is empty"),
+    Case("report", "-o empty (30.8)", lambda ws, c: ["report", str(ws / "cmzrun"), "-o", ""], r"-o/--output is empty"),
+    Case("train", "pool whose seeds do not reproduce its starts (30.9)",
+         lambda ws, c: _cmz(ws, c / "out", demos=_pool(ws, c, None, shift=1000)),
+         "pool.npz was not recorded on Pendulum-v1 with these env_kwargs: resetting its episode"),
+    Case("benchmark", "pool whose seeds do not reproduce its starts (30.9)",
+         lambda ws, c: _benchmark(ws, c, pool=_pool(ws, c, None, shift=1000)), "was not recorded on Pendulum-v1"),
+    Case("train", "YAML alpha .inf (30.11)",
+         lambda ws, c: _cmz_yaml(ws, c, "  alpha: .inf\n"),
+         "alpha must be finite, got inf"),
+    Case("train", "YAML alpha .nan (30.11)",
+         lambda ws, c: _cmz_yaml(ws, c, "  alpha: .nan\n"),
+         "alpha must be finite, got nan"),
+    Case("train-expert", "YAML tau .inf (30.11)",
+         lambda ws, c: _expert(ws, c / "e", "--hyperparams", _yaml(ws, c, "  tau: .inf\n", "sac.yml")),
+         "tau must be finite, got inf"),
+    Case("train", "YAML of random bytes (30.12)", lambda ws, c: _cmz(ws, c / "out", hyperparams=_bytes(c)),
+         r"hyperparameter file .*random.yml is not UTF-8 text"),
+    Case("train-expert", "YAML of random bytes (30.12)", lambda ws, c: _expert(ws, c / "e", "--hyperparams", _bytes(c)),
+         r"random.yml is not UTF-8 text"),
+    Case("evaluate", "model and demos of another env (30.14)",
+         lambda ws, c: _evaluate(ws, _cartpole_model(c), demos=_cartpole_pool(c)),
+         r"cartpole.zip was trained on another environment: its observation space is Box of shape \(4,\), "
+         r"Pendulum-v1's is Box of shape \(3,\)"),
+    Case("train-expert", "timesteps -1 (30.16)", lambda ws, c: _expert(ws, c / "e", "--timesteps", "-1"),
+         r"timesteps \(--timesteps\) must be a positive integer, got -1"),
 ]
+
+
+def _users_folder(case: Path) -> Path:
+    """A folder holding the user's own files, named as a run's would be."""
+    out = case / "out"
+    out.mkdir()
+    (out / "error.txt").write_text("what went wrong with my robot\n")
+    (out / "log.txt").write_text("my lab notes\n")
+    (out / ".draft.tmp.md").write_text("a draft\n")
+    return out
+
+
+def _pool(ws: Path, case: Path, seed: int | None, shift: int = 0) -> str:
+    """The workspace pool with episode 0's reset seed set to ``seed`` and every seed moved by ``shift``."""
+    with np.load(ws / "demos.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["seeds"] = arrays["seeds"] + shift
+    if seed is not None:
+        arrays["seeds"][0] = seed
+    path = case / "pool.npz"
+    np.savez(path, **arrays)
+    return str(path)
+
+
+def _done_with(ws: Path, case: Path, **changes: object) -> Path:
+    """A copy of the finished run whose done.json has ``changes`` edited in by hand."""
+    run = _run_copy(ws, case)
+    done = json.loads((run / "done.json").read_text())
+    (run / "done.json").write_text(json.dumps({**done, **changes}))
+    return run
+
+
+def _bytes(case: Path) -> str:
+    path = case / "random.yml"
+    path.write_bytes(bytes(np.random.default_rng(0).integers(128, 256, size=200, dtype=np.uint8)))
+    return str(path)
+
+
+def _cartpole_pool(case: Path) -> str:
+    path = case / "cartpole.npz"
+    record("CartPole-v1", cartpole_expert, n_episodes=2, max_steps=20).save(path)
+    return str(path)
 
 
 def _hand_edited(ws: Path, case: Path, name: str, text: str) -> Path:
@@ -324,3 +427,44 @@ def test_every_command_has_cases():
 
     commands = set(build_parser()._subparsers._group_actions[0].choices)
     assert commands == {c.command for c in CASES}
+
+
+# -- the library's side of the same causes -------------------------------------------------------------
+@pytest.mark.parametrize("final_evaluation", [[1], "lowest", {"lowest_u": 3}, {"lowest_u": {"epoch": "x"}}])
+def test_report_leaves_out_a_done_json_final_evaluation_of_another_shape(final_evaluation, ws, tmp_path, capsys):
+    """Issue 30, cause 5: a hand-edited final_evaluation in done.json ended `report` with an
+    AttributeError; the run still counts, its selected epoch is left out with a note naming the file."""
+    run = tmp_path / "runs" / "cmzrun"
+    shutil.copytree(ws / "cmzrun", run)
+    done = json.loads((run / "done.json").read_text())
+    (run / "done.json").write_text(json.dumps({**done, "final_evaluation": final_evaluation}))
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report")]) == 0
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    results = (tmp_path / "report" / "results.md").read_text()
+    assert "done.json" in results and "its final_evaluation" in results, results
+
+
+@pytest.mark.parametrize("option", ["alpha", "ema", "u0", "dril_quantile", "ensemble_learning_rate", "bc_learning_rate",
+                                    "learning_rate", "gamma", "ent_coef", "vf_coef", "max_grad_norm", "target_kl"])
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_every_float_option_of_cmzdril_must_be_finite(option, value, pendulum_demos):
+    """Issue 30, cause 11: CMZDRIL(alpha=inf) passed (``not alpha > 0``) and failed in torch once
+    training ran; every float option is refused, named, before anything is built."""
+    with pytest.raises(UserError, match=f"^{option} must be finite, got {value}$"):
+        CMZDRIL("MlpPolicy", ENV, demonstrations=pendulum_demos, **{**TINY, option: value})
+    with pytest.raises(UserError, match="alpha must be > 0 and finite"):
+        CMZReward(alpha=float("inf"))
+
+
+@pytest.mark.parametrize("seed", [-5, -2, 2**32])
+def test_reset_seeds_outside_what_gymnasium_takes_are_refused_up_front(seed, pendulum_demos, tmp_path):
+    """Issue 30, cause 4: only -1 (unknown) was checked; -5 failed deep inside gymnasium's reset,
+    after a run's files were written. A pool with such a seed is refused when built or loaded."""
+    d = pendulum_demos
+    with pytest.raises(UserError, match=r"reset seeds must be integers in \[0, 2\*\*32\)"):
+        Demonstrations(d.observations, d.actions, d.episode_lengths, seeds=[seed, 0])
+    np.savez(tmp_path / "d.npz", format_version=np.asarray(FORMAT_VERSION), observations=d.observations,
+             actions=d.actions, episode_lengths=d.episode_lengths, seeds=np.asarray([0, seed]))
+    with pytest.raises(UserError, match=r"d.npz: reset seeds must be integers .* episodes \[1\]"):
+        Demonstrations.load(tmp_path / "d.npz")

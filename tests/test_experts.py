@@ -21,6 +21,7 @@ from sb3_cmzdril.experts import (
     run_episode,
     train_expert,
 )
+from sb3_cmzdril.io import LOCK_FILE
 
 ENV = "Pendulum-v1"
 # Tiny SAC, 50-step episodes: a few hundred steps train in a couple of seconds.
@@ -76,7 +77,7 @@ def test_train_expert_writes_model_and_metadata(trained):
     assert "train-expert" in meta["command"] or meta["command"]  # sys.argv of the process
     assert meta["wall_time_s"] >= 0 and [e["timesteps"] for e in meta["evaluations"]] == [100, 200]
     # no temporary files left behind
-    assert not [p for p in trained.rglob(".*") if p.is_file()]
+    assert not [p for p in trained.rglob(".*") if p.is_file() and p.name != LOCK_FILE]  # the lock's file stays
 
 
 @pytest.mark.slow
@@ -106,6 +107,7 @@ def test_resume_continues_to_total(tiny_yaml, tmp_path):
     assert [e["timesteps"] for e in meta["evaluations"]] == [100, 200, 300]
     # only the latest checkpoint is kept
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        LOCK_FILE,
         "best.json",
         "model_300_steps.zip",
         "replay_buffer_300_steps.pkl",
@@ -140,7 +142,7 @@ def test_interruption_leaves_resumable_checkpoint_and_keeps_best(tiny_yaml, tmp_
     assert not (out / "metadata.json").exists()
     assert _state(out)["num_timesteps"] == 200
     SAC.load(out / "model.zip", device="cpu")  # the best-so-far model is complete and loadable
-    assert not [p for p in out.rglob(".*") if p.is_file()]  # no temporary files left
+    assert not [p for p in out.rglob(".*") if p.is_file() and p.name != LOCK_FILE]  # no temporary files left
     # a hard kill (SIGKILL) mid-write would leave a temporary file: the next run removes it
     stale = out / "checkpoints" / ".replay_buffer_300_steps.pkl.abc123.tmp.pkl"
     stale.write_bytes(b"half written")
@@ -172,7 +174,7 @@ def test_train_expert_rejects_unsupported_keys_and_other_runs(tmp_path, tiny_yam
 
 
 def test_second_process_on_same_folder_is_refused(tmp_path, tiny_yaml):
-    from sb3_cmzdril.io import lock_output
+    from sb3_cmzdril.io import lock_output, unlock_output
 
     ckpt = tmp_path / "run" / "checkpoints"
     ckpt.mkdir(parents=True)
@@ -181,7 +183,7 @@ def test_second_process_on_same_folder_is_refused(tmp_path, tiny_yaml):
         with pytest.raises(ValueError, match="already running"):
             train_expert(ENV, timesteps=100, hyperparams_path=tiny_yaml, output_dir=tmp_path / "run", **FAST)
     finally:
-        held.close()
+        unlock_output(ckpt, held)
 
 
 # -- collect-demos -------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from helpers import ENV, Interrupt
+from helpers import ENV, TINY, Interrupt, pendulum_expert
 from sb3_cmzdril import io
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments.run import grid, worker
@@ -236,3 +236,119 @@ def test_run_held_by_another_process_is_skipped_not_failed(tiny, tmp_path, capsy
         assert not (run / "error.txt").exists()
     finally:
         io.unlock_output(run, held)
+
+
+# -- issue 30's probe: faults that must not lose data nor pass for the user's mistake ---------------
+FAULTY_ENVS = '''
+"""Envs with a bug of their own: a KeyError in step(), or in the constructor."""
+import gymnasium as gym
+from gymnasium.envs.classic_control.pendulum import PendulumEnv
+
+
+class StepFails(PendulumEnv):
+    def step(self, action):
+        raise KeyError("velocity_x")
+
+
+class ConstructorFails(PendulumEnv):
+    def __init__(self, **kwargs):
+        raise KeyError("velocity_x")
+
+
+gym.register("StepFails-v0", entry_point=StepFails, max_episode_steps=200)
+gym.register("ConstructorFails-v0", entry_point=ConstructorFails, max_episode_steps=200)
+'''
+
+
+@pytest.mark.parametrize("command, env", [("train", "StepFails-v0"), ("train", "ConstructorFails-v0"),
+                                          ("evaluate", "ConstructorFails-v0")])
+def test_an_envs_own_key_error_keeps_its_traceback_and_is_no_user_error(command, env, tiny, tmp_path):
+    """Issue 30, cause 10: a bug in the env (here a KeyError, in step() or in its constructor) is not
+    the user's mistake: exit 1 with its traceback, not "error: velocity_x" and exit 2, and never
+    blamed on env_kwargs/normalize the YAML holds."""
+    from sb3_cmzdril import CMZDRIL, Demonstrations
+
+    (tmp_path / "faulty_envs.py").write_text(FAULTY_ENVS)
+    environ = _env()
+    environ["PYTHONPATH"] = os.pathsep.join([str(tmp_path), environ["PYTHONPATH"]])
+    options = ["--env", f"faulty_envs:{env}", "--demos", str(tiny["pool"])]
+    if command == "train":
+        options += ["--reward", "cmz", "--hyperparams", str(tiny["hp"]), "--timesteps", str(2 * EPOCH),
+                    "--eval-episodes", "1", "--no-progress", "-o", str(tmp_path / "out")]
+    else:
+        model = tmp_path / "model.zip"
+        CMZDRIL("MlpPolicy", ENV, demonstrations=Demonstrations.load(tiny["pool"]), **TINY).save(model)
+        options += ["--model", str(model)]
+    done = subprocess.run([sys.executable, "-m", "sb3_cmzdril", command, *options], capture_output=True, text=True,
+                          env=environ, timeout=300)
+    assert done.returncode == 1, done.stderr[-3000:]
+    assert "Traceback (most recent call last)" in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "KeyError: 'velocity_x'", done.stderr[-3000:]
+    assert not any(line.startswith(f"sb3-cmzdril {command}: error") for line in done.stderr.splitlines())
+    assert "cannot make" not in done.stderr  # the old wrapper's "cannot make ... with the env_kwargs/normalize of"
+
+
+class _PendulumExpert:
+    """The PD expert as an object with ``predict``; ``meanwhile`` runs once, during its first action."""
+
+    def __init__(self, meanwhile: Callable[[], object] | None = None) -> None:
+        self.meanwhile = meanwhile
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        if self.meanwhile is not None:
+            meanwhile, self.meanwhile = self.meanwhile, None
+            meanwhile()
+        return pendulum_expert(obs)[0], None
+
+
+def _collect(expert: _PendulumExpert, output: Path, seed: int):
+    from sb3_cmzdril.experts import collect_demos
+
+    return collect_demos(expert, ENV, 1, seed=seed, output=output, env_kwargs={"max_episode_steps": 20},
+                         verbose=False)
+
+
+def test_two_collect_demos_to_one_pool_cannot_both_succeed(tmp_path):
+    """Issue 30, cause 2: two collect-demos started together to the same -o both printed "saved" and
+    the file held only the second pool. The one that saves second must fail, and leave the first's
+    pool and its record in place."""
+    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.errors import OutputExistsError
+
+    pool = tmp_path / "race" / "pool.npz"
+    # The second starts (and passes its checks) while the first is still recording, then saves first.
+    second = _PendulumExpert()
+    with pytest.raises(OutputExistsError, match="pool.npz already exists"):
+        _collect(_PendulumExpert(meanwhile=lambda: _collect(second, pool, seed=1000)), pool, seed=0)
+    assert Demonstrations.load(pool).seeds.tolist() == [1000]
+    assert json.loads((pool.parent / "metadata.json").read_text())["demos"]["seeds"] == [1000, 1000]
+    # While the other holds the folder, saving fails at once, naming it; nothing is replaced.
+    other = tmp_path / "busy" / "pool.npz"
+    other.parent.mkdir()
+    held = io.lock_output(other.parent)
+    try:
+        with pytest.raises(io.LockHeld, match=f"another process is writing demos in {other.parent}"):
+            _collect(_PendulumExpert(), other, seed=0)
+    finally:
+        io.unlock_output(other.parent, held)
+    assert not other.exists()
+
+
+def test_an_interrupted_first_segment_keeps_pretrain_csv_and_the_record_says_a_resume_reseeds(tiny, tmp_path):
+    """Issue 30, causes 3 and 18: pretrain.csv was written only when the first segment's learn()
+    returned, so a resumed run had none; and config.json did not say that a resume reseeds (its
+    train_command does not reproduce a resumed run), nor state.json with which seed."""
+    from sb3_cmzdril.experiments.run.run_folder import RESUME_NOTE
+
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(_spec(tiny, out), callbacks=[Interrupt(at=CHECKPOINT_EVERY * EPOCH)])
+    curve = (out / "pretrain.csv").read_text()
+    assert curve.startswith("epoch,train_nll,validation_nll\n") and len(curve.splitlines()) > 2
+    (out / "pretrain.csv").unlink()  # as a run interrupted by an older version left it
+    run_experiment(_spec(tiny, out))
+    assert (out / "pretrain.csv").read_text() == curve  # rewritten from the checkpoint's history
+    assert json.loads((out / "config.json").read_text())["resume"] == RESUME_NOTE
+    segments = json.loads((out / "state.json").read_text())["segments"]
+    assert [(s["from_timesteps"], s["seed"]) for s in segments] == [(0, 0), (CHECKPOINT_EVERY * EPOCH,
+                                                                            CHECKPOINT_EVERY * EPOCH)]

@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parent.parent / PACKAGE
 #: higher one; a module belongs to the entry that names it or the package holding it (longest match).
 #: The package itself (``sb3_cmzdril/__init__.py``, the public face) is its own layer.
 LAYERS: list[tuple[str, set[str]]] = [
-    ("foundations: version, files, printing, spaces, optional extras",
-     {"_version", "io", "console", "spaces", "extras", "_mujoco_log", "policies"}),
+    ("foundations: version, the error class, files, printing, spaces, optional extras",
+     {"_version", "errors", "io", "console", "spaces", "extras", "_mujoco_log", "policies"}),
     ("records and configuration", {"shipped", "selection", "demo_readers", "demos", "hyperparams"}),
     ("the imitation parts: ensemble, reward rules, scoring, behaviour cloning",
      {"ensemble", "rewards", "scoring", "bc"}),

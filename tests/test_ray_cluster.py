@@ -23,7 +23,7 @@ from helpers import ENV, POOL_EPISODES, Interrupt, pendulum_expert, record
 from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.experiments import report
 from sb3_cmzdril.experiments.run import remote
-from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
+from sb3_cmzdril.experiments.run.grid import held_elsewhere, plan_grid, run_grid
 from sb3_cmzdril.experiments.run.runs import run_experiment, train_command
 
 ray = pytest.importorskip("ray")
@@ -131,7 +131,7 @@ def test_ray_grid_equals_the_local_grid(grids):
         done = {b: json.loads(_read(s.output_dir, "done.json")) for b, s in (("local", local), ("ray", ray_spec))}
         assert done["ray"]["final_evaluation"] == done["local"]["final_evaluation"]
         assert done["ray"]["run_dir"] == ray_spec.output_dir
-        assert not (Path(ray_spec.output_dir) / ".lock").exists()
+        assert not held_elsewhere(ray_spec.output_dir)  # the driver's lock on the run released
 
 
 def test_worker_errors_come_back_as_on_the_local_backend(grids):
@@ -140,7 +140,7 @@ def test_worker_errors_come_back_as_on_the_local_backend(grids):
     text = (Path(on_ray.run_dir) / "error.txt").read_text()
     # error.txt says where the run ran: the worker's copy of the YAML, so compare what follows the path.
     assert local.error.split("bad.yml", 1)[1] in text
-    assert not (Path(on_ray.run_dir) / ".lock").exists()
+    assert not held_elsewhere(on_ray.run_dir)
 
 
 def test_interrupted_run_resumed_on_the_worker(grids):

@@ -24,6 +24,7 @@ from sb3_cmzdril.cli.evaluate import add_evaluate
 from sb3_cmzdril.cli.experiment import add_benchmark, add_train
 from sb3_cmzdril.cli.experts import add_collect_demos, add_train_expert
 from sb3_cmzdril.cli.report import add_report
+from sb3_cmzdril.errors import UserError
 
 #: The commands, in the order ``--help`` lists them.
 _COMMANDS = (add_train_expert, add_collect_demos, add_train, add_evaluate, add_benchmark, add_report)
@@ -45,8 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Exceptions that mean "the input is wrong" (a bad value, a missing or existing file, an optional
-#: package not installed): one line and exit code 2. Anything else is a bug and keeps its traceback.
-USER_ERRORS = (ValueError, OSError, KeyError, ImportError)
+#: package not installed): one line and exit code 2. The package raises them where it checks its
+#: input; anything else, a ValueError or KeyError of an env or of SB3 included, is a bug somewhere
+#: and keeps its traceback (exit code 1).
+USER_ERRORS = (UserError,)
 #: Commands that continue from their checkpoints when run again.
 RESUMABLE = ("train-expert", "train", "benchmark")
 
@@ -83,9 +86,16 @@ def _signal_handlers() -> Iterator[None]:
 
 
 def _one_line(error: BaseException) -> str:
-    # str(KeyError("x")) is "'x'", quoted; its argument is the message.
-    text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+    text = str(error)
     return "; ".join(line.strip() for line in text.splitlines() if line.strip()) or type(error).__name__
+
+
+def _check_output_option(args: argparse.Namespace) -> None:
+    """An empty ``-o`` is a UserError: ``Path("")`` is the current folder, so ``-o "$OUT"`` with
+    ``$OUT`` unset would otherwise write the command's files into whatever folder the shell is in."""
+    output = getattr(args, "output", None)
+    if output is not None and not str(output).strip():
+        raise UserError(f"-o/--output is empty ({output!r}); name the output explicitly (an unset variable?)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # Progress displays and tables are rich's: the command line is the experiments extra's tooling.
         require_extra("rich", "experiments", "the sb3-cmzdril command line")
+        _check_output_option(args)
         with _signal_handlers(), show_library_messages():  # the CLI shows the library's notes
             return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -2,6 +2,8 @@
 VecNormalize statistics of the model's run folder where it has them."""
 from __future__ import annotations
 
+from sb3_cmzdril.errors import MissingFileError, UserError
+
 
 def add_evaluate(sub) -> None:
     p = sub.add_parser(
@@ -57,14 +59,14 @@ def _run_evaluate(args) -> int:
     check_env_id(args.env)
     model_path = Path(args.model)
     if not model_path.is_file():
-        raise FileNotFoundError(f"model file not found: {model_path}")
+        raise MissingFileError(f"model file not found: {model_path}")
     _check_model_zip(model_path)
     # A run folder's config.json knows how the model was trained and evaluated.
     run_config = _run_config(model_path.parent / CONFIG_FILE)
     if args.env_kwargs is not None:
         env_kwargs = safe_eval(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
-            raise ValueError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
+            raise UserError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
     else:
         env_kwargs = run_config.get("env_kwargs") or {}
     make_env(args.env, env_kwargs).close()  # kwargs the env does not take: one line now, not a traceback later
@@ -130,10 +132,10 @@ def _run_config(path) -> dict:
     for key, (kind, what) in _CONFIG_TYPES.items():
         value = config.get(key)
         if value is not None and not isinstance(value, kind):
-            raise ValueError(f"{path}: {key} must be {what}, got {value!r}")
+            raise UserError(f"{path}: {key} must be {what}, got {value!r}")
     held_out = config.get("eval_episodes") or []
     if not all(isinstance(i, int) and not isinstance(i, bool) for i in held_out):
-        raise ValueError(f"{path}: eval_episodes must be a list of episode indices, got {held_out!r}")
+        raise UserError(f"{path}: eval_episodes must be a list of episode indices, got {held_out!r}")
     return config
 
 
@@ -147,9 +149,9 @@ def _check_model_zip(path) -> None:
         with zipfile.ZipFile(path) as zf:
             data = json.loads(zf.read("data").decode("utf-8"))
     except (zipfile.BadZipFile, KeyError, ValueError, OSError) as e:
-        raise ValueError(f"model file {path} is corrupt, truncated or not an SB3 model zip: {e}") from None
+        raise UserError(f"model file {path} is corrupt, truncated or not an SB3 model zip: {e}") from None
     if not isinstance(data, dict):
-        raise ValueError(f"model file {path} is not an SB3 model zip: its data entry is not a JSON object")
+        raise UserError(f"model file {path} is not an SB3 model zip: its data entry is not a JSON object")
 
 
 def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: dict):
@@ -167,21 +169,21 @@ def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: 
         try:
             indices = [int(i) for i in text.split(",") if i.strip()]
         except ValueError:
-            raise ValueError(f"--episodes must be comma-separated integers, got {text!r}") from None
+            raise UserError(f"--episodes must be comma-separated integers, got {text!r}") from None
         bad = [i for i in indices if not 0 <= i < n_pool]
         if bad or not indices:
-            raise ValueError(f"--episodes {text}: {demos_path} has {n_pool} episodes, numbered 0 to {n_pool - 1}")
+            raise UserError(f"--episodes {text}: {demos_path} has {n_pool} episodes, numbered 0 to {n_pool - 1}")
         return indices, "as asked (--episodes)"
     held_out = run_config.get("eval_episodes")
     if held_out and run_config.get("demos") and Path(run_config["demos"]).resolve() == Path(demos_path).resolve():
         if run_config.get("demos_sha256") not in (None, file_sha256(demos_path)):
-            raise ValueError(
+            raise UserError(
                 f"{demos_path} changed since the run was trained (sha256 differs from its config.json): its held-out "
                 "episodes cannot be told apart; pass --episodes"
             )
         bad = [i for i in held_out if not 0 <= i < n_pool]
         if bad:
-            raise ValueError(
+            raise UserError(
                 f"eval_episodes {bad} of the run's config.json are not episodes of {demos_path} ({n_pool} episodes, "
                 f"numbered 0 to {n_pool - 1}); pass --episodes"
             )
@@ -203,13 +205,13 @@ def _evaluation_statistics(path: str | None, model_path, run_config: dict):
 
     if path is not None:
         if not Path(path).is_file():
-            raise FileNotFoundError(f"VecNormalize statistics not found: {path}")
+            raise MissingFileError(f"VecNormalize statistics not found: {path}")
         return Path(path), f"observations normalised with {path} (--vecnormalize)"
     beside = Path(model_path).parent / VECNORMALIZE_FILE
     if beside.is_file():
         return beside, f"observations normalised with {beside}, found beside the model"
     if _normalises_observations((run_config.get("hyperparams_values") or {}).get("normalize")):
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"{model_path} was trained on VecNormalize'd observations (normalize in its config.json) but {beside} "
             "is missing; pass the statistics with --vecnormalize"
         )

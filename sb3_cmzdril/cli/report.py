@@ -1,6 +1,8 @@
 """The ``report`` command: results.md, its tables and figures from one runs folder or two."""
 from __future__ import annotations
 
+from sb3_cmzdril.errors import OutputExistsError
+
 
 def add_report(sub) -> None:
     p = sub.add_parser(
@@ -74,7 +76,7 @@ def _run_report(args) -> int:
     out = Path(args.output)
     existing = [name for name in report_outputs() if (out / name).exists()]
     if existing and not args.force:
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{out} already holds {', '.join(existing)}; pass --force to replace them, or choose another -o"
         )
     path = write_report(

@@ -54,6 +54,7 @@ from sb3_cmzdril.envs.waypoint_field import (
 )
 from sb3_cmzdril.envs.waypoint_lidar import Lidar
 from sb3_cmzdril.envs.waypoint_render import draw_background, draw_frame
+from sb3_cmzdril.errors import UserError
 
 #: Observation entries after the lidar block (their order is fixed; see the module docstring).
 OBS_TAIL = ("goal_distance", "goal_bearing_sin", "goal_bearing_cos", "heading_sin", "heading_cos",
@@ -147,11 +148,11 @@ class WaypointNavEnv(gym.Env):
         self.dt = _check_float("dt", dt, 1e-6)
         if self.max_speed * self.dt > self.vehicle_radius + self.obstacle_radius[0]:
             # Collisions are checked at the end of each step; a longer stride could jump an obstacle.
-            raise ValueError(
+            raise UserError(
                 f"max_speed * dt = {self.max_speed * self.dt:g} m per step is more than "
                 f"{self.vehicle_radius + self.obstacle_radius[0]:g} m: the vehicle could pass through obstacles")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise UserError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
 
         self.half = 0.5 * self.arena_size
@@ -324,9 +325,9 @@ class WaypointNavEnv(gym.Env):
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
+        raise UserError(f"{name} must be an integer, got {value!r}")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise UserError(f"{name} must be >= {minimum}, got {value}")
     return int(value)
 
 
@@ -334,7 +335,7 @@ def _check_float(name: str, value: Any, minimum: float) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+        raise UserError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(v) or v < minimum:
-        raise ValueError(f"{name} must be a finite number >= {minimum:g}, got {value!r}")
+        raise UserError(f"{name} must be a finite number >= {minimum:g}, got {value!r}")
     return v

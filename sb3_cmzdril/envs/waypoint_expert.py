@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_cmzdril.envs.waypoint import OBS_TAIL, WaypointNavEnv
+from sb3_cmzdril.errors import UserError
 
 
 class WaypointReactiveExpert:
@@ -68,14 +69,14 @@ class WaypointReactiveExpert:
         action_space: gym.spaces.Space | None = None,
     ) -> None:
         if int(n_beams) < 1:
-            raise ValueError(f"n_beams must be >= 1, got {n_beams}")
+            raise UserError(f"n_beams must be >= 1, got {n_beams}")
         if int(n_headings) < 4:
-            raise ValueError(f"n_headings must be >= 4, got {n_headings}")
+            raise UserError(f"n_headings must be >= 4, got {n_headings}")
         for name, v in (("lidar_range", lidar_range), ("arena_size", arena_size),
                         ("max_turn_rate", max_turn_rate), ("dt", dt), ("safety_radius", safety_radius),
                         ("lookahead", lookahead)):
             if not (math.isfinite(float(v)) and float(v) > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
+                raise UserError(f"{name} must be a positive number, got {v!r}")
         self.n_beams = int(n_beams)
         self.obs_dim = self.n_beams + len(OBS_TAIL)
         self.lidar_range = float(lidar_range)
@@ -84,7 +85,7 @@ class WaypointReactiveExpert:
         self.safety_radius = float(safety_radius)
         self.lookahead = float(lookahead)
         if not 0.0 <= float(turn_weight) < 1.0:
-            raise ValueError(f"turn_weight must be in [0, 1), got {turn_weight!r}")
+            raise UserError(f"turn_weight must be in [0, 1), got {turn_weight!r}")
         self.turn_weight = float(turn_weight)
         self.observation_space = observation_space
         self.action_space = action_space

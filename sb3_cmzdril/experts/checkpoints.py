@@ -14,6 +14,7 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts.loading import load_sb3_model
 from sb3_cmzdril.io import atomic_path, read_json, write_json
 
@@ -66,7 +67,7 @@ def training_state(out: Path, ckpt_dir: Path, env_id: str, algo: str, seed: int,
         saved = read_json(state_path)
         for key in ("env_id", "algo"):
             if saved.get(key) != state[key]:
-                raise ValueError(
+                raise UserError(
                     f"{out} holds a checkpoint of {saved.get('algo')} on {saved.get('env_id')}, "
                     f"not {algo} on {env_id}; use another --output folder"
                 )
@@ -98,13 +99,13 @@ def load_checkpoint(algo_cls: type[BaseAlgorithm], ckpt_dir: Path, state: dict[s
     if buffer_file and isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
         buffer_path = ckpt_dir / buffer_file
         if not buffer_path.is_file():
-            raise FileNotFoundError(f"checkpoint replay buffer missing: {buffer_path}")
+            raise MissingFileError(f"checkpoint replay buffer missing: {buffer_path}")
         try:
             model.load_replay_buffer(buffer_path)
         except Exception as e:  # pickle errors come in many types
-            raise ValueError(f"checkpoint replay buffer {buffer_path} is corrupt: {e}") from e
+            raise UserError(f"checkpoint replay buffer {buffer_path} is corrupt: {e}") from e
     if int(model.num_timesteps) != int(state["num_timesteps"]):
-        raise ValueError(
+        raise UserError(
             f"checkpoint {ckpt_model} has {model.num_timesteps} steps, state.json says {state['num_timesteps']}"
         )
     # Each segment draws fresh random numbers: the seed moves with the step count.

@@ -17,9 +17,21 @@ import numpy as np
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.console import RENDERABLE
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import OutputExistsError, UserError
 from sb3_cmzdril.experts.envs import check_env_id, check_seed
 from sb3_cmzdril.experts.loading import resolve_expert
-from sb3_cmzdril.io import PathLike, command_line, jsonable, read_json, read_json_or_empty, versions, write_json
+from sb3_cmzdril.io import (
+    LOCK_FILE,
+    PathLike,
+    command_line,
+    jsonable,
+    lock_output,
+    read_json,
+    read_json_or_empty,
+    unlock_output,
+    versions,
+    write_json,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -35,7 +47,7 @@ def load_demonstrations(path: PathLike) -> Demonstrations:
     try:
         return Demonstrations.load(path)
     except zlib.error as e:
-        raise ValueError(f"demo file {path} is corrupt: {e}") from e
+        raise UserError(f"demo file {path} is corrupt: {e}") from e
 
 
 def run_episode(expert: Any, env: gym.Env, seed: int) -> dict[str, Any]:
@@ -69,7 +81,7 @@ def run_episode(expert: Any, env: gym.Env, seed: int) -> dict[str, Any]:
 def _episode_returns(demos: Demonstrations) -> np.ndarray:
     returns = demos.episode_returns
     if returns is None:  # run_episode records every reward; only a caller's own pool can lack them
-        raise ValueError("the demonstrations hold no rewards, so there are no returns to report")
+        raise UserError("the demonstrations hold no rewards, so there are no returns to report")
     return returns
 
 
@@ -126,7 +138,7 @@ def collect_demos(
     check_env_id(env_id)
     seed = check_seed(seed)
     if isinstance(n_episodes, bool) or int(n_episodes) < 1:
-        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+        raise UserError(f"n_episodes must be >= 1, got {n_episodes}")
     check_seed(seed + int(n_episodes) - 1)
     if output is not None and not force:
         _check_demos_output(Path(output), env_id, expert)
@@ -140,8 +152,18 @@ def collect_demos(
     if verbose:
         _log_summary(demos, f"{description} on {env_id}: {demos.n_episodes} episodes, {len(demos)} steps")
     if output is not None:
-        demos.save(output)
-        _record_demos_provenance(Path(output), description, env_id, demos, seed, env_kwargs)
+        # Two collect-demos to one pool: the first to save wins, the other fails (the check above ran
+        # before either had saved). The lock is the folder's, as metadata.json is.
+        folder = Path(output).parent
+        folder.mkdir(parents=True, exist_ok=True)
+        lock = lock_output(folder, f"another process is writing demos in {folder} (lock {folder / LOCK_FILE})")
+        try:
+            if not force:
+                _check_demos_output(Path(output), env_id, expert)
+            demos.save(output)
+            _record_demos_provenance(Path(output), description, env_id, demos, seed, env_kwargs)
+        finally:
+            unlock_output(folder, lock)
         if verbose:
             logger.info("saved %s (provenance in %s)", output, Path(output).parent / "metadata.json")
     return demos
@@ -154,7 +176,7 @@ def _check_demos_output(output: Path, env_id: str, expert: Any) -> None:
     has none and belongs to this very expert (train-expert's record in the expert's own folder).
     """
     if output.exists():
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{output} already exists ({_describe_pool(output)}); pass --force to replace it, or choose another -o"
         )
     meta_path = output.parent / "metadata.json"
@@ -163,7 +185,7 @@ def _check_demos_output(output: Path, env_id: str, expert: Any) -> None:
     meta = read_json_or_empty(meta_path)
     recorded = meta.get("demos")
     if isinstance(recorded, dict):
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{meta_path} already records the demo pool {recorded.get('file')!r} of {recorded.get('expert')}; "
             f"saving {output.name} there would replace that record: pass --force, or choose another folder"
         )
@@ -174,7 +196,7 @@ def _check_demos_output(output: Path, env_id: str, expert: Any) -> None:
            and meta.get("env_id") == env_id)
     if not own:
         maker = meta.get("expert") or meta.get("algo") or "something else"
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{meta_path} describes {maker} on {meta.get('env_id')}, "
             f"not this expert; pass --force to add this pool's record to it, or choose another folder"
         )

@@ -8,6 +8,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from sb3_cmzdril.errors import UserError
+
 
 def env_name(env_id: str) -> str:
     """``module:EnvId-v0`` -> ``EnvId-v0`` (used for default folder names)."""
@@ -25,18 +27,18 @@ def check_env_id(env_id: str) -> str:
         try:
             importlib.import_module(module)
         except ImportError as e:
-            raise ValueError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
+            raise UserError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
     try:
         gym.spec(name if sep else env_id)
     except gym.error.Error as e:
-        raise ValueError(f"unknown environment {env_id!r}: {e}") from None
+        raise UserError(f"unknown environment {env_id!r}: {e}") from None
     return env_id
 
 
 def check_seed(seed: int) -> int:
     """A reset/network seed: numpy and gymnasium accept integers in [0, 2**32)."""
     if isinstance(seed, bool) or int(seed) != seed or not 0 <= int(seed) < 2**32:
-        raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
+        raise UserError(f"seed must be an integer in [0, 2**32), got {seed!r}")
     return int(seed)
 
 

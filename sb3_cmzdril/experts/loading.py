@@ -36,6 +36,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS
 from sb3_cmzdril.io import PathLike
 
@@ -78,7 +79,7 @@ def algo_class(algo: str) -> type[BaseAlgorithm]:
     """The SB3 (or sb3-contrib) class of ``algo`` (case-insensitive); a ValueError listing the known ones."""
     classes = {**contrib_classes(), **algorithm_classes()}
     if algo.lower() not in classes:
-        raise ValueError(f"unknown algorithm {algo!r}; available: {sorted(classes)}")
+        raise UserError(f"unknown algorithm {algo!r}; available: {sorted(classes)}")
     return classes[algo.lower()]
 
 
@@ -86,11 +87,11 @@ def load_sb3_model(algo_cls: type[BaseAlgorithm], path: Path, env: Any = None) -
     """Load an SB3 zip for inference/continuation with a clear error naming the path."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"model file not found: {path}")
+        raise MissingFileError(f"model file not found: {path}")
     try:
         return algo_cls.load(path, env=env, device="cpu")
     except (zipfile.BadZipFile, EOFError, KeyError, ValueError, RuntimeError, OSError, AttributeError, TypeError) as e:
-        raise ValueError(f"cannot load {algo_cls.__name__} model from {path} (corrupt or not an SB3 zip?): {e}") from e
+        raise UserError(f"cannot load {algo_cls.__name__} model from {path} (corrupt or not an SB3 zip?): {e}") from e
 
 
 # -- what a zip and the folder around it say ---------------------------------------------------------
@@ -100,13 +101,13 @@ def read_model_data(path: Path) -> dict[str, Any]:
         with zipfile.ZipFile(path) as zf:
             data = json.loads(zf.read("data").decode("utf-8"))
     except zipfile.BadZipFile:
-        raise ValueError(f"expert file {path} is not a zip file (an SB3 model is a zip)") from None
+        raise UserError(f"expert file {path} is not a zip file (an SB3 model is a zip)") from None
     except KeyError:
-        raise ValueError(f"expert file {path} is a zip but not an SB3 model (it has no 'data' entry)") from None
+        raise UserError(f"expert file {path} is a zip but not an SB3 model (it has no 'data' entry)") from None
     except (ValueError, UnicodeDecodeError, OSError) as e:
-        raise ValueError(f"expert file {path} is corrupt: its 'data' entry is not readable JSON ({e})") from None
+        raise UserError(f"expert file {path} is corrupt: its 'data' entry is not readable JSON ({e})") from None
     if not isinstance(data, dict) or "policy_class" not in data:
-        raise ValueError(f"expert file {path} is not an SB3 model: its 'data' names no policy class")
+        raise UserError(f"expert file {path} is not an SB3 model: its 'data' names no policy class")
     return data
 
 
@@ -154,19 +155,19 @@ def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | No
         if error is None:
             continue
         if key == "policy_class":
-            raise ValueError(
+            raise UserError(
                 f"expert file {path}: its policy class does not load here ({type(error).__name__}: {error})"
             )
         if key in ("observation_space", "action_space"):
             if env is None:
-                raise ValueError(
+                raise UserError(
                     f"expert file {path} pickles its {key} with {type(error).__name__} ({error}); "
                     "load it with the env it acts in (env=...)"
                 )
             space = getattr(env, key)
             recorded = item.get("shape")
             if recorded is not None and space.shape is not None and tuple(recorded) != tuple(space.shape):
-                raise ValueError(
+                raise UserError(
                     f"expert file {path} was trained with {key} of shape {tuple(recorded)}, "
                     f"the env has {tuple(space.shape)}"
                 )
@@ -226,7 +227,7 @@ def find_model_files(path: PathLike) -> ZooFiles:
     if path.is_file():
         return ZooFiles(path, _stats_folder(path))
     if not path.is_dir():
-        raise FileNotFoundError(f"expert model not found: {path}")
+        raise MissingFileError(f"expert model not found: {path}")
     if (path / "model.zip").is_file():
         return ZooFiles(path / "model.zip", _stats_folder(path / "model.zip"))
     zips = sorted(path.glob("*.zip"))
@@ -234,7 +235,7 @@ def find_model_files(path: PathLike) -> ZooFiles:
     chosen = named if named else zips
     if len(chosen) != 1:
         found = ", ".join(z.name for z in zips) or "none"
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"expert folder {path} has no model.zip and no single zoo agent <Env>.zip (zips: {found}); "
             "pass the zip itself"
         )
@@ -259,7 +260,7 @@ def read_zoo_yaml(path: Path) -> dict[str, Any]:
     try:
         data = yaml.load(path.read_text(encoding="utf-8"), Loader=_ZooYamlLoader)
     except (yaml.YAMLError, ValueError, OSError) as e:
-        raise ValueError(f"zoo file {path} is not readable YAML: {e}") from None
+        raise UserError(f"zoo file {path} is not readable YAML: {e}") from None
     return data if isinstance(data, dict) else {}
 
 
@@ -288,9 +289,9 @@ def load_vecnormalize(path: Path) -> Any:
         with open(path, "rb") as f:
             stats = _GymTolerantUnpickler(f).load()
     except Exception as e:  # truncated, or pickled by something else: say which file
-        raise ValueError(f"zoo file {path} is not a readable VecNormalize pickle ({type(e).__name__}: {e})") from None
+        raise UserError(f"zoo file {path} is not a readable VecNormalize pickle ({type(e).__name__}: {e})") from None
     if not isinstance(stats, VecNormalize) or not hasattr(stats, "obs_rms"):
-        raise ValueError(f"zoo file {path} does not hold VecNormalize statistics (it holds {type(stats).__name__})")
+        raise UserError(f"zoo file {path} does not hold VecNormalize statistics (it holds {type(stats).__name__})")
     stats.training = False  # the statistics are the expert's: never update them from our episodes
     return stats
 
@@ -336,14 +337,14 @@ def _check_zoo_config(files: ZooFiles) -> None:
     config = files.config
     for key in ("env_wrapper", "frame_stack"):
         if config.get(key):
-            raise ValueError(
+            raise UserError(
                 f"expert {files.model}: its {files.stats / 'config.yml' if files.stats else 'config'} sets "
                 f"{key}: {config[key]!r}, which changes the observations the expert expects; "
                 "collect-demos does not apply it"
             )
     normalize = config.get("normalize")
     if normalize and files.vecnormalize is None:
-        raise ValueError(
+        raise UserError(
             f"expert {files.model}: config.yml sets normalize: {normalize!r} but there is no "
             f"{files.stats}/vecnormalize.pkl with the statistics the expert needs"
         )
@@ -390,7 +391,7 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
         except Exception as e:  # wrong algorithm or corrupt file: try the next one
             errors.append(f"{cls.__name__}: {type(e).__name__}: {e}")
     if model is None:
-        raise ValueError(f"cannot load expert model {model_path}: " + "; ".join(errors))
+        raise UserError(f"cannot load expert model {model_path}: " + "; ".join(errors))
     if env is not None:
         _check_fits_env(model, env, model_path)
     stats = load_vecnormalize(files.vecnormalize) if files.vecnormalize is not None else None
@@ -403,7 +404,7 @@ def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
     for key in ("observation_space", "action_space"):
         ours, theirs = getattr(env, key), getattr(model, key)
         if type(ours) is not type(theirs) or ours.shape != theirs.shape:
-            raise ValueError(f"expert {path} has {key} {theirs}, the env has {ours}")
+            raise UserError(f"expert {path} has {key} {theirs}, the env has {ours}")
 
 
 def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str]:
@@ -420,12 +421,12 @@ def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str
     looks_like_path = (isinstance(expert, Path) or os.sep in name or name.endswith((".zip", ".pkl"))
                        or name.startswith("."))
     if looks_like_path:
-        raise FileNotFoundError(f"expert model not found: {path}")
+        raise MissingFileError(f"expert model not found: {path}")
     from sb3_cmzdril.shipped import shipped_envs, shipped_expert
 
     if name in shipped_envs():
         return load_expert_model(shipped_expert(name), env=env), f"shipped:{name}"
-    raise ValueError(
+    raise UserError(
         f"unknown expert {name!r}: no such file or folder, no scripted expert and no shipped expert of that name; "
         f"scripted experts: {sorted(SCRIPTED_EXPERTS) or 'none registered'}; "
         f"shipped experts: {', '.join(shipped_envs()) or 'none'}"

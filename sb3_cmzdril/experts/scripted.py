@@ -12,6 +12,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from sb3_cmzdril.errors import UserError
+
 ScriptedExpertFactory = Callable[[gym.Env], Any]
 #: Registered factories by name (``sb3_cmzdril.envs`` adds ``"waypoint-reactive"`` on import).
 SCRIPTED_EXPERTS: dict[str, ScriptedExpertFactory] = {}
@@ -20,5 +22,5 @@ SCRIPTED_EXPERTS: dict[str, ScriptedExpertFactory] = {}
 def register_scripted_expert(name: str, factory: ScriptedExpertFactory) -> None:
     """Make ``factory`` available as ``--expert NAME`` (names are unique)."""
     if name in SCRIPTED_EXPERTS and SCRIPTED_EXPERTS[name] is not factory:
-        raise ValueError(f"a scripted expert named {name!r} is already registered")
+        raise UserError(f"a scripted expert named {name!r} is already registered")
     SCRIPTED_EXPERTS[name] = factory

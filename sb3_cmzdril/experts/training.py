@@ -20,12 +20,14 @@ from typing import Any
 
 import numpy as np
 
+from sb3_cmzdril.errors import OutputExistsError, UserError
 from sb3_cmzdril.experts.callbacks import ExpertEvalCallback, ProgressCallback, ResumableCheckpointCallback
 from sb3_cmzdril.experts.checkpoints import BEST_FILE, STATE_FILE, load_checkpoint, save_checkpoint, training_state
 from sb3_cmzdril.experts.envs import check_env_id, check_seed, env_name, make_vec_env
 from sb3_cmzdril.experts.loading import algo_class, load_sb3_model
 from sb3_cmzdril.io import (
     LOCK_FILE,
+    OutputLock,
     PathLike,
     lock_output,
     portable_path,
@@ -43,7 +45,7 @@ logger = logging.getLogger(__name__)
 def check_threads(n_threads: int | None) -> int | None:
     """``torch.set_num_threads`` value: None (torch's default) or >= 1 (0 would make torch raise)."""
     if n_threads is not None and (isinstance(n_threads, bool) or int(n_threads) < 1):
-        raise ValueError(f"threads must be >= 1, got {n_threads!r}")
+        raise UserError(f"threads must be >= 1, got {n_threads!r}")
     return n_threads
 
 
@@ -98,13 +100,18 @@ def train_expert(
     hp = load_hyperparams(hp_path, env_id)
     hp.check_supported(what="train-expert")
     check_constructor_kwargs(hp, [algo_cls])
-    total = int(timesteps if timesteps is not None else (hp.n_timesteps or 0))
-    if total <= 0:
-        raise ValueError(f"no number of timesteps: pass timesteps= / --timesteps or set n_timesteps in {hp_path}")
+    if timesteps is None and hp.n_timesteps is None:
+        raise UserError(f"no number of timesteps: pass timesteps= / --timesteps or set n_timesteps in {hp_path}")
+    # Whichever gave the number is named: "no number" for a number given would send the user looking elsewhere.
+    given, source = (timesteps, "timesteps (--timesteps)") if timesteps is not None else (
+        hp.n_timesteps, f"n_timesteps in {hp_path}")
+    if isinstance(given, bool) or not isinstance(given, (int, float)) or not float(given).is_integer() or given < 1:
+        raise UserError(f"{source} must be a positive integer, got {given!r}")
+    total = int(given)
     if final_eval_episodes < 1 or n_eval_episodes < 1:
-        raise ValueError("n_eval_episodes and final_eval_episodes must be >= 1")
+        raise UserError("n_eval_episodes and final_eval_episodes must be >= 1")
     if eval_freq < 0 or checkpoint_freq < 0:
-        raise ValueError(f"eval_freq and checkpoint_freq must be >= 0, got {eval_freq} and {checkpoint_freq}")
+        raise UserError(f"eval_freq and checkpoint_freq must be >= 0, got {eval_freq} and {checkpoint_freq}")
     out = Path(output_dir) if output_dir is not None else Path("experts") / env_name(env_id)
     model_path = out / "model.zip"
     finished_steps = _check_expert_folder(out, env_id, algo, total, force)
@@ -117,7 +124,9 @@ def train_expert(
     ckpt_dir = out / "checkpoints"
     created = [d for d in (*reversed(out.parents), out, ckpt_dir) if not d.exists()]
     ckpt_dir.mkdir(parents=True, exist_ok=True)
-    lock = lock_output(ckpt_dir, f"another train-expert is already running in {out} (lock {ckpt_dir / LOCK_FILE})")
+    lock: OutputLock | None = lock_output(
+        ckpt_dir, f"another train-expert is already running in {out} (lock {ckpt_dir / LOCK_FILE})"
+    )
     try:
         return _train_expert_locked(
             env_id, algo, algo_cls, hp, hp_path, total, seed, out, ckpt_dir, model_path, eval_freq, n_eval_episodes,
@@ -127,6 +136,10 @@ def train_expert(
         # A first attempt that failed before writing anything leaves no empty folders behind.
         unlock_output(ckpt_dir, lock)
         lock = None
+        if ckpt_dir in created:
+            # The lock file stays after a release; in a folder this attempt made and now removes,
+            # it goes too (no other process had a reason to open it: the folder is new).
+            (ckpt_dir / LOCK_FILE).unlink(missing_ok=True)
         for folder in reversed(created):
             try:
                 folder.rmdir()
@@ -152,7 +165,7 @@ def _check_expert_folder(out: Path, env_id: str, algo: str, total: int, force: b
     steps = meta.get("total_timesteps")
     if model_path.is_file() and steps is not None:
         if (meta.get("env_id"), meta.get("algo")) != (env_id, algo) and not force:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"{out} holds a {meta.get('algo')} expert on {meta.get('env_id')}, not {algo} on {env_id}; "
                 "use another --output folder (or --force to train over it)"
             )
@@ -161,14 +174,14 @@ def _check_expert_folder(out: Path, env_id: str, algo: str, total: int, force: b
         if not force:
             how = ("continue it from its checkpoint" if resumable
                    else "train a new expert over it (it has no checkpoint)")
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"{out} holds a finished expert trained for {steps} steps, fewer than the {total} asked; pass --force "
                 f"to {how}, or use another --output folder"
             )
         return None
     if not resumable and not force and (model_path.is_file() or meta_path.is_file()):
         found = " and ".join(p.name for p in (model_path, meta_path) if p.is_file())
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{out} already holds {found} but no checkpoint to resume from; pass --force to train a new expert "
             "there (replacing them), or use another --output folder"
         )

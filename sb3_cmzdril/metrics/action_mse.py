@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.spaces import Observations, n_steps, take
 
 #: What VecNormalize.normalize_obs is: an array or a dict of arrays in, the same kind out.
@@ -77,7 +78,7 @@ def _step_errors(
         dim = int(np.prod(action_space.shape))
         expert = demos.actions.reshape(n, -1)
         if expert.shape[1] != dim:
-            raise ValueError(
+            raise UserError(
                 f"demonstration actions have {expert.shape[1]} entries but the action space {action_space} has {dim}"
             )
         low = action_space.low.astype(np.float32).reshape(-1)
@@ -86,12 +87,12 @@ def _step_errors(
     elif isinstance(action_space, spaces.Discrete):
         expert = demos.actions.reshape(n, -1)
         if expert.shape[1] != 1:
-            raise ValueError(
+            raise UserError(
                 f"Discrete action space needs scalar actions; demonstrations have shape {demos.actions.shape[1:]}"
             )
         expert = expert[:, 0]
     else:
-        raise ValueError(f"action MSE supports Box and Discrete action spaces, got {action_space}")
+        raise UserError(f"action MSE supports Box and Discrete action spaces, got {action_space}")
 
     errors = np.empty(n, dtype=np.float64)
     for start in range(0, n, _PREDICT_CHUNK):

@@ -13,6 +13,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.metrics.evaluation import (
     ExpertEvaluation,
     _checked,
@@ -70,7 +71,7 @@ class ExpertEvalCallback(BaseCallback):
     ) -> None:
         super().__init__(verbose)
         if isinstance(eval_every, bool) or not isinstance(eval_every, (int, np.integer)) or eval_every < 1:
-            raise ValueError(f"eval_every must be a positive integer, got {eval_every!r}")
+            raise UserError(f"eval_every must be a positive integer, got {eval_every!r}")
         self.demos = as_demonstrations(demos)
         _require_seeds(self.demos)  # fail at construction, not after the first rollout
         self.eval_every = int(eval_every)
@@ -109,7 +110,7 @@ class ExpertEvalCallback(BaseCallback):
             return
         rows = list(csv.reader(text.splitlines()))
         if tuple(rows[0]) != self.CSV_COLUMNS:
-            raise ValueError(
+            raise UserError(
                 f"{path} exists with columns {rows[0]}, not {list(self.CSV_COLUMNS)}: pass another csv_path"
             )
         if not text.endswith("\n"):  # a run killed mid-row: start ours on a fresh line

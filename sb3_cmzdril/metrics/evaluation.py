@@ -13,6 +13,7 @@ from gymnasium import spaces
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.demos import UNKNOWN_SEED, Demonstrations, as_demonstrations
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.metrics.action_mse import (
     ObsTransform,
     _model_action_space,
@@ -83,21 +84,39 @@ class ExpertEvaluation:
 def _require_seeds(demos: Demonstrations) -> None:
     unknown = np.flatnonzero(demos.seeds == UNKNOWN_SEED)
     if unknown.size:
-        raise ValueError(
+        raise UserError(
             f"episodes {unknown.tolist()} of the demonstrations have no recorded reset seed (-1): they cannot "
             "be replayed from the expert's start; record demos with seeds or choose other episodes"
         )
 
 
+def same_observation(reset_observation: Any, episode_observations: Any) -> bool:
+    """Whether an env's reset observation is an episode's first one (as the demos store it: float32,
+    so compared at float32's precision); dict observations key by key."""
+    if isinstance(episode_observations, Mapping):
+        return isinstance(reset_observation, Mapping) and set(reset_observation) == set(episode_observations) and all(
+            same_observation(reset_observation[k], episode_observations[k]) for k in episode_observations
+        )
+    ours, theirs = np.asarray(reset_observation), np.asarray(episode_observations)[0]
+    if ours.shape != theirs.shape:
+        return False
+    return bool(np.allclose(ours.astype(np.float32), theirs, rtol=1e-5, atol=1e-6))
+
+
 def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
-    """``gym.make(env_id, **env_kwargs)``, or a ValueError naming the env and the kwargs when it
-    cannot be made with them (an unknown keyword, a bad value: each env raises its own type)."""
+    """``gym.make(env_id, **env_kwargs)``, or a UserError naming the env and the kwargs when it
+    cannot be made with them (an unknown keyword, a bad value: a TypeError, ValueError or assertion).
+
+    Without kwargs, or with another exception, the failure is the env's own and propagates as it is.
+    """
     kwargs = dict(env_kwargs or {})
     try:
         with mujoco_warnings_routed():
             return gym.make(env_id, **kwargs)
-    except Exception as e:
-        raise ValueError(f"cannot make {env_id} with env_kwargs {kwargs}: {type(e).__name__}: {e}") from None
+    except (TypeError, ValueError, AssertionError) as e:
+        if not kwargs:
+            raise
+        raise UserError(f"cannot make {env_id} with env_kwargs {kwargs}: {type(e).__name__}: {e}") from None
 
 
 def _make_env(env: str | gym.Env, env_kwargs: Mapping[str, Any] | None) -> tuple[gym.Env, bool, str | None]:
@@ -110,7 +129,7 @@ def _make_env(env: str | gym.Env, env_kwargs: Mapping[str, Any] | None) -> tuple
             "(VecEnvs are not accepted: each episode is reset with its own seed)"
         )
     if env_kwargs:
-        raise ValueError("env_kwargs only apply when env is an env id")
+        raise UserError("env_kwargs only apply when env is an env id")
     spec = getattr(env, "spec", None)
     return env, False, getattr(spec, "id", None)
 
@@ -184,9 +203,9 @@ def evaluate_against_expert(
     :raises ValueError: an episode's seed is unknown (-1), or the demos do not fit the env's spaces.
     """
     if start_mismatch not in ("warn", "raise", "ignore"):
-        raise ValueError(f"start_mismatch must be 'warn', 'raise' or 'ignore', got {start_mismatch!r}")
+        raise UserError(f"start_mismatch must be 'warn', 'raise' or 'ignore', got {start_mismatch!r}")
     if max_steps is not None and max_steps < 1:
-        raise ValueError(f"max_steps must be positive, got {max_steps}")
+        raise UserError(f"max_steps must be positive, got {max_steps}")
     demos = as_demonstrations(demos)
     _require_seeds(demos)
     env_obj, owned, env_id = _make_env(env, env_kwargs)
@@ -205,9 +224,7 @@ def evaluate_against_expert(
         for i in range(demos.n_episodes):
             expert = demos.episode(i)
             agent_obs, total = _rollout(model, env_obj, expert["seed"], transform, max_steps)
-            match = bool(
-                np.allclose(agent_obs[0].astype(np.float32), expert["observations"][0], rtol=1e-5, atol=1e-6)
-            )
+            match = same_observation(agent_obs[0], expert["observations"])
             if not match and start_mismatch != "ignore":
                 message = (
                     f"episode {i}: the reset observation for seed {expert['seed']} differs from the expert's "
@@ -215,7 +232,7 @@ def evaluate_against_expert(
                     "env version or env_kwargs?), so the Fréchet distance compares different starts"
                 )
                 if start_mismatch == "raise":
-                    raise ValueError(message)
+                    raise UserError(message)
                 warnings.warn(message, UserWarning, stacklevel=2)
             returns.append(total)
             lengths.append(len(agent_obs))

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.report.final_eval import FinalRow
 from sb3_cmzdril.experiments.report.formatting import md_table
 from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER
@@ -75,19 +76,19 @@ class Scores:
         return tuple(t for t in self.tasks[a] if t in self.tasks[b])
 
 
-def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores:
+def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | None:
     """The normalised scores of every (task, method) of ``rows`` with a run on each common trial.
 
     The trials are those every task and method in ``rows`` share (rliable's stratified bootstrap
     resamples runs within tasks and wants as many on each); a task whose runs have no positive expert
-    mean is left out. Raises ValueError when nothing is left, or when an (env, method) comes twice
-    (from two grids: which one counts is the caller's choice, not ours).
+    mean is left out. None when nothing is left; a UserError when an (env, method) comes twice (from
+    two grids: which one counts is the caller's choice, not ours).
     """
     chosen = [r for r in rows if r.policy == policy]
     seen: set[tuple[str, str]] = set()
     for row in chosen:
         if (row.env, row.method) in seen:
-            raise ValueError(f"{row.env} {METHOD_LABELS[row.method]} is in two grids: aggregate each task once")
+            raise UserError(f"{row.env} {METHOD_LABELS[row.method]} is in two grids: aggregate each task once")
         seen.add((row.env, row.method))
     trial_sets = [set(r.per_trial("return")) for r in chosen]
     trials = tuple(sorted(set.intersection(*trial_sets))) if trial_sets else ()
@@ -101,7 +102,7 @@ def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores:
         tasks.setdefault(row.method, []).append(row.env)
         columns.setdefault(row.method, []).append(values)
     if not trials or not columns:
-        raise ValueError("no task has final evaluations on a common set of trials with a positive expert return")
+        return None
     methods = [m for m in METHOD_ORDER if m in columns]
     return Scores(
         trials=trials,
@@ -284,9 +285,13 @@ def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
     return save_png(fig, path)
 
 
-def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = True) -> str:
-    """Write :data:`CSV` (and :data:`FIGURE`) into ``out``; returns the markdown section."""
-    agg = aggregate(score_matrix(rows))
+def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = True) -> str | None:
+    """Write :data:`CSV` (and :data:`FIGURE`) into ``out``; returns the markdown section, or None when
+    no task has final evaluations on common trials with a positive expert mean (nothing written)."""
+    scores = score_matrix(rows)
+    if scores is None:
+        return None
+    agg = aggregate(scores)
     out = Path(out)
     atomic_write_text(out / CSV, aggregate_csv(agg))
     figure = plot_aggregate(agg, out / FIGURE) if figures else None

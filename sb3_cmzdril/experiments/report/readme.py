@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Markers of the README block that ``write_report(readme=...)`` replaces.
@@ -22,11 +23,11 @@ def readme_block(path: PathLike) -> tuple[str, int, int]:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"README not found: {path}")
+        raise MissingFileError(f"README not found: {path}")
     text = path.read_text(encoding="utf-8")
     start, end = text.find(README_BEGIN), text.find(README_END)
     if start < 0 or end < start:
-        raise ValueError(f"{path} has no results block: add the lines {README_BEGIN!r} and {README_END!r} "
+        raise UserError(f"{path} has no results block: add the lines {README_BEGIN!r} and {README_END!r} "
                          "where it goes")
     return text, start + len(README_BEGIN), end
 

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
@@ -112,10 +113,10 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
             reader = csv.DictReader(f)
             missing = [c for c in FINAL_EVAL_COLUMNS if c not in (reader.fieldnames or [])]
             if missing:
-                raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+                raise UserError(f"{path}: missing column(s) {', '.join(missing)}")
             rows = list(reader)
     except UnicodeDecodeError as e:
-        raise ValueError(f"{path} is not a final_eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
+        raise UserError(f"{path} is not a final_eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
     result: dict[str, dict[str, np.ndarray]] = {}
     try:
         for policy in dict.fromkeys(row["policy"] for row in rows):
@@ -124,7 +125,7 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
             columns["episode"] = np.array([int(row["episode"]) for row in mine])
             result[policy] = columns
     except (TypeError, ValueError) as e:
-        raise ValueError(f"{path}: unreadable row ({e})") from None
+        raise UserError(f"{path}: unreadable row ({e})") from None
     return result
 
 
@@ -149,6 +150,30 @@ def run_identity(folder: Path) -> tuple[tuple[str, str, int], dict[str, Any]] | 
     return (env, method, seed), config
 
 
+def _done_summary(path: Path, notes: list[Skipped]) -> dict[str, Any]:
+    """done.json ({} when absent or unreadable), with a ``final_evaluation`` the tables can read.
+
+    The tables read ``final_evaluation[policy]["epoch"]`` (the lowest-u policy's epoch); a hand-edited
+    entry of another shape is left out with a note, so the rest of the run still counts.
+    """
+    summary = read_json_or_empty(path)
+    final = summary.get("final_evaluation")
+    if final is None:
+        return summary
+    valid = isinstance(final, dict) and all(
+        isinstance(entry, dict) and (entry.get("epoch") is None or _is_int(entry["epoch"])) for entry in final.values()
+    )
+    if not valid:
+        notes.append(Skipped(path, f"its final_evaluation {final!r:.60} (an object of policies with integer epochs "
+                                   "was expected): the selected epochs are not shown; its other numbers count"))
+        summary = {k: v for k, v in summary.items() if k != "final_evaluation"}
+    return summary
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _preference(record: RunRecord) -> tuple[bool, int]:
     """Which of several folders of one trial a report counts: a finished one, else the furthest."""
     return record.status == "done", int(record.columns["epoch"].size)
@@ -167,7 +192,7 @@ def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[
     """
     root = Path(runs_dir)
     if not root.is_dir():
-        raise FileNotFoundError(f"runs folder not found: {root}")
+        raise MissingFileError(f"runs folder not found: {root}")
     notes: list[Skipped] = []
     by_trial: dict[tuple[str, str, int], list[RunRecord]] = {}
     for csv_path in sorted(root.rglob(EVAL_CSV)):
@@ -186,7 +211,7 @@ def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[
             continue
         by_trial.setdefault((env, method, trial), []).append(
             RunRecord(env, method, trial, folder, columns, run_status(folder), config,
-                      read_final_eval(folder / FINAL_EVAL_CSV), read_json_or_empty(folder / DONE_FILE)))
+                      read_final_eval(folder / FINAL_EVAL_CSV), _done_summary(folder / DONE_FILE, notes)))
     records = []
     for (env, method, trial), copies in by_trial.items():
         kept = max(copies, key=_preference)  # max keeps the first of equals: the first by path
@@ -235,7 +260,7 @@ def load_grid(runs_dir: PathLike, label: str | None = None) -> Grid:
     records = load_runs(root, skipped)
     if not records:
         why = f"; left out: {'; '.join(s.text(root) for s in skipped)}" if skipped else ""
-        raise ValueError(
+        raise UserError(
             f"no runs with evaluations under {root} (expected <EnvName>/<method>/trial<t>/{EVAL_CSV}){why}"
         )
     return Grid(label or str(runs_dir), root, records, skipped)

@@ -25,6 +25,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experiments.report.aggregate import CSV as ACROSS_CSV
 from sb3_cmzdril.experiments.report.aggregate import FIGURE as ACROSS_FIGURE
 from sb3_cmzdril.experiments.report.aggregate import write_aggregate
@@ -172,9 +173,9 @@ def render_markdown(
 def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | None) -> None:
     """Fail on a bad input before anything is written."""
     if int(window) < 1:
-        raise ValueError(f"window must be >= 1, got {window}")
+        raise UserError(f"window must be >= 1, got {window}")
     if discussion is not None and not Path(discussion).is_file():
-        raise FileNotFoundError(f"discussion file not found: {discussion}")
+        raise MissingFileError(f"discussion file not found: {discussion}")
     if readme is not None:
         readme_block(readme)
 
@@ -238,7 +239,7 @@ def write_report(
     if reference_runs is not None:
         grids.append(load_grid(reference_runs, reference_label))
         if grids[0].label == grids[1].label:
-            raise ValueError(f"both grids are labelled {grids[0].label!r}: give them different labels")
+            raise UserError(f"both grids are labelled {grids[0].label!r}: give them different labels")
     reports = [analyse(grid, int(window), suffix) for grid, suffix in zip(grids, SUFFIXES[: len(grids)], strict=True)]
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -265,7 +266,8 @@ def write_report(
     if reports[0].final:
         pooled = list(reports[0].final) + [row for d in aggregate_runs for row in final_table(load_runs(d))]
         across = write_aggregate(pooled, out, figures)
-        written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
+        if across is not None:
+            written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
     notes = Path(discussion).read_text(encoding="utf-8") if discussion is not None else None
     text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
     atomic_write_text(out / "results.md", text)

@@ -44,6 +44,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.run.progress import GridProgress
 from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, check_finished
 from sb3_cmzdril.experiments.run.spec import (
@@ -99,9 +100,9 @@ def plan_grid(
     envs = parse_list(env_ids)
     names = parse_list(methods)
     if not envs:
-        raise ValueError("no environment given")
+        raise UserError("no environment given")
     if not names:
-        raise ValueError("no method given")
+        raise UserError("no method given")
     for method in names:
         check_method(method)
     for env_id in envs:
@@ -113,7 +114,7 @@ def plan_grid(
             )
     indices = list(range(int(trials))) if isinstance(trials, int) else [int(t) for t in trials]
     if not indices:
-        raise ValueError(f"need at least one trial, got {trials!r}")
+        raise UserError(f"need at least one trial, got {trials!r}")
     return [
         plan_run(
             env_id,
@@ -237,7 +238,9 @@ class _RayBackend:
         try:
             import ray
         except ImportError as e:
-            raise ImportError(
+            from sb3_cmzdril.extras import MissingExtraError
+
+            raise MissingExtraError(
                 "the Ray backend needs the optional 'ray' package: pip install 'sb3-cmzdril[ray]' "
                 "(or use --backend local)"
             ) from e
@@ -270,11 +273,11 @@ class _RayBackend:
 def _backend(name: str, workers: int, ray_address: str | None) -> _LocalBackend | _RayBackend:
     if name == "local":
         if ray_address:
-            raise ValueError("--ray-address needs --backend ray")
+            raise UserError("--ray-address needs --backend ray")
         return _LocalBackend(workers)
     if name == "ray":
         return _RayBackend(workers, ray_address)
-    raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    raise UserError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
 
 
 # -- the grid ---------------------------------------------------------------------------------------
@@ -293,13 +296,13 @@ def run_grid(
     propagates.
     """
     if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+        raise UserError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
     if isinstance(workers, bool) or int(workers) < 1:
-        raise ValueError(f"workers must be >= 1, got {workers!r}")
+        raise UserError(f"workers must be >= 1, got {workers!r}")
     workers = int(workers)
     labels = [s.output_dir for s in specs]
     if len(set(labels)) != len(labels):
-        raise ValueError("two runs of the grid share an output folder")
+        raise UserError("two runs of the grid share an output folder")
     outcomes: dict[str, RunOutcome] = {}
     todo: collections.deque = collections.deque()
     skipped = []
@@ -363,7 +366,7 @@ def benchmark(
     """:func:`plan_grid` + :func:`run_grid`, and a line in ``RUNS_DIR/benchmark.jsonl`` recording
     the command, the grid and the outcome of this invocation. ``plan_kwargs`` go to :func:`plan_grid`."""
     if backend not in BACKENDS:  # before planning: a typo should not wait for the pool checks
-        raise ValueError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+        raise UserError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
     specs = plan_grid(env_ids, methods, trials, runs_dir, command=command, **plan_kwargs)
     started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     t0 = time.time()

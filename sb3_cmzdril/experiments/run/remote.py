@@ -30,12 +30,13 @@ import tempfile
 import threading
 from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePosixPath
-from typing import IO, Any
+from typing import Any
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.run.run_folder import STATE_FILE
 from sb3_cmzdril.experiments.run.spec import RunSpec, file_mtime_ns
 from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus, execute_run
-from sb3_cmzdril.io import LOCK_FILE, PathLike, atomic_path, lock_output, unlock_output
+from sb3_cmzdril.io import LOCK_FILE, OutputLock, PathLike, atomic_path, lock_output, unlock_output
 
 logger = logging.getLogger(__name__)
 
@@ -157,7 +158,7 @@ def read_files(folder: Path, names: Sequence[str], moved: Sequence[tuple[str, st
 def _inside(folder: Path, name: str) -> Path:
     rel = PurePosixPath(name)
     if rel.is_absolute() or not rel.parts or ".." in rel.parts:
-        raise ValueError(f"refusing to write {name!r}: not a path inside the run folder")
+        raise UserError(f"refusing to write {name!r}: not a path inside the run folder")
     return folder.joinpath(*rel.parts)
 
 
@@ -292,7 +293,7 @@ class RemoteRuns:
             here = NodeAffinitySchedulingStrategy(node_id=ray.get_runtime_context().get_node_id(), soft=False)
             self.sink = ray.remote(num_cpus=0)(FolderSink).options(scheduling_strategy=here).remote()
         self.pools: dict[tuple[str, int], Any] = {}
-        self.in_flight: dict[Any, tuple[RunSpec, IO[str] | None]] = {}
+        self.in_flight: dict[Any, tuple[RunSpec, OutputLock | None]] = {}
 
     def _pool(self, path: str) -> Any:
         """The pool's bytes in the object store, put there once per version of the file."""

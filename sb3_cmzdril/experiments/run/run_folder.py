@@ -37,6 +37,7 @@ import csv
 import hashlib
 import math
 import os
+import re
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -44,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.run.spec import ResolvedRun, RunSpec, resolve_run, train_command
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import (
@@ -51,6 +53,7 @@ from sb3_cmzdril.io import (
     PathLike,
     atomic_path,
     deferred_signals,
+    is_temporary,
     jsonable,
     lock_output,
     portable_path,
@@ -80,16 +83,21 @@ DISCARDED_CSV = "eval.discarded.csv"
 ERROR_FILE = "error.txt"
 LOG_FILE = "log.txt"
 
+#: config.json's word on resumed runs: train_command alone reproduces a run never interrupted, not
+#: one resumed from a checkpoint (SB3 saves no random-number state, and the env's episode in progress
+#: is lost), so the record says what a resume does and state.json lists each segment's seed.
+RESUME_NOTE = (
+    "a run resumed from a checkpoint reseeds the networks and the envs with seed + the step it resumes from "
+    "and starts new episodes there, so after that step it differs from the same run never interrupted; "
+    "state.json lists each segment's start and seed"
+)
 #: config.json entries that must agree before a run folder is resumed (the rest may change, e.g.
 #: the requested number of steps or how often to evaluate).
 _IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes", "demos_sha256", "hyperparams_values")
 #: config.json entries a resume may change.
-_SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command")
+_SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command", "resume")
 #: done.json's repeat of the identity, for a folder of ours whose config.json went missing.
 _DONE_IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes")
-#: What a run of ours leaves in its folder before config.json: the grid's log, a failed attempt's
-#: error, the lock (and the temporaries of atomic writes, named ``.<name>.tmp...``).
-_BEFORE_CONFIG = (LOG_FILE, ERROR_FILE, LOCK_FILE)
 
 
 # -- eval.csv ------------------------------------------------------------------------------------
@@ -113,7 +121,7 @@ def read_eval_csv(path: PathLike, dropped: list[str] | None = None) -> dict[str,
                 reader = csv.DictReader(f)
                 missing = [c for c in columns if c not in (reader.fieldnames or columns)]  # empty file: no rows
                 if missing:
-                    raise ValueError(f"{path} is not an eval.csv: it has no column {', '.join(missing)}")
+                    raise UserError(f"{path} is not an eval.csv: it has no column {', '.join(missing)}")
                 for row in reader:
                     try:
                         values = [float(row[c]) for c in columns]
@@ -125,7 +133,7 @@ def read_eval_csv(path: PathLike, dropped: list[str] | None = None) -> dict[str,
                         continue
                     rows.setdefault(int(values[0]), values)
         except UnicodeDecodeError as e:
-            raise ValueError(f"{path} is not an eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
+            raise UserError(f"{path} is not an eval.csv: not UTF-8 text ({e.reason} at byte {e.start})") from None
     if dropped is not None:
         dropped += [f"{n} row(s) {kind}" for kind, n in left_out.items()]
     ordered = [rows[e] for e in sorted(rows)]
@@ -227,6 +235,7 @@ class RunState:
         self.data["segments"].append({
             "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "from_timesteps": int(start_steps),
+            "seed": spec.seed + int(start_steps),  # what the segment reseeded with (config.json's "resume")
             "command": spec.command,
         })
 
@@ -270,6 +279,7 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "versions": versions(),
         "command": spec.command,
         "train_command": train_command(spec),
+        "resume": RESUME_NOTE,
         "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
 
@@ -288,7 +298,7 @@ def check_same_run(
     differing = [k for k in _IDENTITY_KEYS if k in saved and saved.get(k) != fresh.get(k)]
     if differing:
         diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
-        raise ValueError(
+        raise UserError(
             f"{out} holds {what} ({diffs}); "
             "use another output folder or delete that one"
         )
@@ -335,27 +345,55 @@ def check_run_folder(out: Path) -> None:
     if not out.exists():
         return
     if not out.is_dir():
-        raise ValueError(f"{out} is a file, not a run folder; use another output folder")
+        raise UserError(f"{out} is a file, not a run folder; use another output folder")
     if (out / CONFIG_FILE).is_file():
         if all(k in read_json_or_empty(out / CONFIG_FILE) for k in _IDENTITY_KEYS):
             return
-        raise ValueError(
+        raise UserError(
             f"{out / CONFIG_FILE} is not the config.json of an sb3-cmzdril run, and it is not ours to replace; "
             "use another output folder"
         )
     if (out / DONE_FILE).is_file() and all(k in read_json_or_empty(out / DONE_FILE) for k in _DONE_IDENTITY_KEYS):
         return
-    foreign = sorted(p.name for p in out.iterdir() if p.name not in _BEFORE_CONFIG and not _is_temporary(p.name))
+    foreign = sorted(p.name for p in out.iterdir() if not _is_ours_before_config(p))
     if foreign:
         shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
-        raise ValueError(
+        raise UserError(
             f"{out} holds files that are not an sb3-cmzdril run's ({shown}); train into a new or empty folder"
         )
 
 
-def _is_temporary(name: str) -> bool:
-    """An atomic write's temporary (``.<name>.tmp...``), left behind by a hard kill."""
-    return name.startswith(".") and ".tmp" in name
+#: The first line of the error.txt a failed attempt leaves (grid's ``_write_error``): time, label, "failed".
+_ERROR_HEADER = re.compile(r"^\d{4}-\d{2}-\d{2}T\S+ \S+ failed$")
+#: The first line the grid writes to a run's log.txt, before anything else.
+_LOG_HEADER = "=== "
+
+
+def _first_line(path: Path) -> str | None:
+    """The file's first line (at most 1 KiB of it), None when it cannot be read as text."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.readline(1024).rstrip("\n")
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _is_ours_before_config(path: Path) -> bool:
+    """Whether a file found in a folder without config.json is one a run of ours leaves there first:
+    the lock, an atomic write's temporary, or an error.txt / log.txt as the grid writes them.
+
+    By name alone, a user's own error.txt, log.txt or ``.draft.tmp.md`` would pass for the run's, and
+    the run would delete or append to it; the content tells them apart.
+    """
+    if path.name == LOCK_FILE or is_temporary(path.name):
+        return path.is_file()
+    if path.name == ERROR_FILE:
+        first = _first_line(path)
+        return first is not None and _ERROR_HEADER.match(first) is not None
+    if path.name == LOG_FILE:
+        first = _first_line(path)
+        return first is not None and (first == "" or first.startswith(_LOG_HEADER))
+    return False
 
 
 def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, Any] | None:
@@ -377,9 +415,14 @@ def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, A
     saved = read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
     run = run if run is not None else resolve_run(spec, check=False)  # finished: nothing left to check
     check_same_run(out, saved, as_stored(_config_of(run)), "a different, finished run")
-    steps = int(done.get("num_timesteps", 0))
+    steps = done.get("num_timesteps", 0)
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise UserError(
+            f"{done_path} is not what sb3-cmzdril wrote: num_timesteps is {steps!r}, not a number of steps; "
+            "delete it to let the run finish again, or use another output folder"
+        )
     if spec.timesteps > steps:
-        raise ValueError(
+        raise UserError(
             f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to train it "
             f"further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), or use "
             "another output folder"
@@ -448,6 +491,10 @@ class RunFolder:
             selector.save(self.lowest_u)  # with the checkpoint, so a resume continues the same search
             state.write(model.num_timesteps)
 
+    def has_pretrain(self) -> bool:
+        """Whether pretrain.csv is there."""
+        return (self.path / PRETRAIN_CSV).is_file()
+
     def write_pretrain(self, history: Mapping[str, Sequence[float]]) -> None:
         write_pretrain_csv(self.path / PRETRAIN_CSV, history)
 
@@ -462,8 +509,10 @@ class RunFolder:
     def finish(self, summary: dict[str, Any]) -> dict[str, Any]:
         """done.json, written last: from now on the folder holds a finished run."""
         write_json(self.path / DONE_FILE, summary)
-        with contextlib.suppress(FileNotFoundError):
-            (self.path / ERROR_FILE).unlink()  # an earlier attempt's failure is history once the run is done
+        error = self.path / ERROR_FILE
+        if _is_ours_before_config(error):  # an earlier attempt's failure is history once the run is done
+            with contextlib.suppress(FileNotFoundError):
+                error.unlink()
         return summary
 
 
@@ -506,6 +555,7 @@ __all__ = [
     "LOWEST_U_MODEL",
     "MODEL_FILE",
     "PRETRAIN_CSV",
+    "RESUME_NOTE",
     "STATE_FILE",
     "TABLE_WINDOW",
     "VECNORMALIZE_FILE",

@@ -27,6 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
@@ -147,7 +148,7 @@ def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
         model = CMZDRIL.load(folder.model, env=venv, device=run.model_kwargs()["device"])
     except Exception as e:  # a zip is written atomically, so this is a foreign or damaged file
         venv.close()
-        raise ValueError(f"cannot resume from {folder.model}: {type(e).__name__}: {e}") from e
+        raise UserError(f"cannot resume from {folder.model}: {type(e).__name__}: {e}") from e
     start = int(model.num_timesteps)
     # Seeds of a resumed segment (networks' sampling and the env, which set_random_seed also
     # seeds) are offset by its start, so it does not replay the first segment's noise.
@@ -184,11 +185,14 @@ def _train(
     spec = run.spec
     # Pretraining takes seconds to minutes: show it.
     model.pretrain(progress_bar=progress_bar)
+    # Written now, not after PPO: a run stopped before its first segment ends must still have it. A
+    # resumed model carries its history in the checkpoint, for a folder whose pretrain.csv is missing.
+    if model.pretrain_history and (not resume or not folder.has_pretrain()):
+        folder.write_pretrain(model.pretrain_history)
     if spec.method == "bc":
         # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
         model.learn(0, callback=[eval_cb])
         folder.checkpoint(model, selector, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
-        folder.write_pretrain(model.pretrain_history)
         return
     checkpoint_cb = _checkpoint_callback_class()(
         lambda m: folder.checkpoint(m, selector, state), spec.checkpoint_every, model.n_steps * model.n_envs
@@ -199,8 +203,6 @@ def _train(
         callback=[eval_cb, selector, checkpoint_cb, progress_cb, *callbacks],
         reset_num_timesteps=not resume,
     )
-    if not resume:
-        folder.write_pretrain(model.pretrain_history)
 
 
 def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector: Any) -> dict[str, Any]:
@@ -303,14 +305,15 @@ def load_evaluation_model(
 
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"model file not found: {path}")
+        raise MissingFileError(f"model file not found: {path}")
     try:
         model = CMZDRIL.load(path, device="cpu")
     except Exception:  # not a CMZDRIL zip: some other SB3 algorithm's, which load_expert_model identifies
         model = load_expert_model(path)
+    _check_model_fits_env(model, path, env_id, env_kwargs)
     if vecnormalize is None:
         if getattr(model, "vecnormalize_obs", False):
-            raise ValueError(
+            raise UserError(
                 f"{path} was trained on VecNormalize'd observations: pass its statistics (the vecnormalize.pkl "
                 "saved beside it) with --vecnormalize; without them its actions would be silently wrong"
             )
@@ -323,11 +326,44 @@ def load_evaluation_model(
         stats = VecNormalize.load(str(vecnormalize), venv)
     except Exception as e:  # pickle raises many types for a damaged or foreign file
         venv.close()
-        raise ValueError(
+        raise UserError(
             f"VecNormalize statistics {vecnormalize} are damaged or not VecNormalize's: {type(e).__name__}: {e}"
         ) from None
     stats.training = False
     return model, stats.normalize_obs
+
+
+def _describe_space(space: Any) -> str:
+    """A space as the mismatch message shows it: its kind and shape (Discrete: its n)."""
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Discrete):
+        return f"Discrete({int(space.n)})"
+    return f"{type(space).__name__} of shape {tuple(space.shape) if space.shape is not None else ()}"
+
+
+def _check_model_fits_env(model: Any, path: Path, env_id: str, env_kwargs: Mapping[str, Any] | None) -> None:
+    """UserError naming the model file when it was trained on other spaces than ``env_id`` has.
+
+    Checked before anything else is compared with the model (a demo pool, VecNormalize statistics),
+    so that the message blames the model and the env, not whatever is compared next.
+    """
+    from sb3_cmzdril.metrics.evaluation import make_env
+
+    env = make_env(env_id, env_kwargs)
+    try:
+        wanted = {"observation": env.observation_space, "action": env.action_space}
+    finally:
+        env.close()
+    for what, space in wanted.items():
+        trained = getattr(model, f"{what}_space", None)
+        if trained is None:  # a scripted expert has no spaces of its own
+            continue
+        if type(trained) is not type(space) or _describe_space(trained) != _describe_space(space):
+            raise UserError(
+                f"{path} was trained on another environment: its {what} space is {_describe_space(trained)}, "
+                f"{env_id}'s is {_describe_space(space)}; pass the --env it was trained on"
+            )
 
 
 # -- building blocks --------------------------------------------------------------------------------

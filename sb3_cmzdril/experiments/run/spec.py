@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations
 from sb3_cmzdril.io import PathLike, portable_path
 
@@ -75,9 +76,9 @@ def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> tuple[l
     ``n_eval`` evaluate. Every method of a trial calls this with the same arguments, hence the same data.
     """
     if n_train < 1 or n_eval < 1:
-        raise ValueError(f"need at least one training and one evaluation episode, got {n_train} and {n_eval}")
+        raise UserError(f"need at least one training and one evaluation episode, got {n_train} and {n_eval}")
     if n_train + n_eval > n_pool:
-        raise ValueError(
+        raise UserError(
             f"the demo pool has {n_pool} episodes but {n_train} training + {n_eval} evaluation episodes are "
             "needed; record more with `sb3-cmzdril collect-demos --episodes N` or lower --n-demos/--eval-episodes"
         )
@@ -88,7 +89,7 @@ def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> tuple[l
 def check_method(method: str) -> str:
     """The method name, or a ValueError listing the known ones."""
     if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+        raise UserError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
     return method
 
 
@@ -121,7 +122,7 @@ def load_run_hyperparams(path: PathLike, env_id: str) -> tuple[Hyperparams, dict
     unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs())
     if unknown:
         # Caught here, a typo fails the whole grid at once instead of every run in its worker.
-        raise ValueError(f"hyperparameters {hp.key!r} in {path}: {unknown} are not CMZDRIL/PPO arguments")
+        raise UserError(f"hyperparameters {hp.key!r} in {path}: {unknown} are not CMZDRIL/PPO arguments")
     return hp, settings
 
 
@@ -148,18 +149,23 @@ def file_mtime_ns(path: PathLike) -> int:
     return Path(path).stat().st_mtime_ns
 
 
-def missing_pool_error(env_id: str, path: PathLike, alternative: str) -> FileNotFoundError:
+def missing_pool_error(env_id: str, path: PathLike, alternative: str) -> MissingFileError:
     """The error for a demo pool that is not there: how to record one, or ``alternative`` (the option
     of the calling command that names an existing one)."""
-    return FileNotFoundError(
+    return MissingFileError(
         f"demo pool not found: {path} (record one with `sb3-cmzdril collect-demos --env {env_id} --expert ... "
         f"--episodes N -o {path}`, or {alternative})"
     )
 
 
 def _positive_int(name: str, value: int) -> int:
-    if isinstance(value, bool) or int(value) != value or int(value) < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    """``value`` as an int when it is a whole number >= 1 (3.0 passes, "3", 2.5, true and inf do not)."""
+    try:
+        whole = not isinstance(value, bool) and int(value) == value
+    except (TypeError, ValueError, OverflowError):  # a string, None, inf or nan: not a count
+        whole = False
+    if not whole or int(value) < 1:
+        raise UserError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
 
 
@@ -203,11 +209,14 @@ def plan_run(
     else:
         timesteps = timesteps if timesteps is not None else hp.n_timesteps
         if timesteps is None:
-            raise ValueError(f"no number of timesteps: pass --timesteps or set n_timesteps in {hp_path}")
+            raise UserError(f"no number of timesteps: pass --timesteps or set n_timesteps in {hp_path}")
         timesteps = _positive_int("timesteps", timesteps)
     demos_path = Path(demos) if demos is not None else default_demos_path(env_id)
     if not demos_path.is_file():
         raise missing_pool_error(env_id, demos_path, "pass the path of an existing pool with --demos")
+    if output_dir is not None and not str(output_dir).strip():
+        # Path("") is the current folder: a run would land among whatever files are there.
+        raise UserError(f"output_dir is empty ({str(output_dir)!r}); name the run folder")
     out = Path(output_dir) if output_dir is not None else default_output_dir(env_id, method, seed)
     spec = RunSpec(
         env_id=env_id,
@@ -274,7 +283,7 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
     try:
         train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
     except ValueError as e:
-        raise ValueError(f"{spec.demos}: {e}") from None
+        raise UserError(f"{spec.demos}: {e}") from None
     run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx))
     if check:
         from stable_baselines3 import PPO
@@ -294,7 +303,7 @@ def _check_reset_seeds(run: ResolvedRun) -> None:
 
     unknown = [i for i in run.held_out if int(run.pool.seeds[i]) == UNKNOWN_SEED]
     if unknown:
-        raise ValueError(
+        raise UserError(
             f"demo pool {run.spec.demos}: episodes {unknown}, held out for evaluation, have no recorded reset seed, "
             "so they cannot be replayed from the expert's start; record the pool with seeds "
             "(`sb3-cmzdril collect-demos` does)"
@@ -326,30 +335,63 @@ def _preflight(run: ResolvedRun) -> None:
     if key in _PREFLIGHT_PASSED:
         return
     where = f"hyperparameters {run.hp.key!r} in {spec.hyperparams}"
+    configured = [k for k in ("env_kwargs", "normalize") if getattr(run.hp, k) not in (None, False, {})]
     try:
         venv = make_training_env(spec, run.hp, spec.seed, None)
-    except Exception as e:  # whatever the env's constructor or VecNormalize raises for bad kwargs
-        raise ValueError(
-            f"cannot make {spec.env_id} with the env_kwargs/normalize of {where}: {type(e).__name__}: {e}"
+    except (TypeError, ValueError, AssertionError) as e:
+        if not configured:  # the YAML passes nothing to the env: the env's own failure, traceback and all
+            raise
+        # how envs and VecNormalize refuse a keyword or a value; anything else is the env's own bug
+        raise UserError(
+            f"cannot make {spec.env_id} with the {'/'.join(configured)} of {where}: {type(e).__name__}: {e}"
         ) from e
     try:
         try:
             run.pool.check_spaces(venv.observation_space, venv.action_space)
         except ValueError as e:
-            raise ValueError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
+            raise UserError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
+        _check_starts(run)
         try:
             model = CMZDRIL(
                 run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool, reward=run.reward, seed=spec.seed,
                 **run.model_kwargs(),
             )
         except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
-            raise ValueError(
+            raise UserError(
                 f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}"
             ) from e
         _check_values(model, where)
     finally:
         venv.close()
     _PREFLIGHT_PASSED.add(key)
+
+
+def _check_starts(run: ResolvedRun) -> None:
+    """UserError unless a held-out episode's recorded reset seed reproduces its first observation.
+
+    The evaluation replays held-out episodes from their seeds; a pool recorded on another env with
+    the same spaces (or whose seeds do not reproduce its starts) would compare the agent with an
+    expert that started elsewhere, for the whole run. One reset tells, before any file is written.
+    """
+    from sb3_cmzdril.demos import UNKNOWN_SEED
+    from sb3_cmzdril.metrics.evaluation import make_env, same_observation
+
+    spec = run.spec
+    episode = next((i for i in run.eval_idx if int(run.pool.seeds[i]) != UNKNOWN_SEED), None)
+    if episode is None:
+        return
+    seed = int(run.pool.seeds[episode])
+    env = make_env(spec.env_id, run.hp.env_kwargs)
+    try:
+        first, _ = env.reset(seed=seed)
+    finally:
+        env.close()
+    if not same_observation(first, run.pool.episode(episode)["observations"]):
+        raise UserError(
+            f"demo pool {spec.demos} was not recorded on {spec.env_id} with these env_kwargs: resetting its episode "
+            f"{episode} with its seed {seed} does not give the episode's first observation; pass the pool of "
+            f"{spec.env_id} (or the env and env_kwargs it was recorded on)"
+        )
 
 
 def _at_least_one(value: float) -> bool:
@@ -401,7 +443,7 @@ def _check_values(model: Any, where: str) -> None:
             continue
         start = float(value(1.0)) if callable(value) else float(value)
         if not ok(start):
-            raise ValueError(f"{where}: {name} must be {rule}, got {start!r}")
+            raise UserError(f"{where}: {name} must be {rule}, got {start!r}")
 
 
 def train_command(spec: RunSpec) -> str:

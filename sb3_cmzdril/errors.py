@@ -1,0 +1,29 @@
+"""The package's error for bad input, apart from the errors of bugs.
+
+Where sb3-cmzdril checks what it was given (an option, a YAML entry, a demo pool, a run folder, a
+model file) and refuses it, it raises :class:`UserError`: the command line prints its message as one
+line and exits with code 2. Any other exception is a bug, in sb3-cmzdril or in the code it runs (an
+environment, a policy), and keeps its traceback.
+
+:class:`UserError` is a :class:`ValueError`, and its subclasses for missing and existing files are
+also :class:`FileNotFoundError` and :class:`FileExistsError`, so code written against the built-in
+types keeps catching them.
+
+This module imports nothing of the package: every layer may raise these.
+"""
+from __future__ import annotations
+
+
+class UserError(ValueError):
+    """The input is wrong: a bad value, file or folder; the message names it and says what to do."""
+
+
+class MissingFileError(UserError, FileNotFoundError):
+    """A file or folder the user named (or a default one the command needs) does not exist."""
+
+
+class OutputExistsError(UserError, FileExistsError):
+    """The output would replace a file or folder that is not the command's own to replace."""
+
+
+__all__ = ["MissingFileError", "OutputExistsError", "UserError"]
