@@ -41,17 +41,21 @@ def test_a_runs_score_is_its_mean_return_over_the_experts_on_the_same_episodes()
 
 def test_score_matrix_is_trials_by_tasks_per_method(tmp_path):
     scores = agg.score_matrix(_grid(tmp_path))
-    assert scores.trials == (0, 1, 2, 3, 4)
+    assert scores.trials == {"bc": (0, 1, 2, 3, 4), "cmz": (0, 1, 2, 3, 4)}
     assert scores.tasks == {"bc": TASKS, "cmz": TASKS}
     np.testing.assert_allclose(scores.by_method["bc"], _by_hand(0))
     np.testing.assert_allclose(scores.by_method["cmz"], _by_hand(1))
 
 
-def test_only_trials_every_task_and_method_has_enter(tmp_path):
-    rows = _grid(tmp_path)
-    write_run(tmp_path, "bc", 7, [1.0], env=TASKS[0], final={"final": [1.0, 1.0]})
-    assert agg.score_matrix(final_table(load_runs(tmp_path))).trials == (0, 1, 2, 3, 4)
-    assert len(rows) == 4
+def test_a_task_without_all_of_its_methods_trials_is_left_out_and_named(tmp_path):
+    _grid(tmp_path)
+    write_run(tmp_path, "env", 0, [1.0], env=TASKS[0], final={"final": [500.0, 500.0]})
+    for t in range(3):  # a grid still running: 3 of 5 trials on the second task
+        write_run(tmp_path, "env", t, [1.0], env=TASKS[1], final={"final": [600.0, 600.0]})
+    scores = agg.score_matrix(final_table(load_runs(tmp_path)))
+    assert scores.trials["env"] == (0, 1, 2) and scores.tasks["env"] == (TASKS[1],)
+    assert scores.left_out == (f"{TASKS[0]} Env. reward: 1 of the 3 trials",)
+    assert scores.trials["bc"] == (0, 1, 2, 3, 4)  # the other methods keep theirs
 
 
 def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_values(tmp_path):

@@ -445,6 +445,17 @@ def test_report_leaves_out_a_done_json_final_evaluation_of_another_shape(final_e
     assert "done.json" in results and "its final_evaluation" in results, results
 
 
+def test_report_reads_a_final_evaluation_as_runs_write_it(ws, tmp_path):
+    """A run's done.json also records its held-out episodes in final_evaluation: that is no hand edit."""
+    run = tmp_path / "runs" / "cmzrun"
+    shutil.copytree(ws / "cmzrun", run)
+    done = json.loads((run / "done.json").read_text())
+    final = {"episodes": [0, 2], "final": {"return_mean": 1.0}, "lowest_u": {"return_mean": 1.0, "epoch": 3}}
+    (run / "done.json").write_text(json.dumps({**done, "final_evaluation": final}))
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report")]) == 0
+    assert "its final_evaluation" not in (tmp_path / "report" / "results.md").read_text()
+
+
 @pytest.mark.parametrize("option", ["alpha", "ema", "u0", "dril_quantile", "ensemble_learning_rate", "bc_learning_rate",
                                     "learning_rate", "gamma", "ent_coef", "vf_coef", "max_grad_norm", "target_kl"])
 @pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])

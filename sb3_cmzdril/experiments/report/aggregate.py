@@ -61,11 +61,12 @@ def normalised_score(columns: dict[str, np.ndarray]) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class Scores:
-    """Normalised scores of the final policies: ``by_method[m]`` is (trials, tasks) over ``tasks[m]``."""
+    """Normalised scores of the final policies: ``by_method[m]`` is (len(trials[m]), len(tasks[m]))."""
 
-    trials: tuple[int, ...]
+    trials: dict[str, tuple[int, ...]]
     tasks: dict[str, tuple[str, ...]]
     by_method: dict[str, np.ndarray]
+    left_out: tuple[str, ...] = ()  #: (task, method)s not aggregated, each with the reason
 
     def on(self, method: str, tasks: Sequence[str]) -> np.ndarray:
         """``method``'s (trials, len(tasks)) scores restricted to ``tasks``."""
@@ -77,12 +78,13 @@ class Scores:
 
 
 def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | None:
-    """The normalised scores of every (task, method) of ``rows`` with a run on each common trial.
+    """The normalised scores of each method on its tasks, over the trials its tasks share.
 
-    The trials are those every task and method in ``rows`` share (rliable's stratified bootstrap
-    resamples runs within tasks and wants as many on each); a task whose runs have no positive expert
-    mean is left out. None when nothing is left; a UserError when an (env, method) comes twice (from
-    two grids: which one counts is the caller's choice, not ours).
+    rliable's stratified bootstrap resamples the runs within each task and wants as many on each, so a
+    method is scored on the largest set of trials one of its tasks has, and a task of that method
+    without all of them (a grid still running) is left out with a note, as is a task whose expert
+    mean is not positive. None when nothing is left; a UserError when an (env, method) comes twice
+    (from two grids: which one counts is the caller's choice, not ours).
     """
     chosen = [r for r in rows if r.policy == policy]
     seen: set[tuple[str, str]] = set()
@@ -90,24 +92,36 @@ def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | No
         if (row.env, row.method) in seen:
             raise UserError(f"{row.env} {METHOD_LABELS[row.method]} is in two grids: aggregate each task once")
         seen.add((row.env, row.method))
-    trial_sets = [set(r.per_trial("return")) for r in chosen]
-    trials = tuple(sorted(set.intersection(*trial_sets))) if trial_sets else ()
+    trials: dict[str, tuple[int, ...]] = {}
     tasks: dict[str, list[str]] = {}
     columns: dict[str, list[list[float]]] = {}
-    for row in chosen:
-        by_trial = {run.trial: normalised_score(run.final[policy]) for run in row.runs}
-        values = [by_trial[t] for t in trials]
-        if not np.isfinite(values).all():
+    left_out = []
+    for method in METHOD_ORDER:
+        mine = [r for r in chosen if r.method == method]
+        if not mine:
             continue
-        tasks.setdefault(row.method, []).append(row.env)
-        columns.setdefault(row.method, []).append(values)
-    if not trials or not columns:
+        wanted = max((tuple(sorted(r.per_trial("return"))) for r in mine), key=len)
+        for row in mine:
+            by_trial = {run.trial: normalised_score(run.final[policy]) for run in row.runs}
+            label = f"{row.env} {METHOD_LABELS[method]}"
+            if not set(wanted) <= set(by_trial):
+                left_out.append(f"{label}: {len(set(by_trial) & set(wanted))} of the {len(wanted)} trials")
+                continue
+            values = [by_trial[t] for t in wanted]
+            if not np.isfinite(values).all():
+                left_out.append(f"{label}: no positive expert mean")
+                continue
+            trials[method] = wanted
+            tasks.setdefault(method, []).append(row.env)
+            columns.setdefault(method, []).append(values)
+    if not columns:
         return None
     methods = [m for m in METHOD_ORDER if m in columns]
     return Scores(
-        trials=trials,
+        trials={m: trials[m] for m in methods},
         tasks={m: tuple(tasks[m]) for m in methods},
         by_method={m: np.asarray(columns[m], dtype=np.float64).T for m in methods},
+        left_out=tuple(left_out),
     )
 
 
@@ -211,14 +225,16 @@ def _pct(point: float, low: float, high: float) -> str:
 def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
     """The report's "Across tasks" section: the method, the tables and the figure."""
     s = agg.scores
-    trials = ", ".join(str(t) for t in s.trials)
+    counts = sorted({len(t) for t in s.trials.values()})
+    trials = " or ".join(str(n) for n in counts)
     parts = [
         "One number across tasks, as Agarwal et al. (NeurIPS 2021) recommend, with `rliable`'s statistics: each "
         "run's final policy scores its mean return over its held-out pool episodes divided by the expert's mean "
         "return on the same episodes (100% = the expert). The interquartile mean (IQM) and the mean pool every "
-        f"task and trial (trials {trials}); the median is that of the per-task means, as rliable's. Intervals: "
+        f"task and trial ({trials} trials a task); the median is that of the per-task means, as rliable's. Intervals: "
         f"{CONFIDENCE:.0%} percentile intervals of a stratified bootstrap ({REPS} resamples of the runs within "
-        f"each task, seed {SEED}). A method counts on the tasks where it has runs.",
+        f"each task, seed {SEED}). A method counts on the tasks where it has runs"
+        + (f"; left out: {'; '.join(s.left_out)}." if s.left_out else "."),
         "",
         md_table(
             ["Method", "Tasks", *(f"{st}, % of expert [CI]" for st in STATISTICS)],
@@ -253,7 +269,7 @@ def aggregate_csv(agg: Aggregates) -> str:
     lines = ["method,task,trial,score"]
     for m, matrix in agg.scores.by_method.items():
         for j, task in enumerate(agg.scores.tasks[m]):
-            lines += [f"{m},{task},{t},{matrix[i, j]:.6g}" for i, t in enumerate(agg.scores.trials)]
+            lines += [f"{m},{task},{t},{matrix[i, j]:.6g}" for i, t in enumerate(agg.scores.trials[m])]
     return "\n".join(lines) + "\n"
 
 

@@ -160,8 +160,11 @@ def _done_summary(path: Path, notes: list[Skipped]) -> dict[str, Any]:
     final = summary.get("final_evaluation")
     if final is None:
         return summary
+    # Only the policies' entries are read; a run also records other keys there (its "episodes").
     valid = isinstance(final, dict) and all(
-        isinstance(entry, dict) and (entry.get("epoch") is None or _is_int(entry["epoch"])) for entry in final.values()
+        isinstance(entry, dict) and (entry.get("epoch") is None or _is_int(entry["epoch"]))
+        for policy, entry in final.items()
+        if policy in POLICIES
     )
     if not valid:
         notes.append(Skipped(path, f"its final_evaluation {final!r:.60} (an object of policies with integer epochs "
