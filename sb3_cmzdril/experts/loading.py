@@ -18,6 +18,9 @@ hub's ``sb3`` organisation) load without a conversion step:
   and are read as placeholders;
 - an agent trained on another version of the env (``Walker2d-v3`` used on ``Walker2d-v5``) is
   used with a warning: the shapes match, the dynamics may differ.
+
+A model saved by this package (:class:`~sb3_cmzdril.CMZDRIL`, a training run's ``model.zip``) is an
+expert too: its policy is PPO's, and a run on normalised observations has ``vecnormalize.pkl`` beside it.
 """
 from __future__ import annotations
 
@@ -115,8 +118,20 @@ def _policy_module(data: dict[str, Any]) -> str:
     return str(policy.get("__module__", "")) if isinstance(policy, dict) else ""
 
 
+def is_cmzdril_data(data: dict[str, Any]) -> bool:
+    """Whether a zip's ``data`` is a :class:`~sb3_cmzdril.CMZDRIL` model's (PPO's keys plus the ensemble's).
+
+    Its policy is PPO's ``ActorCriticPolicy``, but PPO.load refuses the zip's extra ``ensemble`` state.
+    """
+    return all(key in data for key in ("ensemble_size", "ensemble_hidden", "clip_range"))
+
+
 def _algorithm_from_data(path: Path, data: dict[str, Any]) -> list[type[BaseAlgorithm]]:
     """The algorithm classes that may have saved the zip, most likely first."""
+    if is_cmzdril_data(data):
+        from sb3_cmzdril.algorithm import CMZDRIL
+
+        return [CMZDRIL]
     parts = _policy_module(data).split(".")
     if parts[0] == "sb3_contrib":
         contrib = contrib_classes(required_by=f"expert {path} (an sb3-contrib model)")
@@ -393,10 +408,25 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
         raise ValueError(f"cannot load expert model {model_path}: " + "; ".join(errors))
     if env is not None:
         _check_fits_env(model, env, model_path)
-    stats = load_vecnormalize(files.vecnormalize) if files.vecnormalize is not None else None
+    vecnormalize = files.vecnormalize
+    if getattr(model, "vecnormalize_obs", False):
+        vecnormalize = _run_statistics(model_path)
+    stats = load_vecnormalize(vecnormalize) if vecnormalize is not None else None
     if stats is not None and getattr(stats, "norm_obs", True):
         return NormalizedObservationExpert(model, stats)
     return model
+
+
+def _run_statistics(model_path: Path) -> Path:
+    """The ``vecnormalize.pkl`` a training run saved beside its model, for a CMZDRIL model trained on
+    normalised observations: without it every action would be computed from the wrong inputs."""
+    path = model_path.parent / "vecnormalize.pkl"
+    if not path.is_file():
+        raise ValueError(
+            f"expert {model_path} was trained on VecNormalize'd observations and {path}, the statistics "
+            "saved beside it, is missing"
+        )
+    return path
 
 
 def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
