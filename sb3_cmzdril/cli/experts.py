@@ -74,14 +74,16 @@ def add_collect_demos(sub) -> None:
             "made. --expert is an SB3 or sb3-contrib model zip (any algorithm; older SB3 zips that pickle gym "
             "load too; a CMZDRIL run's model.zip too), a folder holding model.zip, an RL Zoo "
             "agent's folder (<Env>.zip with <Env>/config.yml and vecnormalize.pkl: the expert sees "
-            "normalised observations, the pool records raw ones), the env id of a shipped expert "
+            "normalised observations, the pool records raw ones), a Hugging Face Hub agent hf://ORG/REPO "
+            "(e.g. hf://sb3/sac-Walker2d-v3; the hub extra), the env id of a shipped expert "
             "(HalfCheetah-v5), or the name of a registered scripted expert."
         ),
     )
     p.add_argument(
         "--expert",
         required=True,
-        help="model zip, folder with model.zip, RL Zoo agent folder, shipped expert's env id, or scripted expert name",
+        help="model zip, folder with model.zip, RL Zoo agent folder, hf://ORG/REPO, shipped expert's env id, "
+        "or scripted expert name",
     )
     p.add_argument("--env", required=True, help="environment id")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
