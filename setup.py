@@ -11,10 +11,11 @@ from pathlib import Path
 from setuptools import setup
 from setuptools.command.build_py import build_py
 
-#: Top-level folder -> the files of it that the wheel carries: demo pools and our SAC experts' zips
-#: (the wheel stays under 15 MB); third-party experts are not in the repository at all.
+#: Top-level folder -> the files of it that the wheel carries: demo pools with their records (each
+#: pool's NAME.json, and the folder's metadata.json) and our SAC experts' zips (the wheel stays under
+#: 15 MB); third-party experts are not in the repository at all.
 SHIPPED = {
-    "experts": ("*/demos.npz", "*/metadata.json", "*/model.zip"),
+    "experts": ("*/demos.npz", "*/*.json", "*/model.zip"),
     "hyperparams": ("*.yml",),
 }
 

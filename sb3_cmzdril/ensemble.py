@@ -462,7 +462,9 @@ class BCEnsemble(nn.Module):
 
     # -- persistence ---------------------------------------------------------------------------
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        result = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        # torch 2.0 (the floor pyproject.toml declares) has no `assign`: pass it on only when asked for.
+        options = {"assign": True} if assign else {}
+        result = super().load_state_dict(state_dict, strict=strict, **options)
         self._np_cache = None
         return result
 

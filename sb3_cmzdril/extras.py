@@ -1,7 +1,7 @@
 """Optional dependencies: import one, or fail with the pip command that installs it.
 
 The core install (``pip install sb3-cmzdril``) is what an SB3 script needs to train ``CMZDRIL``.
-Plots, tables, progress bars, MuJoCo, Ray, rl-zoo3 and Minari come with extras; code that needs
+Plots, tables, progress bars, MuJoCo, Ray, rl-zoo3, Minari and the Hugging Face Hub come with extras; code that needs
 one imports it through :func:`require_extra` at the point of use, so ``import sb3_cmzdril`` never
 pays for them and a missing one is a one-line message instead of a bare ``ModuleNotFoundError``.
 """
@@ -13,7 +13,7 @@ from types import ModuleType
 from sb3_cmzdril.errors import UserError
 
 #: The extras pyproject.toml defines (``pip install 'sb3-cmzdril[<extra>]'``).
-EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "contrib", "test", "all")
+EXTRAS = ("mujoco", "experiments", "ray", "zoo", "minari", "contrib", "hub", "test", "all")
 
 
 class MissingExtraError(UserError, ImportError):

@@ -167,6 +167,18 @@ def remove_stale_temporaries(*folders: Path) -> None:
 
 
 # -- JSON ------------------------------------------------------------------------------------------
+def _public_name(cls: type) -> str:
+    """``module.Class`` by the public module that exports the class: Python 3.13 defines
+    ``pathlib.Path`` in ``pathlib._local``, and a record must not depend on the Python that wrote it."""
+    parts = cls.__module__.split(".")
+    while len(parts) > 1 and parts[-1].startswith("_"):
+        parent = sys.modules.get(".".join(parts[:-1]))
+        if getattr(parent, cls.__qualname__, None) is not cls:
+            break
+        parts.pop()
+    return f"{'.'.join(parts)}.{cls.__qualname__}"
+
+
 def jsonable(value: Any) -> Any:
     """``value`` as JSON data: classes by qualified name, numpy scalars as Python numbers,
     non-finite floats as strings, anything else unknown (schedules, callables) by its repr."""
@@ -181,7 +193,7 @@ def jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return jsonable(value.item())
     if isinstance(value, type):
-        return f"{value.__module__}.{value.__qualname__}"
+        return _public_name(value)
     return repr(value)
 
 

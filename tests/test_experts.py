@@ -17,6 +17,7 @@ from sb3_cmzdril.experts import (
     SCRIPTED_EXPERTS,
     collect_demos,
     load_expert_model,
+    pool_provenance,
     register_scripted_expert,
     run_episode,
     train_expert,
@@ -223,14 +224,20 @@ def test_collect_demos_zip_without_metadata(trained, tmp_path):
 def test_demos_beside_the_expert_keep_their_record_when_it_trains_further(trained, tmp_path, tiny_yaml):
     out = tmp_path / "expert"
     shutil.copytree(trained, out)
-    # The expert's own folder: its metadata.json (written by train-expert) takes the demos record.
+    # The expert's own folder: the pool's record names the step count of the expert that made it.
     collect_demos(out, ENV, n_episodes=1, output=out / "demos.npz", verbose=False)
-    assert json.loads((out / "metadata.json").read_text())["demos"]["expert_total_timesteps"] == 200
+    assert pool_provenance(out / "demos.npz")["expert_total_timesteps"] == 200
     train_expert(ENV, timesteps=300, seed=3, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
-    meta = json.loads((out / "metadata.json").read_text())
-    assert meta["total_timesteps"] == 300
+    assert json.loads((out / "metadata.json").read_text())["total_timesteps"] == 300
     # still there, and still saying the pool came from the 200-step expert
-    assert meta["demos"]["file"] == "demos.npz" and meta["demos"]["expert_total_timesteps"] == 200
+    record = pool_provenance(out / "demos.npz")
+    assert record["file"] == "demos.npz" and record["expert_total_timesteps"] == 200
+    # A pool recorded in the earlier layout (its record in the expert's metadata.json) keeps it too.
+    (out / "demos.json").unlink()
+    meta = json.loads((out / "metadata.json").read_text())
+    (out / "metadata.json").write_text(json.dumps({**meta, "demos": record}))
+    train_expert(ENV, timesteps=400, seed=3, hyperparams_path=tiny_yaml, output_dir=out, force=True, **FAST)
+    assert pool_provenance(out / "demos.npz")["expert_total_timesteps"] == 200
 
 
 class _PendulumPD:
@@ -284,7 +291,7 @@ def test_library_logs_its_notes_and_the_cli_prints_them(tmp_path, capsys, caplog
     messages = [r.getMessage() for r in caplog.records if r.name == "sb3_cmzdril.experts.collect"]
     assert messages[0].startswith("scripted:test-pendulum-pd on Pendulum-v1: 2 episodes, 400 steps\n")
     assert messages[0].splitlines()[-1].startswith("    mean")  # the plain table, for any log handler
-    assert messages[1] == f"saved {path} (provenance in {path.parent / 'metadata.json'})"
+    assert messages[1] == f"saved {path} (provenance in {path.with_suffix('.json')})"
 
     # Through the CLI: the same notes on stdout, the table drawn by rich, no prefixes.
     library_logger = logging.getLogger("sb3_cmzdril")
@@ -295,7 +302,7 @@ def test_library_logs_its_notes_and_the_cli_prints_them(tmp_path, capsys, caplog
     )
     printed = capsys.readouterr().out
     assert "┃ episode ┃" in printed and "+/-" in printed
-    assert printed.endswith(f"saved {path} (provenance in {path.parent / 'metadata.json'})\n")
+    assert printed.endswith(f"saved {path} (provenance in {path.with_suffix('.json')})\n")
     assert (library_logger.handlers, library_logger.level) == (handlers, level)  # main restored them
 
 
@@ -359,9 +366,9 @@ def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     demos = collect_demos(
         "waypoint-reactive", "sb3_cmzdril:WaypointNav-v0", n_episodes=2, seed=5, output=out, verbose=False
     )
-    meta = json.loads((out.parent / "metadata.json").read_text())
-    assert meta["expert"] == "scripted:waypoint-reactive"
-    rec = meta["demos"]
+    assert sorted(p.name for p in out.parent.iterdir()) == ["demos.json", "demos.npz"]
+    rec = json.loads(out.with_suffix(".json").read_text())["demos"]
+    assert rec["expert"] == "scripted:waypoint-reactive" and rec == pool_provenance(out)
     assert rec["episodes"] == 2 and rec["seeds"] == [5, 6] and rec["steps"] == len(demos)
     assert rec["mean_return"] == pytest.approx(float(np.mean(demos.episode_returns)))
 
@@ -399,3 +406,117 @@ def test_version_flag(capsys):
     with pytest.raises(SystemExit) as info:
         main(["--version"])
     assert info.value.code == 0 and capsys.readouterr().out == f"sb3-cmzdril {__version__}\n"
+
+
+def _tiny_cmzdril(tmp_path: Path, normalize: bool):
+    """A CMZDRIL model trained for one rollout on Pendulum (optionally on VecNormalize'd observations)."""
+    from conftest import TINY, pendulum_expert, record
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from sb3_cmzdril import CMZDRIL
+
+    demos = record(ENV, pendulum_expert, n_episodes=2, max_steps=50)
+    venv = make_vec_env(ENV, n_envs=1, seed=0)
+    if normalize:
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=demos, **TINY)
+    model.learn(64)
+    model.save(tmp_path / "model.zip")
+    if normalize:
+        venv.save(str(tmp_path / "vecnormalize.pkl"))
+    return model
+
+
+def test_a_cmzdril_model_is_an_expert(tmp_path, capsys):
+    # A training run's model.zip is PPO plus an ensemble: PPO.load refuses the extra state, so it
+    # must be recognised and loaded as what it is.
+    run = tmp_path / "run"
+    run.mkdir()
+    model = _tiny_cmzdril(run, normalize=False)
+    out = tmp_path / "pool.npz"
+    assert main(["collect-demos", "--expert", str(run / "model.zip"), "--env", ENV, "--episodes", "2",
+                 "-o", str(out)]) == 0
+    demos = Demonstrations.load(out)
+    assert demos.n_episodes == 2
+    # The recorded actions are the model's own deterministic ones.
+    first = demos.observations[: demos.episode_lengths[0]]
+    expected, _ = model.predict(first, deterministic=True)
+    np.testing.assert_allclose(demos.actions[: demos.episode_lengths[0]],
+                               np.clip(expected, -2, 2).reshape(demos.actions[: demos.episode_lengths[0]].shape),
+                               atol=1e-5)
+    # The run folder itself names it too.
+    assert main(["collect-demos", "--expert", str(run), "--env", ENV, "-o", str(tmp_path / "again.npz")]) == 0
+
+
+def test_a_cmzdril_model_on_normalised_observations_needs_its_statistics(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    model = _tiny_cmzdril(run, normalize=True)
+    env = gym.make(ENV)
+    expert = load_expert_model(run / "model.zip", env=env)
+    obs, _ = env.reset(seed=0)
+    stats = model.get_vec_normalize_env()
+    assert stats is not None
+    action, _ = expert.predict(obs, deterministic=True)
+    expected, _ = model.predict(stats.normalize_obs(obs), deterministic=True)
+    np.testing.assert_allclose(action, expected, atol=1e-6)
+    (run / "vecnormalize.pkl").unlink()
+    assert main(["collect-demos", "--expert", str(run / "model.zip"), "--env", ENV,
+                 "-o", str(tmp_path / "pool.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "trained on VecNormalize'd observations" in err and "vecnormalize.pkl" in err
+    assert not (tmp_path / "pool.npz").exists()
+
+
+def test_several_pools_in_one_folder_each_keep_their_provenance(tmp_path, capsys):
+    register_scripted_expert("test-pendulum-pd", _PendulumPD)
+    base = ["collect-demos", "--expert", "test-pendulum-pd", "--env", ENV]
+    folder = tmp_path / "pools"
+    assert main(base + ["--episodes", "1", "--seed", "0", "-o", str(folder / "a.npz")]) == 0
+    assert main(base + ["--episodes", "2", "--seed", "100", "-o", str(folder / "b.npz")]) == 0
+    assert sorted(p.name for p in folder.iterdir()) == ["a.json", "a.npz", "b.json", "b.npz"]
+    assert pool_provenance(folder / "a.npz")["seeds"] == [0, 0]
+    assert pool_provenance(folder / "b.npz")["seeds"] == [100, 101]
+    assert pool_provenance(folder / "b.npz")["episodes"] == Demonstrations.load(folder / "b.npz").n_episodes == 2
+    capsys.readouterr()
+
+    # A record file with no pool beside it is someone's: not replaced without --force.
+    (folder / "c.json").write_text("{}")
+    assert main(base + ["-o", str(folder / "c.npz")]) == 2
+    assert "c.json already exists" in capsys.readouterr().err
+    assert not (folder / "c.npz").exists() and (folder / "c.json").read_text() == "{}"
+    # metadata.npz would keep its record in the folder's own metadata.json: refused even with --force.
+    assert main(base + ["-o", str(folder / "metadata.npz"), "--force"]) == 2
+    assert "choose another name" in capsys.readouterr().err
+    assert not (folder / "metadata.npz").exists()
+
+
+def test_pools_recorded_in_the_earlier_layout_are_read_and_replaced_cleanly(tmp_path):
+    register_scripted_expert("test-pendulum-pd", _PendulumPD)
+    folder = tmp_path / "Pendulum-v1"
+    collect_demos("test-pendulum-pd", ENV, n_episodes=1, output=folder / "demos.npz", verbose=False)
+    record = json.loads((folder / "demos.json").read_text())["demos"]
+    # The earlier layout: the record as the demos section of metadata.json beside the pool.
+    (folder / "demos.json").unlink()
+    (folder / "metadata.json").write_text(json.dumps({"env_id": ENV, "demos": record}))
+    assert pool_provenance(folder / "demos.npz") == record
+    # ... which describes demos.npz only: another pool beside it has no record, and may be recorded.
+    assert pool_provenance(folder / "other.npz") == {}
+    collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=7, output=folder / "other.npz", verbose=False)
+    assert pool_provenance(folder / "other.npz")["seeds"] == [7, 8]
+    assert pool_provenance(folder / "demos.npz") == record
+    # Replacing demos.npz moves its record next to it and leaves no stale one in metadata.json.
+    collect_demos("test-pendulum-pd", ENV, n_episodes=2, seed=3, output=folder / "demos.npz", verbose=False,
+                  force=True)
+    assert pool_provenance(folder / "demos.npz")["seeds"] == [3, 4]
+    assert json.loads((folder / "metadata.json").read_text()) == {"env_id": ENV}
+
+
+@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5", "Swimmer-v5", "Walker2d-v5", "WaypointNav-v0"])
+def test_the_shipped_pools_provenance_is_found(env_id):
+    from sb3_cmzdril.shipped import shipped_demos
+
+    pool = shipped_demos(env_id)
+    record = pool_provenance(pool)
+    assert record["file"] == "demos.npz" and record["episodes"] == Demonstrations.load(pool).n_episodes

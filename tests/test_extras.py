@@ -10,7 +10,9 @@ import pytest
 from sb3_cmzdril.extras import EXTRAS, MissingExtraError, require_extra
 
 #: Top-level packages that only extras install.
-EXTRA_ONLY = ("matplotlib", "mujoco", "ray", "tqdm", "rich", "minari", "rl_zoo3", "tensorboard", "jax")
+EXTRA_ONLY = (
+    "matplotlib", "mujoco", "ray", "tqdm", "rich", "minari", "rl_zoo3", "tensorboard", "jax", "huggingface_hub"
+)
 
 
 @pytest.mark.slow

@@ -164,3 +164,97 @@ def test_shipped_experts_by_env_id():
     with pytest.raises(FileNotFoundError, match=r"Walker2d-v5 is not shipped .* get sac/Walker2d-v3_1/ from "
                        r"https://github.com/DLR-RM/rl-trained-agents \(commit [0-9a-f]{40}\)"):
         resolve_expert("Walker2d-v5", env)
+
+
+#: The commit a test's Hub cache holds (the cache names snapshot folders by commit).
+COMMIT = "0123456789abcdef0123456789abcdef01234567"
+
+
+def _hub_cache(root: Path, model, repo="test-org/sac-Pendulum-v0") -> Path:
+    """A Hugging Face Hub cache holding one zoo agent as the Hub keeps it (``<REPO>.zip`` beside
+    ``config.yml``, ``args.yml``, ``vec_normalize.pkl``): ``models--ORG--REPO/`` with ``blobs/``, the
+    snapshot's files as links into them, and ``refs/main`` naming the snapshot's commit."""
+    zoo = _zoo_folder(root / "zoo", model)
+    name = repo.split("/")[1]
+    env_name = name.split("-", 1)[1]
+    sources = {
+        f"{name}.zip": zoo / f"{env_name}.zip",
+        "config.yml": zoo / env_name / "config.yml",
+        "args.yml": zoo / env_name / "args.yml",
+        "vec_normalize.pkl": zoo / env_name / "vecnormalize.pkl",
+    }
+    storage = root / "hub" / ("models--" + repo.replace("/", "--"))
+    snapshot = storage / "snapshots" / COMMIT
+    (storage / "blobs").mkdir(parents=True)
+    snapshot.mkdir(parents=True)
+    for i, (name, source) in enumerate(sources.items()):
+        blob = storage / "blobs" / f"{i:040x}"
+        blob.write_bytes(source.read_bytes())
+        (snapshot / name).symlink_to(Path("..", "..", "blobs", blob.name))
+    (storage / "refs").mkdir()
+    (storage / "refs" / "main").write_text(COMMIT)
+    return root / "hub"
+
+
+def test_hub_expert_from_the_local_cache_through_the_cli(sac, tmp_path):
+    """``--expert hf://ORG/REPO`` as a user runs it offline: the cache's zoo agent, with its
+    normalisation statistics, records a pool of raw observations, and the pool names the commit."""
+    import subprocess
+
+    model, _ = sac
+    cache = _hub_cache(tmp_path, model)
+    env = {**__import__("os").environ, "HF_HUB_OFFLINE": "1", "HF_HUB_CACHE": str(cache),
+           "HF_HOME": str(tmp_path / "hf_home"), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    pool = tmp_path / "pool.npz"
+    run = subprocess.run(
+        [sys.executable, "-m", "sb3_cmzdril", "collect-demos", "--expert", "hf://test-org/sac-Pendulum-v0",
+         "--env", ENV, "--episodes", "1", "--seed", "3", "-o", str(pool)],
+        capture_output=True, text=True, timeout=180, env=env, cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "trained on Pendulum-v0 and is used on Pendulum-v1" in run.stderr
+    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.experts import pool_provenance
+
+    demos = Demonstrations.load(pool)
+    normalised = np.clip((demos.observations - [0.5, -0.5, 1.0]) / np.sqrt(np.array([4.0, 0.25, 9.0]) + 1e-8), -10, 10)
+    np.testing.assert_allclose(demos.actions, _actions(model, normalised), rtol=1e-5)
+    assert pool_provenance(pool)["expert"] == f"hf://test-org/sac-Pendulum-v0@{COMMIT}"
+
+
+@pytest.fixture
+def offline_hub(monkeypatch, tmp_path):
+    """huggingface_hub pointed at an empty cache under tmp_path, offline (no request leaves)."""
+    constants = pytest.importorskip("huggingface_hub.constants")
+    monkeypatch.setattr(constants, "HF_HUB_OFFLINE", True)
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
+    return tmp_path / "hub"
+
+
+def test_hub_experts_in_process_and_their_one_line_errors(sac, tmp_path, offline_hub, capsys):
+    model, _ = sac
+    assert _hub_cache(tmp_path, model) == offline_hub
+    env = gym.make(ENV)
+    with pytest.warns(UserWarning, match="trained on Pendulum-v0"):
+        expert, description = resolve_expert("hf://test-org/sac-Pendulum-v0", env)
+    assert isinstance(expert, NormalizedObservationExpert) and description.endswith(f"@{COMMIT}")
+    with pytest.warns(UserWarning, match="trained on Pendulum-v0"):
+        _, by_revision = resolve_expert(f"hf://test-org/sac-Pendulum-v0@{COMMIT}", env)
+    assert by_revision == description
+
+    cases = [
+        ("hf://test-org/not-cached", "cannot get it from the Hugging Face Hub or its cache"),
+        ("hf://test-org", "is not a Hugging Face Hub model: write hf://ORG/REPO"),
+        ("hf://a/b/c", "is not a Hugging Face Hub model"),
+    ]
+    for spec, message in cases:
+        assert main(["collect-demos", "--expert", spec, "--env", ENV, "-o", str(tmp_path / "x.npz")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and spec in err, err
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_hub_expert_names_the_hub_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # as if the hub extra were not installed
+    with pytest.raises(MissingExtraError, match=r"needs the 'hub' extra: pip install 'sb3-cmzdril\[hub\]'"):
+        resolve_expert("hf://sb3/sac-Walker2d-v3", gym.make(ENV))

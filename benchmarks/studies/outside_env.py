@@ -28,7 +28,7 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
 
 1. records the demo pool ``OUTPUT/LunarLander-v3/demos.npz`` with ``collect_demos`` (the expert is
    registered as the scripted expert ``lunar-heuristic``): ``--pool-episodes`` deterministic episodes,
-   episode ``i`` reset with seed ``--pool-seed + i``; provenance in the metadata.json beside it. An
+   episode ``i`` reset with seed ``--pool-seed + i``; provenance in the NAME.json beside it. An
    existing pool is kept if it is the one asked for (same expert, episodes and seeds);
 2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``
    and ``zero`` x trials 0..T-1 with the hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's
@@ -132,12 +132,10 @@ def record_pool(output: Path, n_episodes: int, seed: int) -> Path:
 
 
 def _pool_record(pool_path: Path) -> dict[str, Any]:
-    """The ``demos`` section collect_demos wrote into the metadata.json beside the pool ({} if none)."""
-    from sb3_cmzdril.experiments.report.records import read_json_or_empty
+    """The provenance collect_demos recorded for the pool ({} if none)."""
+    from sb3_cmzdril.experts import pool_provenance
 
-    record = read_json_or_empty(pool_path.parent / "metadata.json")
-    record = record.get("demos") if isinstance(record, dict) else None
-    return record if isinstance(record, dict) else {}
+    return pool_provenance(pool_path)
 
 
 def _box2d_version() -> str:

@@ -70,17 +70,20 @@ def add_collect_demos(sub) -> None:
         help="record deterministic expert episodes into a demonstrations npz",
         description=(
             "Run an expert deterministically for K episodes (episode i reset with seed S+i) and save "
-            "observations, actions, rewards and seeds. --expert is an SB3 or sb3-contrib model zip (any "
-            "algorithm; older SB3 zips that pickle gym load too), a folder holding model.zip, an RL Zoo "
+            "observations, actions, rewards and seeds; OUTPUT.json beside OUTPUT.npz records how the pool was "
+            "made. --expert is an SB3 or sb3-contrib model zip (any algorithm; older SB3 zips that pickle gym "
+            "load too; a CMZDRIL run's model.zip too), a folder holding model.zip, an RL Zoo "
             "agent's folder (<Env>.zip with <Env>/config.yml and vecnormalize.pkl: the expert sees "
-            "normalised observations, the pool records raw ones), the env id of a shipped expert "
+            "normalised observations, the pool records raw ones), a Hugging Face Hub agent hf://ORG/REPO "
+            "(e.g. hf://sb3/sac-Walker2d-v3; the hub extra), the env id of a shipped expert "
             "(HalfCheetah-v5), or the name of a registered scripted expert."
         ),
     )
     p.add_argument(
         "--expert",
         required=True,
-        help="model zip, folder with model.zip, RL Zoo agent folder, shipped expert's env id, or scripted expert name",
+        help="model zip, folder with model.zip, RL Zoo agent folder, hf://ORG/REPO, shipped expert's env id, "
+        "or scripted expert name",
     )
     p.add_argument("--env", required=True, help="environment id")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
@@ -89,8 +92,7 @@ def add_collect_demos(sub) -> None:
     p.add_argument(
         "--force",
         action="store_true",
-        help="replace an existing OUTPUT, "
-        "and the demos record of a metadata.json beside it that is not the expert's own",
+        help="replace an existing OUTPUT and its record OUTPUT.json",
     )
     p.set_defaults(func=_run_collect_demos)
 

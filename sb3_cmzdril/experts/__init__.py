@@ -14,7 +14,13 @@ One module a job:
 The names below are the package's API; import them from ``sb3_cmzdril.experts``.
 """
 from sb3_cmzdril.experts.checkpoints import BEST_FILE, STATE_FILE, save_checkpoint
-from sb3_cmzdril.experts.collect import collect_demos, load_demonstrations, run_episode
+from sb3_cmzdril.experts.collect import (
+    collect_demos,
+    load_demonstrations,
+    pool_provenance,
+    provenance_path,
+    run_episode,
+)
 from sb3_cmzdril.experts.envs import check_env_id, check_seed, env_name
 from sb3_cmzdril.experts.loading import algorithm_classes, load_expert_model, resolve_expert
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS, ScriptedExpertFactory, register_scripted_expert
@@ -37,6 +43,8 @@ __all__ = [
     "env_name",
     "load_demonstrations",
     "load_expert_model",
+    "pool_provenance",
+    "provenance_path",
     "register_scripted_expert",
     "resolve_expert",
     "run_episode",

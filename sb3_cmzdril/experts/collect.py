@@ -1,9 +1,11 @@
 """Recording demonstrations (``collect_demos``, the ``collect-demos`` command) and reading demo pools.
 
 Episode ``i`` of a recording is reset with ``seed + i`` and played with deterministic expert
-actions, so any episode can be replayed. A saved pool gets a ``demos`` record in the
-``metadata.json`` beside it (which expert, command, seeds and returns made it). The summary table
-and notes go to this module's logger (the CLI prints them).
+actions, so any episode can be replayed. A saved pool ``DIR/NAME.npz`` keeps its provenance (which
+expert, command, seeds and returns made it) in ``DIR/NAME.json`` beside it, so a folder can hold
+several pools. Pools recorded before that keep it as the ``demos`` section of ``DIR/metadata.json``
+(the shipped experts' folders); :func:`pool_provenance` reads either. The summary table and notes go
+to this module's logger (the CLI prints them).
 """
 from __future__ import annotations
 
@@ -26,7 +28,6 @@ from sb3_cmzdril.io import (
     command_line,
     jsonable,
     lock_output,
-    read_json,
     read_json_or_empty,
     unlock_output,
     versions,
@@ -115,6 +116,34 @@ def _log_summary(demos: Demonstrations, title: str) -> None:
     logger.info("%s", "\n".join(lines), extra=extra)
 
 
+#: The record of an expert's folder (train-expert's), which older pools also kept their provenance in.
+FOLDER_METADATA = "metadata.json"
+
+
+def provenance_path(pool: PathLike) -> Path:
+    """Where the provenance of the pool ``DIR/NAME.npz`` is written: ``DIR/NAME.json``."""
+    return Path(pool).with_suffix(".json")
+
+
+def pool_provenance(pool: PathLike) -> dict[str, Any]:
+    """The provenance record of a demo pool (expert, env, seeds, returns, command), ``{}`` if none.
+
+    Read from ``NAME.json`` beside the pool, else from the ``demos`` section of the ``metadata.json``
+    beside it when that section names this file (the layout of pools recorded before each pool had
+    its own record, e.g. the shipped ``experts/<EnvId>/demos.npz``).
+    """
+    pool = Path(pool)
+    own = provenance_path(pool)
+    if own.is_file() and own.name != FOLDER_METADATA:
+        record = read_json_or_empty(own).get("demos")
+        if isinstance(record, dict):
+            return record
+    legacy = read_json_or_empty(pool.parent / FOLDER_METADATA).get("demos")
+    if isinstance(legacy, dict) and legacy.get("file", pool.name) == pool.name:
+        return legacy
+    return {}
+
+
 @mujoco_warnings_routed()  # the expert steps MuJoCo: its warnings go to stderr, not MUJOCO_LOG.TXT
 def collect_demos(
     expert: str | PathLike | Any,
@@ -132,16 +161,16 @@ def collect_demos(
         registered scripted-expert name, or an object with ``predict``.
     :param output: where to save the demonstrations (npz, written atomically), or None.
     :param verbose: log a summary table of the episodes and where they were saved (INFO).
-    :param force: replace an existing ``output`` and the demos record of a ``metadata.json`` beside
-        it that is not the expert's own; without it both raise FileExistsError before any episode runs.
+    :param force: replace an existing ``output`` and the record ``NAME.json`` beside it; without it
+        either raises FileExistsError before any episode runs.
     """
     check_env_id(env_id)
     seed = check_seed(seed)
     if isinstance(n_episodes, bool) or int(n_episodes) < 1:
         raise UserError(f"n_episodes must be >= 1, got {n_episodes}")
     check_seed(seed + int(n_episodes) - 1)
-    if output is not None and not force:
-        _check_demos_output(Path(output), env_id, expert)
+    if output is not None:
+        _check_demos_output(Path(output), force)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         policy, description = resolve_expert(expert, env)
@@ -153,52 +182,41 @@ def collect_demos(
         _log_summary(demos, f"{description} on {env_id}: {demos.n_episodes} episodes, {len(demos)} steps")
     if output is not None:
         # Two collect-demos to one pool: the first to save wins, the other fails (the check above ran
-        # before either had saved). The lock is the folder's, as metadata.json is.
+        # before either had saved). The lock is the folder's, as the folder's record is.
         folder = Path(output).parent
         folder.mkdir(parents=True, exist_ok=True)
         lock = lock_output(folder, f"another process is writing demos in {folder} (lock {folder / LOCK_FILE})")
         try:
-            if not force:
-                _check_demos_output(Path(output), env_id, expert)
+            _check_demos_output(Path(output), force)
             demos.save(output)
-            _record_demos_provenance(Path(output), description, env_id, demos, seed, env_kwargs)
+            _record_demos_provenance(Path(output), expert, description, env_id, demos, seed, env_kwargs)
         finally:
             unlock_output(folder, lock)
         if verbose:
-            logger.info("saved %s (provenance in %s)", output, Path(output).parent / "metadata.json")
+            logger.info("saved %s (provenance in %s)", output, provenance_path(output))
     return demos
 
 
-def _check_demos_output(output: Path, env_id: str, expert: Any) -> None:
-    """FileExistsError when saving to ``output`` would replace a demo pool or another pool's record.
-
-    metadata.json beside the pool gets a ``demos`` section. That is only safe to add where the file
-    has none and belongs to this very expert (train-expert's record in the expert's own folder).
-    """
+def _check_demos_output(output: Path, force: bool) -> None:
+    """Refuse, before any episode runs, an ``output`` whose record would be the folder's
+    ``metadata.json`` (ValueError), and without ``force`` one that would replace a pool or a file
+    beside it (FileExistsError)."""
+    record = provenance_path(output)
+    if record.name == FOLDER_METADATA:
+        raise UserError(
+            f"a pool named {output.name} would keep its provenance in {record}, the expert folder's own record; "
+            "choose another name"
+        )
+    if force:
+        return
     if output.exists():
         raise OutputExistsError(
             f"{output} already exists ({_describe_pool(output)}); pass --force to replace it, or choose another -o"
         )
-    meta_path = output.parent / "metadata.json"
-    if not meta_path.is_file():
-        return
-    meta = read_json_or_empty(meta_path)
-    recorded = meta.get("demos")
-    if isinstance(recorded, dict):
+    if record.exists():
         raise OutputExistsError(
-            f"{meta_path} already records the demo pool {recorded.get('file')!r} of {recorded.get('expert')}; "
-            f"saving {output.name} there would replace that record: pass --force, or choose another folder"
-        )
-    expert_folder = None
-    if isinstance(expert, (str, Path)) and Path(expert).exists():
-        expert_folder = Path(expert) if Path(expert).is_dir() else Path(expert).parent
-    own = (expert_folder is not None and expert_folder.resolve() == output.parent.resolve()
-           and meta.get("env_id") == env_id)
-    if not own:
-        maker = meta.get("expert") or meta.get("algo") or "something else"
-        raise OutputExistsError(
-            f"{meta_path} describes {maker} on {meta.get('env_id')}, "
-            f"not this expert; pass --force to add this pool's record to it, or choose another folder"
+            f"{record} already exists (the pool's provenance would be written there) and {output.name} does not; "
+            "pass --force to replace it, or choose another -o"
         )
 
 
@@ -211,18 +229,28 @@ def _describe_pool(path: Path) -> str:
         return "not a readable demo pool"
 
 
+def _expert_record(expert: Any) -> dict[str, Any]:
+    """train-expert's ``metadata.json`` of an expert given as its folder or its zip ({} otherwise)."""
+    if not isinstance(expert, (str, Path)) or not Path(expert).exists():
+        return {}
+    folder = Path(expert) if Path(expert).is_dir() else Path(expert).parent
+    return read_json_or_empty(folder / FOLDER_METADATA)
+
+
 def _record_demos_provenance(
-    output: Path, description: str, env_id: str, demos: Demonstrations, seed: int, env_kwargs: dict[str, Any] | None
+    output: Path,
+    expert: Any,
+    description: str,
+    env_id: str,
+    demos: Demonstrations,
+    seed: int,
+    env_kwargs: dict[str, Any] | None,
 ) -> None:
-    """Add a ``demos`` section to the ``metadata.json`` beside the demos file (creating the file for
-    a scripted expert), so a shipped pool says which expert, command and seeds made it."""
-    meta_path = output.parent / "metadata.json"
-    if meta_path.is_file():
-        meta = read_json(meta_path)
-    else:
-        meta = {"env_id": env_id, "expert": description, "versions": versions()}
+    """Write the pool's provenance to ``NAME.json`` beside it, so a pool says which expert, command
+    and seeds made it wherever it is kept, and drop a ``metadata.json`` record of an earlier pool
+    of the same name, which the new pool replaced."""
     returns = _episode_returns(demos)
-    meta["demos"] = {
+    record: dict[str, Any] = {
         "file": output.name,
         "expert": description,
         "env_id": env_id,
@@ -235,6 +263,15 @@ def _record_demos_provenance(
         "mean_length": float(np.mean(demos.episode_lengths)),
         "command": command_line(),
     }
-    if meta.get("total_timesteps") is not None:
-        meta["demos"]["expert_total_timesteps"] = meta["total_timesteps"]
-    write_json(meta_path, meta)
+    # The step count of one of our experts, which further training changes: the pool came from this one.
+    total = _expert_record(expert).get("total_timesteps")
+    if total is not None:
+        record["expert_total_timesteps"] = total
+    write_json(provenance_path(output), {"demos": record, "versions": versions()})
+    folder_meta = output.parent / FOLDER_METADATA
+    if folder_meta.is_file():
+        meta = read_json_or_empty(folder_meta)
+        stale = meta.get("demos")
+        if isinstance(stale, dict) and stale.get("file") == output.name:
+            del meta["demos"]
+            write_json(folder_meta, meta)

@@ -17,7 +17,14 @@ hub's ``sb3`` organisation) load without a conversion step:
   the env's raw ones (:class:`NormalizedObservationExpert`). The pickle's gym spaces are not needed
   and are read as placeholders;
 - an agent trained on another version of the env (``Walker2d-v3`` used on ``Walker2d-v5``) is
-  used with a warning: the shapes match, the dynamics may differ.
+  used with a warning: the shapes match, the dynamics may differ;
+- ``hf://ORG/REPO[@REVISION]``: an agent on the Hugging Face Hub (``hf://sb3/sac-Walker2d-v3``),
+  through ``huggingface_hub`` (the ``hub`` extra) and its cache, so ``HF_HUB_OFFLINE``,
+  ``HF_HUB_CACHE`` and ``HF_HOME`` apply. The Hub keeps the zoo's files flat: ``<REPO>.zip`` beside
+  ``config.yml``, ``args.yml`` and ``vec_normalize.pkl``.
+
+A model saved by this package (:class:`~sb3_cmzdril.CMZDRIL`, a training run's ``model.zip``) is an
+expert too: its policy is PPO's, and a run on normalised observations has ``vecnormalize.pkl`` beside it.
 """
 from __future__ import annotations
 
@@ -45,6 +52,11 @@ if TYPE_CHECKING:
 
 #: ``Name-vN``: an env id as the zoo names its files and folders.
 _ENV_ID = re.compile(r"^(?P<name>.+)-v(?P<version>\d+)$")
+#: ``hf://ORG/REPO`` or ``hf://ORG/REPO@REVISION``: a model repository on the Hugging Face Hub.
+HUB_PREFIX = "hf://"
+_HUB_SPEC = re.compile(r"^hf://(?P<repo>[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*)(?:@(?P<revision>[\w./-]+))?$")
+#: What collect-demos needs of a zoo agent's Hub repository (not its video, logs or metrics).
+_HUB_FILES = ("*.zip", "config.yml", "args.yml", "env_kwargs.yml", "vec_normalize.pkl")
 #: Schedules are only used for training, and old ones are lambdas that do not unpickle in another
 #: Python: an expert that only predicts gets constants (rl_zoo3's enjoy does the same).
 _SCHEDULES = ("learning_rate", "lr_schedule", "clip_range", "clip_range_vf", "exploration_schedule")
@@ -116,8 +128,20 @@ def _policy_module(data: dict[str, Any]) -> str:
     return str(policy.get("__module__", "")) if isinstance(policy, dict) else ""
 
 
+def is_cmzdril_data(data: dict[str, Any]) -> bool:
+    """Whether a zip's ``data`` is a :class:`~sb3_cmzdril.CMZDRIL` model's (PPO's keys plus the ensemble's).
+
+    Its policy is PPO's ``ActorCriticPolicy``, but PPO.load refuses the zip's extra ``ensemble`` state.
+    """
+    return all(key in data for key in ("ensemble_size", "ensemble_hidden", "clip_range"))
+
+
 def _algorithm_from_data(path: Path, data: dict[str, Any]) -> list[type[BaseAlgorithm]]:
     """The algorithm classes that may have saved the zip, most likely first."""
+    if is_cmzdril_data(data):
+        from sb3_cmzdril.algorithm import CMZDRIL
+
+        return [CMZDRIL]
     parts = _policy_module(data).split(".")
     if parts[0] == "sb3_contrib":
         contrib = contrib_classes(required_by=f"expert {path} (an sb3-contrib model)")
@@ -193,14 +217,21 @@ class ZooFiles:
             if isinstance(env, str):
                 return env
         for name in (self.model.stem, self.stats.name if self.stats is not None else ""):
+            algo, _, rest = name.partition("-")
+            if algo.lower() in algorithm_classes() or algo.lower() in contrib_classes():
+                name = rest  # a Hub repository's zip: <algo>-<Env>.zip
             if _ENV_ID.match(name):
                 return name
         return None
 
     @property
     def vecnormalize(self) -> Path | None:
-        path = self.stats / "vecnormalize.pkl" if self.stats is not None else None
-        return path if path is not None and path.is_file() else None
+        # The zoo's log folders name it vecnormalize.pkl, its Hub repositories vec_normalize.pkl.
+        for name in ("vecnormalize.pkl", "vec_normalize.pkl"):
+            path = self.stats / name if self.stats is not None else None
+            if path is not None and path.is_file():
+                return path
+        return None
 
     @property
     def config(self) -> dict[str, Any]:
@@ -209,10 +240,13 @@ class ZooFiles:
 
 
 def _stats_folder(model: Path) -> Path | None:
-    """The zoo's ``<Env>/`` folder beside a model zip (``<Env>.zip`` or ``best_model.zip``), if any."""
+    """The zoo's ``<Env>/`` folder beside a model zip (``<Env>.zip`` or ``best_model.zip``), or the
+    zip's own folder when ``config.yml`` lies beside it (the Hub's flat layout), if any."""
     own = model.parent / model.stem
     if (own / "config.yml").is_file() or (own / "vecnormalize.pkl").is_file():
         return own
+    if (model.parent / "config.yml").is_file():
+        return model.parent
     beside = [d for d in sorted(model.parent.iterdir()) if d.is_dir() and (d / "config.yml").is_file()]
     return beside[0] if len(beside) == 1 else None
 
@@ -394,10 +428,25 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
         raise UserError(f"cannot load expert model {model_path}: " + "; ".join(errors))
     if env is not None:
         _check_fits_env(model, env, model_path)
-    stats = load_vecnormalize(files.vecnormalize) if files.vecnormalize is not None else None
+    vecnormalize = files.vecnormalize
+    if getattr(model, "vecnormalize_obs", False):
+        vecnormalize = _run_statistics(model_path)
+    stats = load_vecnormalize(vecnormalize) if vecnormalize is not None else None
     if stats is not None and getattr(stats, "norm_obs", True):
         return NormalizedObservationExpert(model, stats)
     return model
+
+
+def _run_statistics(model_path: Path) -> Path:
+    """The ``vecnormalize.pkl`` a training run saved beside its model, for a CMZDRIL model trained on
+    normalised observations: without it every action would be computed from the wrong inputs."""
+    path = model_path.parent / "vecnormalize.pkl"
+    if not path.is_file():
+        raise ValueError(
+            f"expert {model_path} was trained on VecNormalize'd observations and {path}, the statistics "
+            "saved beside it, is missing"
+        )
+    return path
 
 
 def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
@@ -407,12 +456,50 @@ def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
             raise UserError(f"expert {path} has {key} {theirs}, the env has {ours}")
 
 
+def hub_model_files(spec: str) -> tuple[Path, str]:
+    """The local copy of a Hugging Face Hub agent ``hf://ORG/REPO[@REVISION]``: its model zip (in the
+    Hub cache, fetched there if missing) and ``hf://ORG/REPO@COMMIT``, which names the exact files.
+
+    :raises ValueError: ``spec`` is not of that form, or the repository holds no single model zip.
+    :raises FileNotFoundError: the files are neither cached nor fetchable (offline, no such repository).
+    """
+    match = _HUB_SPEC.match(spec)
+    if match is None:
+        raise ValueError(
+            f"expert {spec!r} is not a Hugging Face Hub model: write hf://ORG/REPO or hf://ORG/REPO@REVISION"
+        )
+    from sb3_cmzdril.extras import require_extra
+
+    hub = require_extra("huggingface_hub", "hub", feature=f"expert {spec}")
+    repo, revision = match["repo"], match["revision"]
+    try:
+        folder = Path(hub.snapshot_download(repo, revision=revision, allow_patterns=list(_HUB_FILES)))
+    except (OSError, ValueError) as e:  # the Hub's errors: no such repo or revision, offline and not cached
+        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise FileNotFoundError(
+            f"expert {spec}: cannot get it from the Hugging Face Hub or its cache ({reason})"
+        ) from None
+    name = repo.split("/", 1)[1]
+    zips = [folder / f"{name}.zip"] if (folder / f"{name}.zip").is_file() else sorted(folder.glob("*.zip"))
+    if len(zips) != 1:
+        raise ValueError(
+            f"expert {spec}: the repository holds {len(zips) or 'no'} model zips "
+            f"({', '.join(z.name for z in zips) or f'expected {name}.zip'}); an SB3 agent's holds <REPO>.zip"
+        )
+    # The snapshot folder of the Hub cache is named by the commit it holds.
+    return zips[0], f"{HUB_PREFIX}{repo}@{folder.name}"
+
+
 def resolve_expert(expert: str | PathLike | Any, env: gym.Env) -> tuple[Any, str]:
-    """An object with ``predict`` and a description, from a path, a folder, a scripted expert's name
-    or the env id of a shipped expert (``HalfCheetah-v5``)."""
+    """An object with ``predict`` and a description, from a path, a folder, a Hugging Face Hub
+    repository (``hf://ORG/REPO``), a scripted expert's name or the env id of a shipped expert
+    (``HalfCheetah-v5``)."""
     if hasattr(expert, "predict") and not isinstance(expert, (str, Path)):
         return expert, type(expert).__name__
     name = str(expert)
+    if isinstance(expert, str) and name.startswith(HUB_PREFIX):
+        model_path, description = hub_model_files(name)
+        return load_expert_model(model_path, env=env), description
     if isinstance(expert, str) and name in SCRIPTED_EXPERTS:
         return SCRIPTED_EXPERTS[name](env), f"scripted:{name}"
     path = Path(name)

@@ -237,8 +237,9 @@ def _train_expert_locked(env_id, algo, algo_cls, hp, hp_path, total, seed, out, 
                                     eval_freq, n_eval_episodes, hp, hp_path, command, wall)
         previous = read_json_or_empty(out / "metadata.json")
         if isinstance(previous.get("demos"), dict):
-            # The demo pool beside the expert keeps its provenance; it names the expert's step count
-            # when it was recorded, which a continued (--force) training has since moved past.
+            # A pool recorded beside the expert before each pool had its own NAME.json keeps its
+            # provenance here; it names the expert's step count when it was recorded, which a
+            # continued (--force) training has since moved past.
             metadata["demos"] = {"expert_total_timesteps": previous.get("total_timesteps"), **previous["demos"]}
         write_json(out / "metadata.json", metadata)
         logger.info(

@@ -24,7 +24,8 @@ Local workers die with the process that started them, however it ends (SIGKILL i
 would go on training and hold its run's lock. On Linux the kernel sends them SIGKILL
 (``PR_SET_PDEATHSIG``); everywhere a watchdog thread ends a worker whose parent is gone. An
 interrupted grid (Ctrl-C, SIGTERM) ends its running workers before it returns; their checkpoints
-are atomic, so the next invocation resumes them.
+are atomic, so the next invocation resumes them. A local Ray instance the Ray backend starts dies
+with it too: a watchdog process (``_ray_watchdog.py``, Linux) ends what Ray would leave running.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ import json
 import multiprocessing
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -246,10 +248,13 @@ class _RayBackend:
             ) from e
         self.ray = ray
         self.owned = not ray.is_initialized()
+        self.watchdog: subprocess.Popen[bytes] | None = None
         if self.owned:
             if address:
                 ray.init(address=address)
             else:
+                # Started first, so that it records Ray's processes from the moment they exist.
+                self.watchdog = start_ray_watchdog()
                 ray.init(num_cpus=workers, include_dashboard=False)
         from sb3_cmzdril.experiments.run.remote import RemoteRuns
 
@@ -268,6 +273,42 @@ class _RayBackend:
     def close(self, interrupted: bool = False) -> None:
         if self.owned:
             self.ray.shutdown()
+        if self.watchdog is not None:
+            stop_ray_watchdog(self.watchdog)
+            self.watchdog = None
+
+
+def start_ray_watchdog() -> subprocess.Popen[bytes] | None:
+    """Start the watchdog that ends the local Ray instance this process is about to start when this
+    process dies, SIGKILL included (``_ray_watchdog.py``: Ray's agents would otherwise outlive it by
+    about a minute); None where there is no ``/proc`` to find the instance's processes in.
+
+    Its standard input is a pipe only this process holds open: the kernel closes it when this process
+    ends, however it ends, and the watchdog reads end of file.
+    """
+    if not Path("/proc/self/stat").is_file():
+        return None
+    script = Path(__file__).with_name("_ray_watchdog.py")
+    return subprocess.Popen(
+        [sys.executable, str(script), str(os.getpid())],
+        stdin=subprocess.PIPE,
+        # Its own session: a signal to this process's group (a terminal's Ctrl-C, kill -- -PGID) must
+        # leave it alive to clean up after the group.
+        start_new_session=True,
+    )
+
+
+def stop_ray_watchdog(watchdog: subprocess.Popen[bytes]) -> None:
+    """Tell the watchdog that Ray was shut down here (nothing to end) and wait for it."""
+    with contextlib.suppress(OSError):  # it is gone already: nothing to stop
+        if watchdog.stdin is not None:
+            watchdog.stdin.write(b"stop\n")
+            watchdog.stdin.close()
+    try:
+        watchdog.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        watchdog.kill()
+        watchdog.wait()
 
 
 def _backend(name: str, workers: int, ray_address: str | None) -> _LocalBackend | _RayBackend:

@@ -1,0 +1,110 @@
+"""The watchdog that ends a local Ray instance with the process that started it (grid.py's Ray
+backend), on stand-in processes: fast, no Ray. tests/test_ray_cluster.py kills a real benchmark's Ray."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from sb3_cmzdril.experiments.run._ray_watchdog import descendants
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="the watchdog reads /proc (Linux)")
+
+#: A stand-in driver: starts the watchdog, then a child and a grandchild that, like Ray's agents,
+#: is left to PID 1 once its parent exits; with argument "stop" it stops the watchdog as the backend's
+#: close() does.
+DRIVER = textwrap.dedent(
+    """
+    import subprocess, sys, time
+    from sb3_cmzdril.experiments.run.grid import start_ray_watchdog, stop_ray_watchdog
+
+    watchdog = start_ray_watchdog()
+    child = subprocess.Popen(["sleep", "300"])
+    # sh starts sleep in the background and exits two seconds later: the grandchild's parent is gone
+    # before the driver, as the raylet is (killed with its parent) before Ray's agents are.
+    subprocess.Popen(["sh", "-c", "sleep 301 > /dev/null 2>&1 & sleep 2"])
+    time.sleep(4)  # the watchdog records every second
+    if sys.argv[1] == "stop":
+        stop_ray_watchdog(watchdog)
+    print("READY", flush=True)
+    time.sleep(600)
+    """
+)
+
+
+def _sleepers() -> dict[int, int]:
+    """Running ``sleep 300`` / ``sleep 301`` processes started by the test: pid -> start time."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            cmdline = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        if cmdline[:2] in ([b"sleep", b"300"], [b"sleep", b"301"]):
+            found[int(entry)] = int(stat[stat.rfind(")") + 2:].split()[19])
+    return found
+
+
+def _alive(processes: dict[int, int]) -> list[int]:
+    alive = []
+    for pid, started in processes.items():
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(")") + 2:].split()
+        if int(fields[19]) == started and fields[0] != "Z":
+            alive.append(pid)
+    return alive
+
+
+def _start_driver(mode: str) -> tuple[subprocess.Popen[str], dict[int, int]]:
+    before = _sleepers()
+    driver = subprocess.Popen([sys.executable, "-c", DRIVER, mode], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert driver.stdout is not None and driver.stdout.readline().strip() == "READY"
+    ours = {pid: t for pid, t in _sleepers().items() if pid not in before}
+    assert len(ours) == 2
+    return driver, ours
+
+
+def _kill(driver: subprocess.Popen[str], processes: dict[int, int]) -> None:
+    for pid in _alive(processes):
+        os.kill(pid, signal.SIGKILL)
+    driver.kill()
+    driver.wait()
+
+
+def test_a_killed_driver_takes_its_descendants_with_it():
+    driver, ours = _start_driver("run")
+    try:
+        assert set(ours) <= set(descendants(driver.pid)) | set(_alive(ours))
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+        deadline = time.monotonic() + 10
+        while _alive(ours) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _alive(ours) == []
+    finally:
+        _kill(driver, ours)
+
+
+def test_a_stopped_watchdog_ends_nothing():
+    # The backend shut Ray down itself and said stop: what the driver runs afterwards is its own.
+    driver, ours = _start_driver("stop")
+    try:
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+        time.sleep(2)
+        assert sorted(_alive(ours)) == sorted(ours)
+    finally:
+        _kill(driver, ours)
