@@ -366,7 +366,8 @@ def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     demos = collect_demos(
         "waypoint-reactive", "sb3_cmzdril:WaypointNav-v0", n_episodes=2, seed=5, output=out, verbose=False
     )
-    assert sorted(p.name for p in out.parent.iterdir()) == ["demos.json", "demos.npz"]
+    # The folder lock (filelock keeps its file after release) is the only other entry.
+    assert sorted(p.name for p in out.parent.iterdir()) == [".lock", "demos.json", "demos.npz"]
     rec = json.loads(out.with_suffix(".json").read_text())["demos"]
     assert rec["expert"] == "scripted:waypoint-reactive" and rec == pool_provenance(out)
     assert rec["episodes"] == 2 and rec["seeds"] == [5, 6] and rec["steps"] == len(demos)
@@ -410,7 +411,7 @@ def test_version_flag(capsys):
 
 def _tiny_cmzdril(tmp_path: Path, normalize: bool):
     """A CMZDRIL model trained for one rollout on Pendulum (optionally on VecNormalize'd observations)."""
-    from conftest import TINY, pendulum_expert, record
+    from helpers import TINY, pendulum_expert, record
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -475,7 +476,7 @@ def test_several_pools_in_one_folder_each_keep_their_provenance(tmp_path, capsys
     folder = tmp_path / "pools"
     assert main(base + ["--episodes", "1", "--seed", "0", "-o", str(folder / "a.npz")]) == 0
     assert main(base + ["--episodes", "2", "--seed", "100", "-o", str(folder / "b.npz")]) == 0
-    assert sorted(p.name for p in folder.iterdir()) == ["a.json", "a.npz", "b.json", "b.npz"]
+    assert sorted(p.name for p in folder.iterdir()) == [".lock", "a.json", "a.npz", "b.json", "b.npz"]
     assert pool_provenance(folder / "a.npz")["seeds"] == [0, 0]
     assert pool_provenance(folder / "b.npz")["seeds"] == [100, 101]
     assert pool_provenance(folder / "b.npz")["episodes"] == Demonstrations.load(folder / "b.npz").n_episodes == 2

@@ -321,7 +321,7 @@ def test_two_collect_demos_to_one_pool_cannot_both_succeed(tmp_path):
     with pytest.raises(OutputExistsError, match="pool.npz already exists"):
         _collect(_PendulumExpert(meanwhile=lambda: _collect(second, pool, seed=1000)), pool, seed=0)
     assert Demonstrations.load(pool).seeds.tolist() == [1000]
-    assert json.loads((pool.parent / "metadata.json").read_text())["demos"]["seeds"] == [1000, 1000]
+    assert json.loads(pool.with_suffix(".json").read_text())["demos"]["seeds"] == [1000, 1000]
     # While the other holds the folder, saving fails at once, naming it; nothing is replaced.
     other = tmp_path / "busy" / "pool.npz"
     other.parent.mkdir()

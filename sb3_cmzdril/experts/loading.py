@@ -442,7 +442,7 @@ def _run_statistics(model_path: Path) -> Path:
     normalised observations: without it every action would be computed from the wrong inputs."""
     path = model_path.parent / "vecnormalize.pkl"
     if not path.is_file():
-        raise ValueError(
+        raise UserError(
             f"expert {model_path} was trained on VecNormalize'd observations and {path}, the statistics "
             "saved beside it, is missing"
         )
@@ -460,12 +460,12 @@ def hub_model_files(spec: str) -> tuple[Path, str]:
     """The local copy of a Hugging Face Hub agent ``hf://ORG/REPO[@REVISION]``: its model zip (in the
     Hub cache, fetched there if missing) and ``hf://ORG/REPO@COMMIT``, which names the exact files.
 
-    :raises ValueError: ``spec`` is not of that form, or the repository holds no single model zip.
-    :raises FileNotFoundError: the files are neither cached nor fetchable (offline, no such repository).
+    :raises UserError: ``spec`` is not of that form, or the repository holds no single model zip.
+    :raises MissingFileError: the files are neither cached nor fetchable (offline, no such repository).
     """
     match = _HUB_SPEC.match(spec)
     if match is None:
-        raise ValueError(
+        raise UserError(
             f"expert {spec!r} is not a Hugging Face Hub model: write hf://ORG/REPO or hf://ORG/REPO@REVISION"
         )
     from sb3_cmzdril.extras import require_extra
@@ -476,13 +476,13 @@ def hub_model_files(spec: str) -> tuple[Path, str]:
         folder = Path(hub.snapshot_download(repo, revision=revision, allow_patterns=list(_HUB_FILES)))
     except (OSError, ValueError) as e:  # the Hub's errors: no such repo or revision, offline and not cached
         reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"expert {spec}: cannot get it from the Hugging Face Hub or its cache ({reason})"
         ) from None
     name = repo.split("/", 1)[1]
     zips = [folder / f"{name}.zip"] if (folder / f"{name}.zip").is_file() else sorted(folder.glob("*.zip"))
     if len(zips) != 1:
-        raise ValueError(
+        raise UserError(
             f"expert {spec}: the repository holds {len(zips) or 'no'} model zips "
             f"({', '.join(z.name for z in zips) or f'expected {name}.zip'}); an SB3 agent's holds <REPO>.zip"
         )
