@@ -411,10 +411,10 @@ def test_version_flag(capsys):
 
 def _tiny_cmzdril(tmp_path: Path, normalize: bool):
     """A CMZDRIL model trained for one rollout on Pendulum (optionally on VecNormalize'd observations)."""
-    from helpers import TINY, pendulum_expert, record
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from helpers import TINY, pendulum_expert, record
     from sb3_cmzdril import CMZDRIL
 
     demos = record(ENV, pendulum_expert, n_episodes=2, max_steps=50)
