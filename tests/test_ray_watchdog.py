@@ -108,3 +108,78 @@ def test_a_stopped_watchdog_ends_nothing():
         assert sorted(_alive(ours)) == sorted(ours)
     finally:
         _kill(driver, ours)
+
+
+def _command(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _running(processes: dict[int, int]) -> list[int]:
+    """The processes that still run with the start time they were recorded with (zombies excluded)."""
+    alive = []
+    for pid, started in processes.items():
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(")") + 2:].split()
+        if int(fields[19]) == started and fields[0] != "Z":
+            alive.append(pid)
+    return alive
+
+
+# Here rather than beside the cluster tests: a local Ray instance another test still runs would be found by
+# ray.init() and joined instead of started.
+@pytest.mark.slow
+def test_a_killed_benchmark_leaves_no_ray_process():
+    """``kill -9`` of a process running the Ray backend on a local instance: every process of that
+    instance is gone within seconds (Ray alone leaves its DashboardAgent and RuntimeEnvAgent for a
+    minute). About 30 s on a loaded 2-core machine, most of it Ray starting."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from sb3_cmzdril.experiments.run._ray_watchdog import descendants
+
+    if not Path("/proc/self/stat").is_file():
+        pytest.skip("the watchdog reads /proc (Linux)")
+    script = (
+        "import time\n"
+        "from sb3_cmzdril.experiments.run.grid import _RayBackend\n"
+        "backend = _RayBackend(1, None)\n"
+        "print('UP', flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    driver = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                              # A cluster another test of this module started exports RAY_ADDRESS: this driver must
+                              # start its own local instance, as a plain benchmark does.
+                              env={**{k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"},
+                                   "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+                              start_new_session=True)
+    started: dict[int, int] = {}
+    try:
+        assert driver.stdout is not None and driver.stdout.readline().strip() == "UP"
+        deadline = time.monotonic() + 30
+        names: set[str] = set()
+        # The raylet starts its agents a moment after ray.init returns.
+        while not {"ray::DashboardAgent", "ray::RuntimeEnvAgent"} <= names and time.monotonic() < deadline:
+            time.sleep(0.5)
+            started = descendants(driver.pid)
+            names = {_command(pid) for pid in started}
+        assert {"ray::DashboardAgent", "ray::RuntimeEnvAgent"} <= names, names
+        time.sleep(1.5)  # the watchdog records every second
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+        deadline = time.monotonic() + 15
+        while _running(started) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert {_command(pid) for pid in _running(started)} == set()
+    finally:
+        for pid in _running(started):
+            os.kill(pid, signal.SIGKILL)
+        driver.kill()
+        driver.wait()

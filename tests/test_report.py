@@ -307,7 +307,8 @@ def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
     assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in text
     assert "## new" in text and "## old" in text and f"`{ref}`" in text
     assert {p.name for p in out.iterdir()} == {"results.md", "table1.csv", "table1_reference.csv", "final_table.csv",
-                                              "fig1_bc_dril_cmz.png", "fig2_cmz_env_zero.png", "fig3_final_eval.png"}
+                                              "fig1_bc_dril_cmz.png", "fig2_cmz_env_zero.png", "fig3_final_eval.png",
+                                              "across_tasks.csv", "fig4_across_tasks.png"}
     assert _rows(out / "table1_reference.csv")[1]["run_dirs"] == f"{ENV}/cmz/trial0;{ENV}/cmz/trial1"
     # Existing report files are kept unless --force; two grids need two names.
     assert main(["report", str(main_grid), "-o", str(out)]) == 2
