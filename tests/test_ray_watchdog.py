@@ -117,20 +117,6 @@ def _command(pid: int) -> str:
         return ""
 
 
-def _running(processes: dict[int, int]) -> list[int]:
-    """The processes that still run with the start time they were recorded with (zombies excluded)."""
-    alive = []
-    for pid, started in processes.items():
-        try:
-            stat = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rfind(")") + 2:].split()
-        if int(fields[19]) == started and fields[0] != "Z":
-            alive.append(pid)
-    return alive
-
-
 # Here rather than beside the cluster tests: a local Ray instance another test still runs would be found by
 # ray.init() and joined instead of started.
 @pytest.mark.slow
@@ -175,11 +161,11 @@ def test_a_killed_benchmark_leaves_no_ray_process():
         driver.send_signal(signal.SIGKILL)
         driver.wait()
         deadline = time.monotonic() + 15
-        while _running(started) and time.monotonic() < deadline:
+        while _alive(started) and time.monotonic() < deadline:
             time.sleep(0.5)
-        assert {_command(pid) for pid in _running(started)} == set()
+        assert {_command(pid) for pid in _alive(started)} == set()
     finally:
-        for pid in _running(started):
+        for pid in _alive(started):
             os.kill(pid, signal.SIGKILL)
         driver.kill()
         driver.wait()
