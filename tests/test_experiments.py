@@ -10,6 +10,7 @@ import dataclasses
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.experiments import report
 from sb3_cmzdril.experiments.run import grid, runs
 from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
-from sb3_cmzdril.experiments.run.run_folder import check_finished
+from sb3_cmzdril.experiments.run.run_folder import RunState, check_finished
 from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
 from sb3_cmzdril.experiments.run.spec import RunSpec
 
@@ -48,6 +49,25 @@ def test_split_is_disjoint_seeded_and_checked():
         assert split_episodes(10, 3, 5, trial) == (train, held_out)
     with pytest.raises(ValueError, match="6 episodes but 5 training \\+ 2 evaluation"):
         split_episodes(6, 5, 2, 0)
+
+
+def test_run_state_adds_cpu_time_across_segments(tmp_path):
+    """state.json's CPU seconds are this process's since the segment started, plus the earlier
+    segments' (a resumed run's cost is the sum); a state.json from before they were kept counts 0."""
+    spec = RunSpec(ENV, "cmz", "pool.npz", 0, 1, 1, 100, str(tmp_path), "hp.yml")
+    first = RunState(tmp_path, spec, 0)
+    t = time.process_time()
+    while time.process_time() - t < 0.05:
+        pass
+    first.write(64)
+    written = json.loads((tmp_path / "state.json").read_text())["cpu_time_s"]
+    assert 0.05 <= written <= first.cpu_time()
+    second = RunState(tmp_path, spec, 64)
+    assert written <= second.cpu_time() < written + 0.05
+    legacy = json.loads((tmp_path / "state.json").read_text())
+    del legacy["cpu_time_s"]
+    (tmp_path / "state.json").write_text(json.dumps(legacy))
+    assert RunState(tmp_path, spec, 64).cpu_time() < 0.05
 
 
 def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):
@@ -135,6 +155,7 @@ def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
     assert sorted(p.name for p in (out / "logs").iterdir()) == ["progress_0.csv", "progress_128.csv"]
     done = json.loads((out / "done.json").read_text())
     assert done["num_timesteps"] == 256 and done["segments"] == 2
+    assert 0 < state["cpu_time_s"] <= done["cpu_time_s"]
 
 
 @pytest.mark.slow

@@ -223,15 +223,21 @@ def file_sha256(path: PathLike) -> str:
 
 
 class RunState:
-    """state.json: step count, wall time across segments, and how each segment started."""
+    """state.json: step count, wall and CPU time across segments, and how each segment started.
+
+    CPU time is this process's (``time.process_time``, every thread of it) from the segment's start:
+    unlike wall time, another process on the same core does not inflate it, so it is the cost of a
+    run to compare across machines' loads. A state.json from before it was recorded counts from 0."""
 
     def __init__(self, out: Path, spec: RunSpec, start_steps: int) -> None:
         self.path = out / STATE_FILE
-        self.data: dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "segments": []}
+        self.data: dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "cpu_time_s": 0.0, "segments": []}
         if self.path.is_file() and start_steps > 0:
             self.data.update(read_json(self.path))
         self._base_wall = float(self.data.get("wall_time_s", 0.0))
+        self._base_cpu = float(self.data.get("cpu_time_s", 0.0))
         self._t0 = time.time()
+        self._cpu0 = time.process_time()
         self.data["segments"].append({
             "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "from_timesteps": int(start_steps),
@@ -242,8 +248,12 @@ class RunState:
     def wall_time(self) -> float:
         return self._base_wall + (time.time() - self._t0)
 
+    def cpu_time(self) -> float:
+        return self._base_cpu + (time.process_time() - self._cpu0)
+
     def write(self, num_timesteps: int) -> None:
-        self.data.update(num_timesteps=int(num_timesteps), wall_time_s=round(self.wall_time(), 2))
+        self.data.update(num_timesteps=int(num_timesteps), wall_time_s=round(self.wall_time(), 2),
+                         cpu_time_s=round(self.cpu_time(), 2))
         write_json(self.path, self.data)
 
 

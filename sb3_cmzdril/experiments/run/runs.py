@@ -283,6 +283,7 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "pretrain": dict(model.pretrain_info),
         "dril_threshold": model.dril_threshold,
         "wall_time_s": round(state.wall_time(), 2),
+        "cpu_time_s": round(state.cpu_time(), 2),
         "segments": len(state.data["segments"]),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "run_dir": portable_path(spec.output_dir),
