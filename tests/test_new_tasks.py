@@ -54,6 +54,22 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     assert "config.json has no n_demos" in text  # the demo sweep leaves out a run that does not say
 
 
+def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
+    # The variant's two runs took 120 and 180 CPU seconds: median 2.5 minutes. The reference's runs
+    # recorded none; with one of its three runs at 600 s, the column says which share it covers.
+    for trial, seconds in enumerate([120.0, 180.0]):
+        done = root / "var" / ENV / "cmz" / f"trial{trial}" / "done.json"
+        done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": seconds}))
+    text = studies.render(root, _variants("ref", "var"))
+    rows = [line.split(" | ") for line in text.splitlines() if line.startswith("| from")]
+    lines = {cells[0].strip("| "): cells for cells in rows}
+    assert lines["from var"][6] == "2.5" and lines["from ref"][6] == "—"
+    done = root / "ref" / ENV / "cmz" / "trial1" / "done.json"
+    done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": 600.0}))
+    text = studies.render(root, _variants("ref", "var"))
+    assert "| 10.0 (1 of 3 runs) |" in text
+
+
 @pytest.mark.slow
 def test_the_script_refuses_to_replace_the_page_without_force(tmp_path):
     (tmp_path / "new_tasks.md").write_text("mine")

@@ -6,7 +6,8 @@ runs folders (:class:`Variant`, :class:`Sweep`, :class:`RolloutTable`) and hands
 :func:`render`. Variants of an env share trials: trial t has the same seed, demo split and held-out
 episodes in every folder, so two variants are compared on the trials both have. Per variant: the
 final policy's % of the expert's return on the held-out episodes (mean over trials [bootstrap CI],
-and trial by trial), the lowest-u policy's, the Table I window's return, and in how many shared
+and trial by trial), the lowest-u policy's, the Table I window's return, the CPU minutes a run took
+(where its records kept them), and in how many shared
 trials the final policy beats the env's reference variant (the first listed). The numbers come from
 the runs' final_eval.csv and done.json (:mod:`.final_eval`, :mod:`.records`); a hand-written reading
 is appended from ``docs/new_tasks_discussion.md`` when it exists.
@@ -145,6 +146,16 @@ def window_return(row: FinalRow) -> float:
     return mean_ci(values)[0]
 
 
+def cpu_minutes(row: FinalRow) -> str:
+    """Median CPU minutes per run (done.json's ``cpu_time_s``: pretraining, training and evaluations),
+    "—" where no run recorded it (runs made before the records kept CPU time)."""
+    values = [r.summary["cpu_time_s"] for r in row.runs if isinstance(r.summary.get("cpu_time_s"), (int, float))]
+    if not values:
+        return "—"
+    note = "" if len(values) == len(row.runs) else f" ({len(values)} of {len(row.runs)} runs)"
+    return f"{np.median(values) / 60:.1f}{note}"
+
+
 def above_reference(row: FinalRow, reference: FinalRow) -> str:
     """"k of n": in how many trials both have, the row's final return is above the reference's."""
     mine, theirs = row.per_trial("return"), reference.per_trial("return")
@@ -174,7 +185,7 @@ def ablation_markdown(
         for variant, row in zip(variants, rows, strict=True):
             final, lowest = row["final"], row["lowest_u"]
             if final is None:
-                body.append([variant.label, "0", "no finished runs"] + [""] * 6)
+                body.append([variant.label, "0", "no finished runs"] + [""] * 7)
                 continue
             against = ["—" if m == variant.method or b is None else above_reference(final, b)
                        for m, b in baselines.items()]
@@ -186,12 +197,14 @@ def ablation_markdown(
                 per_trial,
                 fmt_ci(*lowest.stat("pct_of_expert")) if lowest is not None else "—",
                 fmt(window_return(final)),
+                cpu_minutes(final),
                 paired_cell(final, reference),
                 *against,
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
             ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
-             "Lowest-u policy: % of expert", "Table I window return", "Final above the reference (trials)",
+             "Lowest-u policy: % of expert", "Table I window return", "CPU minutes per run (median)",
+             "Final above the reference (trials)",
              f"Final above BC of `{grid}` (trials)", f"Final above DRIL of `{grid}` (trials)"],
             body,
         ))
