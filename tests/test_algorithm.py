@@ -325,7 +325,17 @@ def test_progress_bar_total_is_the_steps_learn_takes(pendulum_demos, monkeypatch
 def test_mujoco_warnings_are_routed_only_while_the_library_works(pendulum_demos, tmp_path, monkeypatch, capfd):
     mujoco = pytest.importorskip("mujoco")
     monkeypatch.chdir(tmp_path)
-    assert mujoco.get_mju_user_warning() is None
+    # A CLI test run in this process before may have installed the command line's process-wide
+    # handler: start from MuJoCo's default, as a user's program does, and leave theirs as it was.
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(None)
+    try:
+        _check_mujoco_warnings_routed(mujoco, pendulum_demos, tmp_path, capfd)
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def _check_mujoco_warnings_routed(mujoco, pendulum_demos, tmp_path, capfd) -> None:
     seen = []
 
     class Handler(BaseCallback):
