@@ -757,6 +757,9 @@ class CMZDRIL(PPO):
         state = self.reward_rule.get_state() if self.reward_rule is not None else np.zeros(0)
         if state.size:
             self.logger.record("rollout/ubar_mean", float(state.mean()))
+        if self._absorbing_gamma() is not None:
+            # How much a termination costs depends on it: the run's highest u so far.
+            self.logger.record("rollout/absorbing_u", self.absorbing_u)
 
     def train(self) -> None:
         super().train()

@@ -363,13 +363,21 @@ def _check_mujoco_warnings_routed(mujoco, pendulum_demos, tmp_path, capfd) -> No
         ("cmz", 100, False, False),  # the default
     ],
 )
-def test_absorbing_auto_is_on_where_the_expert_never_terminates(cartpole_demos, reward, limit, absorbing, expected):
+def test_absorbing_auto_is_on_where_the_expert_never_terminates(
+    cartpole_demos, tmp_path, reward, limit, absorbing, expected
+):
     assert np.all(cartpole_demos.episode_lengths == 100)  # the expert holds the pole for all recorded steps
     env = gym.make("CartPole-v1", max_episode_steps=limit)
     model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, reward=reward, absorbing=absorbing, **TINY)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(64)
     assert model.absorbing_active is expected
     assert (model.absorbing_u > 0) is expected
+    with open(tmp_path / "progress.csv") as f:
+        logged = next(csv.DictReader(f))
+    assert ("rollout/absorbing_u" in logged) is expected  # what a fall costs, in the run's logs
+    if expected:
+        assert float(logged["rollout/absorbing_u"]) == pytest.approx(model.absorbing_u)
     assert bool(model.rollout_buffer.rewards.min() < -5.0) is expected  # a fall within 64 steps costs ~99 steps' reward
 
 
