@@ -3,19 +3,25 @@
 # with the newest dependencies, and Python 3.10 with the lowest versions pyproject.toml declares
 # (.ci/floors.txt). Each job gets a fresh venv under a temporary folder, removed after it.
 #
-# Cost: torch has a local CPU wheel only for Python 3.11 (the one .ci/run uses); on 3.10 and 3.13 pip
-# takes PyPI's CUDA build with its nvidia-* packages (about 3 GB to download, 4.7 GB installed, about
-# 5 minutes on a 2-core machine), so each job installs torch before anything else and deletes its venv
-# when done. About 15 minutes a job.
+# Installs go through uv (`uv pip install`), not pip: on Python 3.10 pip's resolver backtracked for
+# over 20 minutes over the test extra's tree (many newest releases need Python >= 3.11) where uv
+# resolves the same tree in under a minute. uv reads no pip configuration: it installs from PyPI.
+#
+# Cost: torch has a local CPU wheel only for Python 3.11 (the one .ci/run uses); on 3.10 and 3.13 the
+# installs take PyPI's CUDA build with its nvidia-* packages (about 3 GB to download, 4.7 GB
+# installed). uv's download cache lives in the temporary folder too, shared by the jobs.
 #
 # The floors job installs every extra the tests use but the zoo: rl-zoo3's first release for SB3 2.9
 # (the zoo extra's floor) cannot be installed beside stable-baselines3 2.4, the core floor, so
-# tests/test_zoo.py skips there. The extras resolve to what pip finds beside the pinned floors.
+# tests/test_zoo.py skips there. The extras resolve to what uv finds beside the pinned floors.
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 unset PYTHONPATH
+export UV_CACHE_DIR="$work/uv-cache"
+# uv from the CI interpreter's packages (`python3 -m uv`: no PATH or shim to depend on).
+python3 -m uv --version > /dev/null 2>&1 || python3 -m pip install --quiet uv
 start=$SECONDS
 
 # The interpreter for version $1 (3.10): python3.10 where it runs (pyenv's shim may exist and refuse),
@@ -40,13 +46,14 @@ job() {
     python="$(interpreter "$version")"
     echo "== matrix ($((SECONDS - start)) s): $name: Python $("$python" -c 'import platform; print(platform.python_version())')"
     "$python" -m venv "$venv"
-    local pip=("$venv/bin/python" -m pip install --quiet)
+    local pip=(python3 -m uv pip install --quiet --python "$venv/bin/python")
     if [ -n "$constraints" ]; then
         pip+=(-c "$constraints")
     fi
-    # torch first and pinned, as in .ci/run: unpinned, pip would take PyPI's newest build.
+    # torch first and pinned, as in .ci/run (unpinned, the newest build), and pinned again beside the
+    # package so that resolving its extras cannot move it.
     "${pip[@]}" "torch==$torch"
-    "${pip[@]}" -e "$repo[$extras]" "$@"
+    "${pip[@]}" -e "$repo[$extras]" "torch==$torch" "$@"
     "$venv/bin/python" -c 'import gymnasium, numpy, scipy, stable_baselines3, torch, yaml
 print("   ", ", ".join(f"{m.__name__} {m.__version__}" for m in (torch, stable_baselines3, gymnasium, numpy, scipy, yaml)))'
     (cd "$repo" && PATH="$venv/bin:$PATH" "$venv/bin/python" -m pytest -m "not slow" -p no:cacheprovider -q)
