@@ -20,8 +20,9 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 unset PYTHONPATH
 export UV_CACHE_DIR="$work/uv-cache"
-# uv from the CI interpreter's packages (`python3 -m uv`: no PATH or shim to depend on).
-python3 -m uv --version > /dev/null 2>&1 || python3 -m pip install --quiet uv
+# uv from the CI interpreter's packages (`python3 -m uv`: no PATH or shim to depend on), pinned as the
+# lint extra pins ruff and mypy: a newer resolver may choose other versions.
+python3 -m pip install --quiet "uv==0.13.9"
 start=$SECONDS
 
 # The interpreter for version $1 (3.10): python3.10 where it runs (pyenv's shim may exist and refuse),
