@@ -61,6 +61,10 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-abs-normrew",
             tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
             + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
+    Variant("Walker2d-v5", "cmz", "1M steps, 8 envs per process (n_steps 256), absorbing state + reward normalisation",
+            "results/tuning/W-1m-8env-abs-normrew",
+            f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
+            "-- --env Walker2d-v5 --methods cmz --trials 3 --timesteps 1000000 --eval-every 5 --workers 2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
