@@ -7,8 +7,10 @@ env's shipped pool) trains ``--steps`` steps in this process with one torch thre
 one DummyVecEnv, so every policy forward and every ensemble scoring is one batch over the envs.
 ``n_steps`` is 2048 / n_envs, so that a PPO update sees the same 2,048 transitions whatever the
 number of envs. The training loop (rollouts, scoring, PPO updates, the BC epoch after each) is timed
-in process CPU seconds (``time.process_time``), which another process on the same core does not
-inflate as it does wall time; wall seconds are printed beside them. The one-time pretraining (BC to
+in process CPU seconds (``time.process_time``), which time spent waiting for the core does not
+inflate as it does wall time; wall seconds are printed beside them. Load still slows each step
+(shared caches and cores): with both cores busy, one env measured 337 steps per CPU second against
+626 with one other process, so run it on an otherwise idle machine. The one-time pretraining (BC to
 convergence, ensemble fit) is timed apart. The projection to 1M and 3M steps is loop time per step
 times the steps plus the pretraining: arithmetic on the measurement, labelled as such.
 

@@ -225,9 +225,10 @@ def file_sha256(path: PathLike) -> str:
 class RunState:
     """state.json: step count, wall and CPU time across segments, and how each segment started.
 
-    CPU time is this process's (``time.process_time``, every thread of it) from the segment's start:
-    unlike wall time, another process on the same core does not inflate it, so it is the cost of a
-    run to compare across machines' loads. A state.json from before it was recorded counts from 0."""
+    CPU time is this process's (``time.process_time``, every thread of it) from the segment's start.
+    Another process waiting for the core does not add to it as it adds to wall time, but a loaded
+    machine still slows each step (shared caches and cores): compare runs made under similar load.
+    A state.json from before it was recorded counts from 0."""
 
     def __init__(self, out: Path, spec: RunSpec, start_steps: int) -> None:
         self.path = out / STATE_FILE
