@@ -47,16 +47,16 @@ from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
-from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.errors import UserError, check_finite
+from sb3_cmzdril.imitation import check_imitation_options, restored_state, reward_rule
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
-from sb3_cmzdril.rewards import DisagreementReward, RewardRule, make_rule
+from sb3_cmzdril.rewards import DisagreementReward, RewardRule, expert_never_terminates
 from sb3_cmzdril.scoring import RolloutRecord, score_rollout
 from sb3_cmzdril.spaces import check_action_space
 
 logger = logging.getLogger(__name__)
 
-REWARD_MODES = ("cmz", "dril", "zero", "env")
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
 DemosLike = Demonstrations | PathLike | list | None
 
@@ -69,24 +69,6 @@ _SAVED_TENSORS = (
     "_saved_reward_state",
     "_saved_absorbing_u",
 )
-
-
-def _check_finite(**values: Any) -> None:
-    """UserError naming the first numeric option that is inf or nan.
-
-    Range checks written as ``not value > 0`` let inf through, and PPO's own checks none of them:
-    such a value trains on nan, or fails inside torch once a run has written its files. None (an
-    option switched off) and schedules (callables, checked when training starts) pass.
-    """
-    for name, value in values.items():
-        if value is None or callable(value) or isinstance(value, bool):
-            continue
-        try:
-            finite = math.isfinite(value)
-        except TypeError:  # not a number: the option's own check (or PPO's) reports it
-            continue
-        if not finite:
-            raise UserError(f"{name} must be finite, got {value}")
 
 
 class CMZDRIL(PPO):
@@ -206,32 +188,21 @@ class CMZDRIL(PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if reward not in REWARD_MODES:
-            raise UserError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
-        _check_finite(
+        check_finite(
             alpha=alpha, ema=ema, u0=u0, dril_quantile=dril_quantile, cmz_clip_quantile=cmz_clip_quantile,
             ensemble_learning_rate=ensemble_learning_rate, bc_validation_fraction=bc_validation_fraction,
             bc_learning_rate=bc_learning_rate, log_std_floor=log_std_floor, learning_rate=learning_rate,
             gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, clip_range_vf=clip_range_vf,
             ent_coef=ent_coef, vf_coef=vf_coef, max_grad_norm=max_grad_norm, target_kl=target_kl,
         )
-        if reward == "cmz":
-            make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
-        if not 0.0 < dril_quantile <= 1.0:
-            raise UserError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
+        check_imitation_options(
+            reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
+            bc_epochs_per_update=bc_epochs_per_update,
+        )
         if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
             raise UserError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
-        for name, value in (("bc_pretrain_epochs", bc_pretrain_epochs), ("bc_epochs_per_update", bc_epochs_per_update)):
-            if int(value) < 0:
-                raise UserError(f"{name} must be >= 0, got {value}")
-        if not 0.0 <= bc_validation_fraction < 1.0:
-            raise UserError(f"bc_validation_fraction must lie in [0, 1), got {bc_validation_fraction}")
-        if int(bc_patience) < 1:
-            raise UserError(f"bc_patience must be >= 1, got {bc_patience}")
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
-        if absorbing not in (True, False, "auto"):
-            raise UserError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
         self.demonstrations: Demonstrations | None = (
             None if demonstrations is None else as_demonstrations(demonstrations)
         )
@@ -448,15 +419,15 @@ class CMZDRIL(PPO):
             self.bc.set_demonstrations(self.demonstrations.check_spaces(self.observation_space, self.action_space))
         if self._imitation_ready:
             self.reward_rule = self._make_rule()
-            state = self._saved_reward_state.cpu().numpy().astype(np.float64)
-            if state.size and state.size != self.n_envs:
+            saved = self._saved_reward_state.cpu().numpy()
+            state, remapped = restored_state(saved, self.n_envs)
+            if remapped:
                 warnings.warn(
-                    f"the saved reward state is for {state.size} envs but the model now has {self.n_envs}; "
+                    f"the saved reward state is for {saved.size} envs but the model now has {self.n_envs}; "
                     "starting every env's EMA from the saved mean",
                     UserWarning,
                     stacklevel=2,
                 )
-                state = np.full(self.n_envs, state.mean())
             self.reward_rule.set_state(state)
             if self._saved_absorbing_u.numel():
                 self.reward_rule.absorbing_u = float(self._saved_absorbing_u.item())
@@ -465,12 +436,7 @@ class CMZDRIL(PPO):
 
     # -- imitation set-up ------------------------------------------------------------------------
     def _make_rule(self) -> RewardRule:
-        if self.reward == "cmz":
-            return make_rule("cmz", alpha=self.alpha, ema=self.ema, u0=self.u0, u_max=self.cmz_u_max)
-        if self.reward == "dril":
-            assert self.dril_threshold is not None, "the DRIL threshold is computed by pretrain()"
-            return make_rule("dril", threshold=self.dril_threshold)
-        return make_rule(self.reward)
+        return reward_rule(self.reward, self.alpha, self.ema, self.u0, self.dril_threshold, self.cmz_u_max)
 
     def _demo_obs_transform(self) -> Any:
         vec_normalize = self.get_vec_normalize_env()
@@ -651,12 +617,7 @@ class CMZDRIL(PPO):
             return bool(self.absorbing)
         if self.reward != "cmz" or self.demonstrations is None or self.env is None:
             return False
-        try:
-            spec = self.env.get_attr("spec", [0])[0]
-        except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
-            return False
-        limit = getattr(spec, "max_episode_steps", None)
-        return limit is not None and bool(np.all(self.demonstrations.episode_lengths >= limit))
+        return expert_never_terminates(self.demonstrations, self.env)
 
     # -- training ---------------------------------------------------------------------------------
     def learn(

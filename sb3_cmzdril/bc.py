@@ -1,4 +1,4 @@
-"""Behaviour cloning of an SB3 ActorCriticPolicy by negative log-likelihood (NLL) of expert actions.
+"""Behaviour cloning of an SB3 policy, by negative log-likelihood (NLL) of expert actions by default.
 
 Used twice by CMZ-DRIL (paper, Alg. 1): to pretrain the policy before RL, and for one epoch on the
 demonstrations after every PPO update, so that the policy keeps choosing the expert's actions where
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.policies import BasePolicy
 
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
@@ -22,10 +22,17 @@ from sb3_cmzdril.spaces import actions_as_indices
 
 ObsTransform = Callable[[Any], Any]
 TensorObs = th.Tensor | dict[str, th.Tensor]
+#: (policy, observations, expert actions) -> the loss of each step, (batch,)
+StepLoss = Callable[[Any, TensorObs, th.Tensor], th.Tensor]
+
+
+def nll_loss(policy: Any, obs: TensorObs, actions: th.Tensor) -> th.Tensor:
+    """The NLL of each expert action under an SB3 policy's action distribution."""
+    return -policy.get_distribution(obs).log_prob(actions)
 
 
 class BehaviourCloner:
-    """NLL behaviour cloning of ``policy`` on ``demos``.
+    """Behaviour cloning of ``policy`` on ``demos`` (NLL unless another ``loss`` is given).
 
     The optimiser exists from construction on (so a saved model can restore its state); the demos
     are given with :meth:`set_demonstrations`, already checked against the policy's spaces.
@@ -35,21 +42,25 @@ class BehaviourCloner:
     :param learning_rate: Adam step size of the BC optimiser.
     :param max_grad_norm: gradient clipping, as in PPO.
     :param seed: seeds the minibatch order.
+    :param loss: the per-step loss (:data:`StepLoss`); :func:`nll_loss` by default. Where this
+        module's names say NLL, they mean this loss.
     """
 
     def __init__(
         self,
-        policy: ActorCriticPolicy,
+        policy: BasePolicy,
         batch_size: int = 64,
         learning_rate: float = 1e-3,
         max_grad_norm: float = 0.5,
         seed: int | None = None,
+        loss: StepLoss = nll_loss,
     ) -> None:
         if batch_size < 1:
             raise UserError(f"bc batch_size must be >= 1, got {batch_size}")
         if learning_rate <= 0:
             raise UserError(f"bc learning_rate must be > 0, got {learning_rate}")
         self.policy = policy
+        self.loss = loss
         self.batch_size = int(batch_size)
         self.max_grad_norm = float(max_grad_norm)
         self.optimizer = th.optim.Adam(policy.parameters(), lr=learning_rate)
@@ -75,7 +86,7 @@ class BehaviourCloner:
             idx = th.as_tensor(np.asarray(indices), device=self.policy.device)
             obs, actions = _rows(obs, idx), actions[idx]
         with th.no_grad():
-            return float(-self.policy.get_distribution(obs).log_prob(actions).mean())
+            return float(self.loss(self.policy, obs, actions).mean())
 
     def epoch(self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None) -> float:
         """One pass over the demos (or the steps ``indices``) in shuffled minibatches; returns the
@@ -87,14 +98,28 @@ class BehaviourCloner:
         total = 0.0
         for start in range(0, len(order), self.batch_size):
             idx = order[start : start + self.batch_size]
-            loss = -self.policy.get_distribution(_rows(obs, idx)).log_prob(self._actions[idx]).mean()
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
-            self.optimizer.step()
-            total += float(loss.detach()) * len(idx)
+            total += self._update(obs, idx) * len(idx)
         self.policy.set_training_mode(False)
         return total / len(order)
+
+    def minibatches(self, n: int, obs_transform: ObsTransform | None = None) -> float:
+        """``n`` updates on minibatches of demo steps drawn at random (for BC steps interleaved with
+        an off-policy learner's gradient steps); returns their mean loss (nan for ``n=0``)."""
+        obs = self._observations(obs_transform)
+        self.policy.set_training_mode(True)
+        draws = self.rng.integers(0, len(self._actions), size=(int(n), self.batch_size))
+        losses = [self._update(obs, th.as_tensor(idx, device=self.policy.device)) for idx in draws]
+        self.policy.set_training_mode(False)
+        return float(np.mean(losses)) if losses else float("nan")
+
+    def _update(self, obs: TensorObs, idx: th.Tensor) -> float:
+        """One optimiser step on the demo steps ``idx``; their mean loss before it."""
+        loss = self.loss(self.policy, _rows(obs, idx), self._actions[idx]).mean()
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+        self.optimizer.step()
+        return float(loss.detach())
 
     def train(
         self, n_epochs: int, obs_transform: ObsTransform | None = None, progress_bar: bool = False

@@ -13,6 +13,9 @@ This module imports nothing of the package: every layer may raise these.
 """
 from __future__ import annotations
 
+import math
+from typing import Any
+
 
 class UserError(ValueError):
     """The input is wrong: a bad value, file or folder; the message names it and says what to do."""
@@ -26,4 +29,23 @@ class OutputExistsError(UserError, FileExistsError):
     """The output would replace a file or folder that is not the command's own to replace."""
 
 
-__all__ = ["MissingFileError", "OutputExistsError", "UserError"]
+def check_finite(**values: Any) -> None:
+    """UserError naming the first numeric option that is inf or nan.
+
+    Range checks written as ``not value > 0`` let inf through, and SB3's own checks none of them:
+    such a value trains on nan, or fails inside torch once a run has written its files. None (an
+    option switched off), booleans, strings (``ent_coef="auto"``) and schedules (callables, checked
+    when training starts) pass.
+    """
+    for name, value in values.items():
+        if value is None or callable(value) or isinstance(value, bool):
+            continue
+        try:
+            finite = math.isfinite(value)
+        except TypeError:  # not a number: the option's own check (or SB3's) reports it
+            continue
+        if not finite:
+            raise UserError(f"{name} must be finite, got {value}")
+
+
+__all__ = ["MissingFileError", "OutputExistsError", "UserError", "check_finite"]

@@ -60,6 +60,12 @@ class RewardRule:
         reward of the absorbing state a terminated episode enters (``CMZDRIL(absorbing=...)``)."""
         raise NotImplementedError(f"{type(self).__name__} has no absorbing-state reward")
 
+    def replayed(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        """Rewards of a batch of transitions replayed from a buffer (of no particular env or time):
+        the rule at its current state, which this does not advance. A stateless rule gives what it
+        gives any step; :class:`CMZReward` measures u against the mean of its envs' EMAs."""
+        return self(u, env_rewards)
+
     def highest_u_so_far(self, u: np.ndarray) -> np.ndarray:
         """For the disagreements ``u`` (T, n_envs) of T consecutive steps, the highest u seen up to
         each step, that step's envs included, (T,); :attr:`absorbing_u` then holds the last."""
@@ -138,6 +144,13 @@ class CMZReward(RewardRule):
         self.ubar = final[0]
         return (-self.alpha * (u - ubar)).astype(np.float32)
 
+    def replayed(self, u: np.ndarray, env_rewards: np.ndarray) -> np.ndarray:
+        # An off-policy learner replays transitions long after their step: the reward is measured
+        # against where the agent's disagreement stands now, so it stays about mean-zero on the
+        # agent's current behaviour (and positive on states more expert-like than that).
+        ubar = self.u0 if self.ubar is None else float(self.ubar.mean())
+        return (-self.alpha * (self._clipped(u) - ubar)).astype(np.float32)
+
     def absorbing(self, u_absorbing: np.ndarray, u: np.ndarray, rewards: np.ndarray) -> np.ndarray:
         # rewards = -alpha (u - ubar), so -alpha (u_absorbing - ubar) needs no ubar of its own.
         return (rewards - self.alpha * (self._clipped(u_absorbing) - self._clipped(u))).astype(np.float32)
@@ -206,6 +219,18 @@ class EnvReward(RewardRule):
         return np.asarray(env_rewards, dtype=np.float32)
 
     sequence = __call__
+
+
+def expert_never_terminates(demonstrations: Demonstrations, venv: VecEnv) -> bool:
+    """Whether every demonstration lasts the env's time limit (``absorbing="auto"``'s test): then a
+    termination is something the expert never did. False for an env without a gymnasium spec or
+    time limit, whose episodes' ends say nothing about the expert."""
+    try:
+        spec = venv.get_attr("spec", [0])[0]
+    except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
+        return False
+    limit = getattr(spec, "max_episode_steps", None)
+    return limit is not None and bool(np.all(demonstrations.episode_lengths >= limit))
 
 
 def terminations(dones: np.ndarray, infos: list[dict]) -> np.ndarray:
@@ -333,6 +358,7 @@ __all__: list[str] = [
     "ZeroReward",
     "EnvReward",
     "DisagreementReward",
+    "expert_never_terminates",
     "make_rule",
     "terminations",
     "with_absorbing_state",

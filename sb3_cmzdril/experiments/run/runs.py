@@ -235,26 +235,32 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector:
             if source is not None:
                 summary.update(epoch=int(source.best_epoch), rollout_u=float(source.best_u))
             results[name] = summary
-            for j, episode in enumerate(episodes):
-                rows.append(
-                    ",".join(
-                        str(v)
-                        for v in (
-                            name,
-                            episode,
-                            int(ev.seeds[j]),
-                            f"{ev.returns[j]:.6g}",
-                            int(ev.lengths[j]),
-                            f"{ev.frechet[j]:.6g}",
-                            f"{ev.episode_action_mse[j]:.6g}",
-                            f"{ev.expert_returns[j]:.6g}",
-                        )
-                    )
-                )
+            rows += final_eval_rows(name, episodes, ev)
     finally:
         model.policy.load_state_dict(final_state)
     folder.write_final_evaluation(rows)
     return results
+
+
+def final_eval_rows(policy: str, episodes: Sequence[int], ev: Any) -> list[str]:
+    """final_eval.csv's lines (columns ``FINAL_EVAL_COLUMNS``) for one policy's
+    :class:`~sb3_cmzdril.metrics.evaluation.ExpertEvaluation` of the pool ``episodes``."""
+    return [
+        ",".join(
+            str(v)
+            for v in (
+                policy,
+                episode,
+                int(ev.seeds[j]),
+                f"{ev.returns[j]:.6g}",
+                int(ev.lengths[j]),
+                f"{ev.frechet[j]:.6g}",
+                f"{ev.episode_action_mse[j]:.6g}",
+                f"{ev.expert_returns[j]:.6g}",
+            )
+        )
+        for j, episode in enumerate(episodes)
+    ]
 
 
 def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -> dict[str, Any]:

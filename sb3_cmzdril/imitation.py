@@ -1,0 +1,99 @@
+"""What CMZDRIL (PPO) and CMZDRILSAC share of CMZ-DRIL's set-up: the checks of its options, the reward
+rule they name, and the demonstrations as tensors for a model's zip.
+
+Both algorithms take the same imitation options (reward, alpha, ema, u0, dril_quantile, the BC
+pretraining's epochs, held-out share and patience, absorbing) with the same meaning; checking and
+interpreting them here keeps the two from drifting apart.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.rewards import RewardRule, make_rule
+
+#: The reward modes: the paper's, DRIL's, none (PPO or SAC plus BC only) and the env's own.
+REWARD_MODES = ("cmz", "dril", "zero", "env")
+
+
+def check_imitation_options(
+    reward: str,
+    alpha: float,
+    ema: float,
+    u0: float,
+    dril_quantile: float,
+    bc_pretrain_epochs: int,
+    bc_validation_fraction: float,
+    bc_patience: int,
+    absorbing: bool | str,
+    **counts: int,
+) -> None:
+    """UserError naming the first imitation option out of range (``counts``: other options that must
+    be integers >= 0, such as ``bc_epochs_per_update``). Run before anything is built."""
+    if reward not in REWARD_MODES:
+        raise UserError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
+    if reward == "cmz":
+        make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
+    if not 0.0 < dril_quantile <= 1.0:
+        raise UserError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
+    for name, value in {"bc_pretrain_epochs": bc_pretrain_epochs, **counts}.items():
+        if int(value) < 0:
+            raise UserError(f"{name} must be >= 0, got {value}")
+    if not 0.0 <= bc_validation_fraction < 1.0:
+        raise UserError(f"bc_validation_fraction must lie in [0, 1), got {bc_validation_fraction}")
+    if int(bc_patience) < 1:
+        raise UserError(f"bc_patience must be >= 1, got {bc_patience}")
+    if absorbing not in (True, False, "auto"):
+        raise UserError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
+
+
+def reward_rule(
+    reward: str, alpha: float, ema: float, u0: float, dril_threshold: float | None, u_max: float | None = None
+) -> RewardRule:
+    """The rule a model's options name (``dril_threshold``: computed from the fitted ensemble)."""
+    if reward == "cmz":
+        return make_rule("cmz", alpha=alpha, ema=ema, u0=u0, u_max=u_max)
+    if reward == "dril":
+        assert dril_threshold is not None, "the DRIL threshold is computed when the ensemble is fitted"
+        return make_rule("dril", threshold=dril_threshold)
+    return make_rule(reward)
+
+
+def demo_tensors(demos: Demonstrations) -> dict[str, th.Tensor]:
+    """A Demonstrations with array observations as the tensors a model's zip can hold
+    (:func:`demos_from_tensors` reverses it; Dict observations are CMZDRIL's to pack)."""
+    return {
+        "actions": th.as_tensor(demos.actions),
+        "lengths": th.as_tensor(demos.episode_lengths),
+        "rewards": th.as_tensor(demos.rewards) if demos.rewards is not None else th.zeros(0),
+        "seeds": th.as_tensor(demos.seeds),
+    }
+
+
+def demos_from_tensors(observations: Any, tensors: dict[str, th.Tensor]) -> Demonstrations:
+    """The Demonstrations that :func:`demo_tensors` (and the observations) were made from."""
+    rewards = tensors["rewards"].cpu().numpy()
+    return Demonstrations(
+        observations,
+        tensors["actions"].cpu().numpy(),
+        tensors["lengths"].cpu().numpy(),
+        rewards=rewards if rewards.size else None,
+        seeds=tensors["seeds"].cpu().numpy(),
+    )
+
+
+def restored_state(saved: np.ndarray, n_envs: int) -> tuple[np.ndarray, bool]:
+    """A saved per-env reward state for ``n_envs`` envs: as saved, or (True) each env started from
+    the saved mean where the number of envs changed."""
+    state = np.asarray(saved, dtype=np.float64).reshape(-1)
+    if state.size and state.size != n_envs:
+        return np.full(n_envs, state.mean()), True
+    return state, False
+
+
+__all__ = ["REWARD_MODES", "check_imitation_options", "demo_tensors", "demos_from_tensors", "reward_rule",
+           "restored_state"]
