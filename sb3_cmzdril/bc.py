@@ -102,15 +102,12 @@ class BehaviourCloner:
         self.policy.set_training_mode(False)
         return total / len(order)
 
-    def minibatches(self, n: int, obs_transform: ObsTransform | None = None) -> float:
-        """``n`` updates on minibatches of demo steps drawn at random (for BC steps interleaved with
-        an off-policy learner's gradient steps); returns their mean loss (nan for ``n=0``)."""
+    def sample_loss(self, obs_transform: ObsTransform | None = None) -> th.Tensor:
+        """The mean loss of a minibatch of demo steps drawn at random, with its graph, for a learner
+        that adds it to a loss of its own (an off-policy actor's) instead of stepping this optimiser."""
         obs = self._observations(obs_transform)
-        self.policy.set_training_mode(True)
-        draws = self.rng.integers(0, len(self._actions), size=(int(n), self.batch_size))
-        losses = [self._update(obs, th.as_tensor(idx, device=self.policy.device)) for idx in draws]
-        self.policy.set_training_mode(False)
-        return float(np.mean(losses)) if losses else float("nan")
+        idx = th.as_tensor(self.rng.integers(0, len(self._actions), size=self.batch_size), device=self.policy.device)
+        return self.loss(self.policy, _rows(obs, idx), self._actions[idx]).mean()
 
     def _update(self, obs: TensorObs, idx: th.Tensor) -> float:
         """One optimiser step on the demo steps ``idx``; their mean loss before it."""

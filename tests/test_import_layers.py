@@ -20,9 +20,9 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("foundations: version, the error class, files, printing, spaces, optional extras",
      {"_version", "errors", "io", "console", "spaces", "extras", "_mujoco_log", "policies"}),
     ("records and configuration", {"shipped", "selection", "demo_readers", "demos", "hyperparams"}),
-    ("the imitation parts: ensemble, reward rules, scoring, behaviour cloning",
-     {"ensemble", "rewards", "scoring", "bc"}),
-    ("the algorithm", {"algorithm"}),
+    ("the imitation parts: ensemble, reward rules, scoring, behaviour cloning, the demo replay, what the "
+     "algorithms share", {"ensemble", "rewards", "scoring", "bc", "demo_replay", "imitation"}),
+    ("the algorithms", {"algorithm", "sac"}),
     ("measuring and experts", {"metrics", "experts"}),
     ("environments (they register their scripted experts)", {"envs"}),
     ("the public face", {""}),

@@ -1,0 +1,577 @@
+"""CMZDRILSAC: SB3's SAC with CMZ-DRIL's demonstrations, ensemble and reward, off-policy.
+
+The same imitation machinery as :class:`~sb3_cmzdril.algorithm.CMZDRIL`, with SAC in place of PPO,
+as the off-policy imitation learners do it (SQIL, Reddy et al. 2020; DAC, Kostrikov et al. 2019):
+
+1. Pretrain the actor by behaviour cloning: squared error between its deterministic action and the
+   expert's (both in SAC's [-1, 1] action scale), early-stopped on held-out demo steps, on inputs
+   standardised with the demos' statistics. Then fit the bootstrap ensemble on the same demos.
+2. Collect with the actor from the first step (no uniformly random warm-up: the clone is the
+   starting point). Each collected step's disagreement ``u`` advances the reward rule's state (the
+   CMZ reward's EMA, the highest u seen).
+3. Every SAC batch holds ``demo_fraction`` demonstration transitions; every sampled transition,
+   the agent's and the expert's, gets its reward from the rule at sampling time
+   (:class:`~sb3_cmzdril.demo_replay.DemoReplayBuffer`). A true termination (never a time limit) can be
+   scored as entering an absorbing state, as in CMZDRIL.
+4. The actor's loss is SAC's with Q divided by the batch's mean |Q| (at least 1) and multiplied by
+   ``q_weight``, plus ``bc_weight`` times the BC loss of a demo minibatch: TD3+BC's form (Fujimoto
+   and Gu 2021), which keeps the two terms on one scale whatever the reward's. BC as separate optimiser steps (DRIL's
+   way with PPO) lost the clone here: Adam moves every parameter by about its learning rate whatever
+   the size of the gradient, so a critic that knows nothing yet walks the actor away from the demos
+   between two BC steps (on Walker2d-v5 the agent soon fell at once, even with no reward at all).
+
+Flat ``Box`` observations and ``Box`` actions (SAC's). Saving keeps the policy, the ensemble, the BC
+optimiser, the demonstrations and the reward rule's state; the replay buffer is SB3's to save
+(``save_replay_buffer``), the demonstrations are mixed in again at every ``learn()``.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import polyak_update
+from stable_baselines3.sac.policies import SACPolicy
+from torch.nn import functional as F
+
+from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
+from sb3_cmzdril.bc import BehaviourCloner, TensorObs
+from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
+from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.errors import UserError, check_finite
+from sb3_cmzdril.imitation import check_imitation_options, demo_tensors, demos_from_tensors, restored_state, reward_rule
+from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
+from sb3_cmzdril.rewards import RewardRule, expert_never_terminates, with_absorbing_state
+
+logger = logging.getLogger(__name__)
+
+SelfCMZDRILSAC = TypeVar("SelfCMZDRILSAC", bound="CMZDRILSAC")
+DemosLike = Demonstrations | str | list | None
+
+# Tensors that travel in the zip next to the state dicts (SB3 loads them with weights_only=True).
+_DEMO_TENSORS = ("actions", "lengths", "rewards", "seeds")  # imitation.demo_tensors' keys
+_SAVED_TENSORS = (
+    "_saved_demo_obs",
+    *(f"_saved_demo_{key}" for key in _DEMO_TENSORS),
+    "_saved_reward_state",
+    "_saved_absorbing_u",
+)
+
+
+class ScaledActionMSE:
+    """BC loss of a SAC actor: squared error, summed over action dimensions, between its
+    deterministic (tanh-squashed) action and the expert's, rescaled from the space's bounds to
+    [-1, 1] and clipped there. A squashed Gaussian's likelihood is unbounded at the bounds, where
+    experts often act (Walker2d's saturate), so the actor's mean is fitted, not its likelihood.
+
+    :param action_space: the Box the expert's actions live in.
+    :param device: where the bounds go.
+    """
+
+    def __init__(self, action_space: spaces.Box, device: th.device) -> None:
+        self.low = th.as_tensor(action_space.low.reshape(-1), dtype=th.float32, device=device)
+        self.high = th.as_tensor(action_space.high.reshape(-1), dtype=th.float32, device=device)
+
+    def __call__(self, actor: Any, obs: TensorObs, actions: th.Tensor) -> th.Tensor:
+        target = (2.0 * (actions - self.low) / (self.high - self.low) - 1.0).clamp(-1.0, 1.0)
+        return ((actor(obs, deterministic=True) - target) ** 2).sum(dim=1)
+
+
+class CMZDRILSAC(SAC):
+    """SAC trained on CMZ-DRIL's disagreement reward, with the demonstrations in every batch and
+    BC steps on them (see the module's docstring).
+
+    SAC's arguments (``learning_rate`` ... ``device``) mean what they mean for
+    :class:`stable_baselines3.SAC`; the defaults are SAC's except ``ent_coef`` (below).
+    The imitation arguments mean what they mean for :class:`~sb3_cmzdril.algorithm.CMZDRIL`:
+
+    :param demonstrations: a :class:`~sb3_cmzdril.demos.Demonstrations`, a path to a saved one, or a
+        list of episode dicts. Required before the first ``learn()``.
+    :param reward: ``"cmz"``, ``"dril"``, ``"zero"`` or ``"env"`` (the true reward; the demos must have
+        recorded it when ``demo_fraction`` > 0).
+    :param alpha: CMZ reward scale (paper: 10).
+    :param ema: CMZ EMA factor (paper: 0.99), over the agent's collected steps.
+    :param u0: initial EMA value (paper: 0).
+    :param dril_quantile: DRIL threshold quantile of u on the demos.
+    :param disagreement: ``"std"`` or ``"quadratic"`` (see :mod:`sb3_cmzdril.ensemble`).
+    :param ensemble_size: number of ensemble members.
+    :param ensemble_hidden: hidden layer widths of each member.
+    :param ensemble_epochs: epochs of ensemble fitting.
+    :param ensemble_batch_size: minibatch size of ensemble fitting.
+    :param ensemble_learning_rate: Adam step size of ensemble fitting.
+    :param standardize_observations: actor and critics see observations standardised with fixed
+        statistics of the demonstrations.
+    :param demo_fraction: share of every SAC batch drawn from the demonstrations (in [0, 1)).
+    :param bc_pretrain_epochs: most BC epochs before RL (early-stopped as CMZDRIL's).
+    :param bc_validation_fraction: share of demo steps held out to stop pretraining.
+    :param bc_patience: epochs without improvement before pretraining stops.
+    :param bc_weight: weight of the BC loss (on a demo minibatch of ``bc_batch_size``) in the actor's
+        loss; 0 gives SAC's own actor loss, unscaled.
+    :param q_weight: in the actor's loss Q is divided by the batch's mean |Q| (at least 1) and
+        multiplied by this (TD3+BC's alpha, 2.5) when ``bc_weight`` > 0.
+    :param bc_batch_size: minibatch size of BC.
+    :param bc_learning_rate: Adam step size of BC pretraining (its own optimiser; during SAC the BC
+        term is part of the actor's loss and steps with the actor's optimiser).
+    :param log_std_init: after pretraining (which fits only the actor's mean), the actor's log-std
+        head outputs this constant until SAC learns it (None keeps its initialisation, about 0:
+        a standard deviation of 1 before the tanh, which buries the clone in noise).
+    :param absorbing: score a true termination as entering an absorbing state at the highest u seen
+        so far (``True``, ``False`` or ``"auto"``: the ``"cmz"`` reward, where every demonstration
+        lasts the env's time limit), as :class:`~sb3_cmzdril.algorithm.CMZDRIL` does.
+    :param ent_coef: SAC's entropy coefficient; ``"auto_0.01"`` by default (learnt, from 0.01)
+        rather than SAC's ``"auto"`` (from 1.0), which spreads a cloned actor's actions before the
+        critic has learnt anything. IQ-Learn starts its MuJoCo temperature at 0.01 as well.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases
+
+    def __init__(
+        self,
+        policy: str | type[SACPolicy],
+        env: GymEnv | str,
+        demonstrations: DemosLike = None,
+        reward: str = "cmz",
+        alpha: float = 10.0,
+        ema: float = 0.99,
+        u0: float = 0.0,
+        dril_quantile: float = 0.98,
+        disagreement: str = "std",
+        ensemble_size: int = 5,
+        ensemble_hidden: Sequence[int] = (64, 64),
+        ensemble_epochs: int = 200,
+        ensemble_batch_size: int = 64,
+        ensemble_learning_rate: float = 1e-3,
+        standardize_observations: bool = True,
+        demo_fraction: float = 0.25,
+        bc_pretrain_epochs: int = 1000,
+        bc_validation_fraction: float = 0.2,
+        bc_patience: int = 20,
+        bc_weight: float = 1.0,
+        q_weight: float = 2.5,
+        bc_batch_size: int = 256,
+        bc_learning_rate: float = 1e-3,
+        log_std_init: float | None = -1.0,
+        absorbing: bool | str = False,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 100,
+        batch_size: int = 256,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        ent_coef: str | float = "auto_0.01",
+        target_update_interval: int = 1,
+        target_entropy: str | float = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        check_finite(
+            alpha=alpha, ema=ema, u0=u0, dril_quantile=dril_quantile, ensemble_learning_rate=ensemble_learning_rate,
+            demo_fraction=demo_fraction, bc_validation_fraction=bc_validation_fraction,
+            bc_learning_rate=bc_learning_rate, bc_weight=bc_weight, q_weight=q_weight, log_std_init=log_std_init,
+            learning_rate=learning_rate, tau=tau, gamma=gamma, ent_coef=ent_coef, target_entropy=target_entropy,
+        )
+        check_imitation_options(
+            reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
+        )
+        if not (bc_weight >= 0 and q_weight > 0):
+            raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
+        if not 0.0 <= demo_fraction < 1.0:
+            raise UserError(f"demo_fraction must lie in [0, 1), got {demo_fraction}")
+        if replay_buffer_class is None:
+            replay_buffer_class = DemoReplayBuffer
+        elif not (isinstance(replay_buffer_class, type) and issubclass(replay_buffer_class, DemoReplayBuffer)):
+            raise UserError(
+                f"replay_buffer_class must be a DemoReplayBuffer (or a subclass), got {replay_buffer_class}"
+            )
+        self.demonstrations: Demonstrations | None = (
+            None if demonstrations is None else as_demonstrations(demonstrations)
+        )
+        self.reward = reward
+        self.alpha = float(alpha)
+        self.ema = float(ema)
+        self.u0 = float(u0)
+        self.dril_quantile = float(dril_quantile)
+        self.dril_threshold: float | None = None
+        self.disagreement = disagreement
+        self.ensemble_size = int(ensemble_size)
+        self.ensemble_hidden = tuple(int(h) for h in ensemble_hidden)
+        self.ensemble_epochs = int(ensemble_epochs)
+        self.ensemble_batch_size = int(ensemble_batch_size)
+        self.ensemble_learning_rate = float(ensemble_learning_rate)
+        self.standardize_observations = bool(standardize_observations)
+        self.demo_fraction = float(demo_fraction)
+        self.bc_pretrain_epochs = int(bc_pretrain_epochs)
+        self.bc_validation_fraction = float(bc_validation_fraction)
+        self.bc_patience = int(bc_patience)
+        self.bc_weight = float(bc_weight)
+        self.q_weight = float(q_weight)
+        self.bc_batch_size = int(bc_batch_size)
+        self.bc_learning_rate = float(bc_learning_rate)
+        self.log_std_init = None if log_std_init is None else float(log_std_init)
+        self.absorbing = absorbing
+        #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
+        self.absorbing_active = False
+        #: the policy is pretrained and the ensemble fitted: ``learn()`` goes straight to SAC
+        self.pretrained = False
+        self.pretrain_info: dict[str, float] = {}
+        self._u_sum, self._u_count = 0.0, 0
+        if isinstance(env, str):
+            with mujoco_warnings_routed():
+                env = maybe_make_env(env, verbose)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            target_entropy=target_entropy,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        if _init_setup_model:
+            self._setup_model()
+
+    # -- model construction and persistence --------------------------------------------------
+    def _setup_model(self) -> None:
+        if not isinstance(self.observation_space, spaces.Box) or len(self.observation_space.shape) != 1:
+            raise UserError(
+                f"CMZDRILSAC takes flat Box observations, got {self.observation_space}; CMZDRIL (PPO) takes any"
+            )
+        if self.standardize_observations:
+            self.policy_kwargs, _ = standardizing_policy_kwargs(
+                self.policy_class, self.policy_kwargs, self.observation_space
+            )
+        super()._setup_model()
+        seed = int(np.random.randint(0, 2**31 - 1)) if self.seed is None else int(self.seed)
+        self.ensemble_hidden = tuple(self.ensemble_hidden)  # a loaded model gets a JSON list back
+        self.ensemble = BCEnsemble(
+            self.observation_space, self.action_space, self.ensemble_size, self.ensemble_hidden, self.disagreement, seed
+        ).to(self.device)
+        assert isinstance(self.action_space, spaces.Box)  # SAC refuses any other
+        self.bc = BehaviourCloner(
+            self.actor, self.bc_batch_size, self.bc_learning_rate, max_grad_norm=10.0, seed=seed,
+            loss=ScaledActionMSE(self.action_space, self.device),
+        )
+        self.reward_rule: RewardRule | None = None
+        for name in _SAVED_TENSORS:
+            setattr(self, name, th.zeros(0))
+
+    def _excluded_save_params(self) -> list:
+        return super()._excluded_save_params() + ["demonstrations", "reward_rule", "ensemble", "bc"]
+
+    def _get_torch_save_params(self) -> tuple[list, list]:
+        state_dicts, variables = super()._get_torch_save_params()
+        return state_dicts + ["ensemble", "bc.optimizer"], variables + list(_SAVED_TENSORS)
+
+    def save(self, path: Any, exclude: Any | None = None, include: Any | None = None) -> None:
+        """Save like SAC, plus ensemble, BC optimiser, demonstrations and reward-rule state."""
+        demos = self.demonstrations
+        if demos is not None:
+            self._saved_demo_obs = th.as_tensor(np.asarray(demos.observations))
+            for key, tensor in demo_tensors(demos).items():
+                setattr(self, f"_saved_demo_{key}", tensor)
+        if self.reward_rule is not None:
+            self._saved_reward_state = th.as_tensor(self.reward_rule.get_state())
+            self._saved_absorbing_u = th.tensor([self.reward_rule.absorbing_u], dtype=th.float64)
+        super().save(path, exclude=exclude, include=include)
+
+    @classmethod
+    def load(
+        cls: type[SelfCMZDRILSAC],
+        path: Any,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        demonstrations: DemosLike = None,
+        **kwargs: Any,
+    ) -> SelfCMZDRILSAC:
+        """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
+        model = super().load(
+            path, env=env, device=device, custom_objects=custom_objects, print_system_info=print_system_info,
+            force_reset=force_reset, **kwargs,
+        )
+        if demonstrations is not None:
+            model.demonstrations = as_demonstrations(demonstrations)
+        elif model._saved_demo_obs.numel():
+            saved = {key: getattr(model, f"_saved_demo_{key}") for key in _DEMO_TENSORS}
+            model.demonstrations = demos_from_tensors(model._saved_demo_obs.cpu().numpy(), saved)
+        if model.demonstrations is not None:
+            model.bc.set_demonstrations(model.demonstrations.check_spaces(model.observation_space, model.action_space))
+        if model.pretrained:
+            model.reward_rule = model._make_rule()
+            model.reward_rule.set_state(restored_state(model._saved_reward_state.cpu().numpy(), model.n_envs)[0])
+            if model._saved_absorbing_u.numel():
+                model.reward_rule.absorbing_u = float(model._saved_absorbing_u.item())
+        return model
+
+    # -- imitation set-up ------------------------------------------------------------------------
+    @property
+    def absorbing_u(self) -> float:
+        """The absorbing state's disagreement: the highest u collected so far (0 before any)."""
+        return 0.0 if self.reward_rule is None else self.reward_rule.absorbing_u
+
+    def _make_rule(self) -> RewardRule:
+        return reward_rule(self.reward, self.alpha, self.ema, self.u0, self.dril_threshold)
+
+    def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
+        """Check the demos, set the input standardisation, clone the demos into the actor (early
+        stopping on held-out steps) and fit the ensemble, unless :attr:`pretrained`; returns the
+        losses, epochs and timings of what ran."""
+        if self.demonstrations is None:
+            raise UserError(
+                "CMZDRILSAC needs demonstrations: pass demonstrations=... (a Demonstrations, a path to a "
+                "demos.npz, or a list of episode dicts) to the constructor or to load()"
+            )
+        self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
+        if self.reward == "env" and self.demo_fraction > 0 and self.demonstrations.rewards is None:
+            raise UserError("reward='env' replays the demonstrations with their rewards, and these have none; "
+                            "set demo_fraction=0 or record the demos with rewards")
+        self.bc.set_demonstrations(self.demonstrations)
+        if self.pretrained:
+            return self.pretrain_info
+        if self.standardize_observations:
+            for module in self.policy.modules():  # actor's, critic's and the target critic's
+                if isinstance(module, DemoStandardizer):
+                    module.fit(self.demonstrations.observations)
+        start = time.perf_counter()
+        stopping = self.bc.train_early_stopping(
+            self.bc_pretrain_epochs, self.bc_validation_fraction, self.bc_patience, progress_bar=progress_bar
+        )
+        if self.log_std_init is not None:
+            head = self.actor.log_std
+            if isinstance(head, th.nn.Linear):  # gSDE's log_std is a parameter of another meaning
+                with th.no_grad():
+                    head.weight.zero_()
+                    head.bias.fill_(self.log_std_init)
+        info = {
+            "bc_loss": self.bc.nll(),
+            "bc_best_epoch": float(stopping.best_epoch),
+            "bc_seconds": time.perf_counter() - start,
+        }
+        start = time.perf_counter()
+        self.ensemble.fit(
+            self.demonstrations,
+            self.ensemble_epochs,
+            self.ensemble_batch_size,
+            self.ensemble_learning_rate,
+            progress_bar,
+        )
+        info["ensemble_seconds"] = time.perf_counter() - start
+        if self.reward == "dril":
+            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        self.reward_rule = self._make_rule()
+        self.pretrained = True
+        self.pretrain_info = info
+        if self.verbose >= 1:
+            print(f"CMZDRILSAC pretraining: BC loss {info['bc_loss']:.4g} (best epoch {stopping.best_epoch}); "
+                  f"ensemble fitted in {info['ensemble_seconds']:.1f}s")
+        return info
+
+    # -- training ---------------------------------------------------------------------------------
+    def learn(
+        self: SelfCMZDRILSAC,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "CMZDRILSAC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfCMZDRILSAC:
+        """SAC's ``learn``, after pretraining if the model is not :attr:`pretrained` yet."""
+        with mujoco_warnings_routed():
+            self.pretrain(progress_bar=progress_bar)
+            return super().learn(
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=progress_bar,
+            )
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        if not self.pretrained:
+            self.pretrain()
+        assert self.demonstrations is not None and self.env is not None
+        self.absorbing_active = self.reward != "env" and (
+            bool(self.absorbing) if self.absorbing != "auto"
+            else self.reward == "cmz" and expert_never_terminates(self.demonstrations, self.env)
+        )
+        buffer = self.replay_buffer
+        if not isinstance(buffer, DemoReplayBuffer):  # e.g. load_replay_buffer() of a plain SB3 buffer
+            raise UserError(f"CMZDRILSAC needs a DemoReplayBuffer, got a {type(buffer).__name__}")
+        demos = DemoTransitions(self.demonstrations, self.policy.scale_action) if self.demo_fraction > 0 else None
+        buffer.set_demonstrations(demos, self.demo_fraction, self._replay_rewards)
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        # The pretrained actor collects from the first step: uniformly random actions would fill the
+        # buffer with falls that say nothing about the clone. learning_starts still delays updates.
+        return super()._sample_action(0, action_noise, n_envs)
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: Any,
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        # The observation acted on, raw: SB3 keeps it in _last_original_obs only under VecNormalize.
+        acted_on = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
+        assert self.reward_rule is not None and acted_on is not None
+        u = self._disagreement(np.asarray(acted_on), buffer_action)
+        self.reward_rule(u, reward)  # advances the rule's state (the CMZ EMA) over the agent's steps
+        self.reward_rule.highest_u_so_far(u[None])
+        self._u_sum += float(u.sum())
+        self._u_count += len(u)
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+
+    def _disagreement(self, obs: np.ndarray, buffer_actions: np.ndarray) -> np.ndarray:
+        actions = self.policy.unscale_action(buffer_actions) if self.ensemble.needs_actions else None
+        return self.ensemble.disagreement(obs, actions)
+
+    def _replay_rewards(
+        self, obs: np.ndarray, buffer_actions: np.ndarray, env_rewards: np.ndarray, terminated: np.ndarray
+    ) -> np.ndarray:
+        """The reward of each sampled transition (the agent's and the expert's), from the rule now."""
+        assert self.reward_rule is not None
+        if self.reward == "env":
+            return env_rewards
+        u = self._disagreement(obs, buffer_actions)
+        rewards = self.reward_rule.replayed(u, env_rewards)
+        if self.absorbing_active:
+            seen = np.full(u.shape, self.absorbing_u)
+            rewards = with_absorbing_state(self.reward_rule, rewards, u, terminated, seen, self.gamma)
+        return rewards
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """SAC's update (temperature, twin critics, actor, target critics), with the actor's loss
+        TD3+BC's combination of SAC's and BC's (see the module's docstring)."""
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers.append(self.ent_coef_optimizer)
+        self._update_learning_rate(optimizers)
+        logs: dict[str, list[float]] = {"ent_coef": [], "actor_loss": [], "critic_loss": [], "bc_loss": []}
+        for step in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+
+            # Temperature: towards the target entropy.
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                ent_coef = th.exp(self.log_ent_coef.detach())
+                target_entropy = float(self.target_entropy)  # SAC's _setup_model resolved "auto"
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + target_entropy).detach()).mean()
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+            else:
+                ent_coef = self.ent_coef_tensor
+
+            # Critics: soft Bellman targets from the target critics; no bootstrap after a termination.
+            with th.no_grad():
+                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+                next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), 1, True)[0]
+                next_q = next_q - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q = data.rewards + (1 - data.dones) * self.gamma * next_q
+            critic_loss = 0.5 * sum(F.mse_loss(q, target_q) for q in self.critic(data.observations, data.actions))
+            assert isinstance(critic_loss, th.Tensor)
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            # Actor: SAC's loss on the critics' scale of one, plus BC on the demos.
+            q_pi = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), 1, True)[0]
+            if self.bc_weight > 0:
+                # Q on a scale of q_weight; at least 1 per unit of Q, so that a critic near zero (no
+                # reward yet) does not have its noise magnified.
+                scale = self.q_weight / q_pi.abs().mean().detach().clamp(min=1.0)
+                bc_loss = self.bc.sample_loss()
+                logs["bc_loss"].append(float(bc_loss.detach()))
+                actor_loss = (ent_coef * log_prob - scale * q_pi).mean() + self.bc_weight * bc_loss
+            else:
+                actor_loss = (ent_coef * log_prob - q_pi).mean()
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor.optimizer.step()
+
+            if step % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+            logs["ent_coef"].append(float(ent_coef))
+            logs["actor_loss"].append(float(actor_loss.detach()))
+            logs["critic_loss"].append(float(critic_loss.detach()))
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in logs.items():
+            if values:
+                self.logger.record(f"train/{key}", float(np.mean(values)))
+        if self._u_count:
+            self.logger.record("rollout/disagreement_mean", self._u_sum / self._u_count)
+            self._u_sum, self._u_count = 0.0, 0
+        assert self.reward_rule is not None
+        state = self.reward_rule.get_state()
+        if state.size:
+            self.logger.record("rollout/ubar_mean", float(state.mean()))
+        if self.absorbing_active:
+            self.logger.record("rollout/absorbing_u", self.absorbing_u)
+
+
+__all__ = ["CMZDRILSAC", "ScaledActionMSE"]

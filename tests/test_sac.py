@@ -1,0 +1,260 @@
+"""CMZDRILSAC, the off-policy learner: replayed rewards, the demo-mixing buffer, BC of a SAC actor,
+save/load, and the refusals."""
+from __future__ import annotations
+
+import csv
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.logger import configure
+
+from helpers import TINY, TINY_SAC
+from sb3_cmzdril import CMZReward, Demonstrations, DRILReward, UserError
+from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
+from sb3_cmzdril.rewards import EnvReward, ZeroReward
+from sb3_cmzdril.sac import CMZDRILSAC, ScaledActionMSE
+
+#: A CMZDRILSAC whose learn() calls take a second: TINY's networks and fits, TINY_SAC's buffer.
+TINY_CMZ_SAC = dict(
+    TINY_SAC,
+    ensemble_hidden=TINY["ensemble_hidden"],
+    ensemble_epochs=TINY["ensemble_epochs"],
+    bc_pretrain_epochs=TINY["bc_pretrain_epochs"],
+    bc_batch_size=32,
+    seed=0,
+    device="cpu",
+)
+
+
+def tiny_model(demos: Demonstrations, **kwargs) -> CMZDRILSAC:
+    return CMZDRILSAC("MlpPolicy", "Pendulum-v1", demonstrations=demos, **{**TINY_CMZ_SAC, **kwargs})
+
+
+# -- rewards of replayed transitions ------------------------------------------------------------------
+def test_cmz_replayed_reward_is_measured_against_the_mean_ema_and_leaves_it_alone():
+    rule = CMZReward(alpha=10.0, ema=0.9)
+    rule.set_state(np.array([0.2, 0.4]))
+    rewards = rule.replayed(np.array([0.1, 0.5, 0.3]), np.zeros(3))
+    np.testing.assert_allclose(rewards, [2.0, -2.0, 0.0], atol=1e-6)  # -10 * (u - 0.3)
+    np.testing.assert_array_equal(rule.get_state(), [0.2, 0.4])
+
+
+def test_cmz_replayed_reward_starts_from_u0_and_clips_like_the_rule():
+    rule = CMZReward(alpha=2.0, u0=0.1, u_max=0.5)
+    np.testing.assert_allclose(rule.replayed(np.array([0.1, 0.9]), np.zeros(2)), [0.0, -0.8], atol=1e-6)
+    assert rule.get_state().size == 0
+
+
+def test_stateless_rules_replay_as_they_score():
+    u, env_rewards = np.array([0.1, 0.3]), np.array([5.0, -1.0])
+    np.testing.assert_array_equal(DRILReward(threshold=0.2).replayed(u, env_rewards), [1.0, -1.0])
+    np.testing.assert_array_equal(ZeroReward().replayed(u, env_rewards), [0.0, 0.0])
+    np.testing.assert_array_equal(EnvReward().replayed(u, env_rewards), [5.0, -1.0])
+
+
+# -- demonstrations as transitions ----------------------------------------------------------------------
+def _two_episodes() -> Demonstrations:
+    obs = np.arange(10, dtype=np.float32).reshape(5, 2)
+    actions = np.array([[-2.0], [0.0], [1.0], [2.0], [4.0]], dtype=np.float32)
+    return Demonstrations(obs, actions, [3, 2], rewards=np.arange(5, dtype=np.float32))
+
+
+def test_demo_transitions_pair_consecutive_steps_within_an_episode_only():
+    demos = DemoTransitions(_two_episodes(), lambda a: a / 2.0)
+    # Episode 1 is steps 0-2, episode 2 steps 3-4: last steps 2 and 4 have no next observation.
+    np.testing.assert_array_equal(demos.observations, [[0, 1], [2, 3], [6, 7]])
+    np.testing.assert_array_equal(demos.next_observations, [[2, 3], [4, 5], [8, 9]])
+    np.testing.assert_array_equal(demos.actions, [[-1.0], [0.0], [1.0]])  # scaled, clipped to [-1, 1]
+    np.testing.assert_array_equal(demos.rewards, [0.0, 1.0, 3.0])
+    assert len(demos) == 3 and demos.has_rewards
+
+
+def test_demo_transitions_refuse_single_step_episodes():
+    demos = Demonstrations(np.zeros((2, 2)), np.zeros((2, 1)), [1, 1])
+    with pytest.raises(UserError, match="single step"):
+        DemoTransitions(demos, lambda a: a)
+
+
+# -- the buffer ------------------------------------------------------------------------------------------
+def _buffer(n: int = 6) -> DemoReplayBuffer:
+    obs_space = gym.spaces.Box(-100, 100, (2,), np.float32)
+    act_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+    buffer = DemoReplayBuffer(50, obs_space, act_space, device="cpu")
+    for i in range(n):
+        truncated = i == 4
+        buffer.add(
+            np.full((1, 2), i, np.float32), np.full((1, 2), i + 1, np.float32), np.array([[0.5]]),
+            np.array([float(i)]), np.array([i in (3, 4)]), [{"TimeLimit.truncated": truncated}],
+        )
+    return buffer
+
+
+def test_buffer_mixes_the_demo_share_into_each_batch_and_relabels_raw_transitions():
+    buffer = _buffer()
+    seen = {}
+
+    def relabel(obs, actions, env_rewards, terminated):
+        seen.update(obs=obs, terminated=terminated, env_rewards=env_rewards)
+        return obs[:, 0] * 10.0
+
+    demos = DemoTransitions(_two_episodes(), lambda a: a / 2.0)
+    buffer.set_demonstrations(demos, 0.25, relabel)
+    np.random.seed(0)
+    batch = buffer.sample(8)
+    assert batch.observations.shape == (8, 2) and batch.rewards.shape == (8, 1) and batch.dones.shape == (8, 1)
+    demo_rows = seen["obs"][6:]  # the last round(0.25 * 8) = 2 rows are the expert's
+    assert all(row.tolist() in demos.observations.tolist() for row in demo_rows)
+    assert all(row[0] == row[1] and row[0] < 6 for row in seen["obs"][:6])  # the agent's stored steps
+    np.testing.assert_allclose(batch.rewards[:, 0].numpy(), seen["obs"][:, 0] * 10.0)
+    # Step 3 terminated, step 4 was cut by the time limit: only the termination is a done.
+    agent = seen["obs"][:6, 0]
+    np.testing.assert_array_equal(seen["terminated"][:6], agent == 3)
+    assert not seen["terminated"][6:].any()
+    np.testing.assert_array_equal(batch.dones[:, 0].numpy(), (seen["obs"][:, 0] == 3) & (np.arange(8) < 6))
+
+
+def test_buffer_without_demos_or_relabel_samples_the_stored_rewards():
+    buffer = _buffer()
+    buffer.set_demonstrations(None, 0.5, None)
+    batch = buffer.sample(16)
+    np.testing.assert_array_equal(batch.rewards[:, 0].numpy(), batch.observations[:, 0].numpy())
+    assert isinstance(buffer, ReplayBuffer)
+
+
+def test_buffer_refuses_a_share_of_one_or_more():
+    with pytest.raises(UserError, match="demo_fraction"):
+        _buffer().set_demonstrations(None, 1.0, None)
+
+
+# -- BC of a SAC actor ----------------------------------------------------------------------------------
+def test_scaled_action_mse_compares_in_the_squashed_scale():
+    space = gym.spaces.Box(np.array([-2.0, 0.0], np.float32), np.array([2.0, 4.0], np.float32))
+    loss = ScaledActionMSE(space, th.device("cpu"))
+
+    def actor(obs, deterministic):
+        assert deterministic
+        return th.tensor([[0.5, -1.0]])
+
+    # Expert (1, 4) scales to (0.5, 1.0); (3, 5) clips to (1, 1).
+    assert loss(actor, th.zeros(1, 3), th.tensor([[1.0, 4.0]])).item() == pytest.approx(4.0)
+    assert loss(actor, th.zeros(1, 3), th.tensor([[3.0, 5.0]])).item() == pytest.approx(0.25 + 4.0)
+
+
+def test_pretraining_clones_the_demos_into_the_actor(pendulum_demos):
+    model = tiny_model(pendulum_demos, bc_pretrain_epochs=200, bc_patience=200, log_std_init=-1.5)
+    model.bc.set_demonstrations(pendulum_demos)
+    before = model.bc.nll()
+    info = model.pretrain()
+    assert model.pretrained and model.reward_rule is not None
+    assert info["bc_loss"] < 0.5 * before
+    # The log-std head outputs the constant it was given, whatever the observation.
+    obs = th.as_tensor(pendulum_demos.observations[:5])
+    features = model.actor.extract_features(obs, model.actor.features_extractor)
+    _, log_std, _ = model.actor.get_action_dist_params(features)
+    np.testing.assert_allclose(log_std.detach().numpy(), -1.5)
+
+
+# -- training --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("reward", ["cmz", "dril", "zero", "env"])
+def test_every_reward_learns_logs_and_advances_its_rule(reward, pendulum_demos, tmp_path):
+    model = tiny_model(pendulum_demos, reward=reward)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(300, log_interval=1)
+    assert model.num_timesteps == 300
+    if reward == "cmz":
+        state = model.reward_rule.get_state()
+        assert state.shape == (1,) and 0 < state[0] < model.absorbing_u
+    assert model.absorbing_u > 0
+    model.logger.dump(model.num_timesteps)
+    with open(tmp_path / "progress.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {"train/bc_loss", "rollout/disagreement_mean", "train/critic_loss"} <= set(rows[-1])
+
+
+def test_replayed_rewards_of_terminations_carry_the_absorbing_value(pendulum_demos):
+    model = tiny_model(pendulum_demos, absorbing=True, gamma=0.9)
+    model.learn(60)
+    assert model.absorbing_active
+    rule = model.reward_rule
+    obs = pendulum_demos.observations[:2]
+    actions = np.zeros((2, 1), np.float32)
+    u = model.ensemble.disagreement(obs)
+    rewards = model._replay_rewards(obs, actions, np.zeros(2), np.array([False, True]))
+    plain = rule.replayed(u, np.zeros(2))
+    assert rewards[0] == pytest.approx(plain[0])
+    # The terminating step also earns gamma / (1 - gamma) = 9 times the reward at the highest u seen.
+    absorbing = -model.alpha * (model.absorbing_u - float(rule.get_state().mean()))
+    assert rewards[1] == pytest.approx(plain[1] + 9.0 * absorbing, rel=1e-5)
+
+
+def test_the_clone_collects_from_the_first_step(pendulum_demos):
+    # With a log-std of -20 the actor's samples are its deterministic action: no uniform warm-up.
+    model = tiny_model(pendulum_demos, learning_starts=1000, log_std_init=-20.0)
+    model.pretrain()
+    model._setup_learn(10)
+    for _ in range(5):
+        action, buffer_action = model._sample_action(1000)
+        expected, _ = model.predict(model._last_obs, deterministic=True)
+        np.testing.assert_allclose(action, expected, atol=1e-4)
+        np.testing.assert_allclose(buffer_action, model.policy.scale_action(expected), atol=1e-4)
+
+
+def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demos, tmp_path):
+    model = tiny_model(pendulum_demos)
+    model.learn(200)
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRILSAC.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"), device="cpu")
+    obs = pendulum_demos.observations[:10]
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+    np.testing.assert_allclose(loaded.ensemble.disagreement(obs), model.ensemble.disagreement(obs))
+    np.testing.assert_array_equal(loaded.reward_rule.get_state(), model.reward_rule.get_state())
+    assert loaded.absorbing_u == model.absorbing_u and loaded.pretrained
+    np.testing.assert_array_equal(loaded.demonstrations.actions, pendulum_demos.actions)
+    np.testing.assert_array_equal(loaded.demonstrations.rewards, pendulum_demos.rewards)
+    loaded.learn(100, reset_num_timesteps=False)  # goes on learning, without pretraining again
+    assert loaded.num_timesteps == 300
+
+
+# -- refusals --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (dict(reward="gail"), "reward must be one of"),
+        (dict(demo_fraction=1.0), "demo_fraction must lie in"),
+        (dict(demo_fraction=float("nan")), "demo_fraction must be finite"),
+        (dict(absorbing="yes"), "absorbing must be"),
+        (dict(bc_weight=-1.0), "bc_weight must be >= 0"),
+        (dict(bc_pretrain_epochs=-1), "bc_pretrain_epochs must be >= 0"),
+        (dict(replay_buffer_class=ReplayBuffer), "must be a DemoReplayBuffer"),
+        (dict(alpha=0.0), "alpha must be > 0"),
+    ],
+)
+def test_bad_options_are_refused_naming_them(pendulum_demos, kwargs, message):
+    with pytest.raises(UserError, match=message):
+        tiny_model(pendulum_demos, **kwargs)
+
+
+def test_dict_observations_are_refused_with_the_alternative():
+    env = gym.make("Pendulum-v1")
+    env = gym.wrappers.TransformObservation(
+        env, lambda o: {"x": o}, gym.spaces.Dict({"x": env.observation_space})
+    )
+    with pytest.raises(UserError, match="flat Box observations.*CMZDRIL"):
+        CMZDRILSAC("MultiInputPolicy", env)
+
+
+def test_true_reward_with_demos_that_recorded_none_is_refused_before_training(pendulum_demos):
+    demos = Demonstrations(pendulum_demos.observations, pendulum_demos.actions, pendulum_demos.episode_lengths)
+    model = tiny_model(demos, reward="env")
+    with pytest.raises(UserError, match="demo_fraction=0"):
+        model.learn(10)
+    assert model.num_timesteps == 0
+
+
+def test_learning_without_demonstrations_says_what_to_pass():
+    model = CMZDRILSAC("MlpPolicy", "Pendulum-v1", **TINY_CMZ_SAC)
+    with pytest.raises(UserError, match="needs demonstrations"):
+        model.learn(10)
