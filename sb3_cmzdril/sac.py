@@ -132,7 +132,7 @@ class CMZDRILSAC(SAC):
         lasts the env's time limit), as :class:`~sb3_cmzdril.algorithm.CMZDRIL` does.
     :param ent_coef: SAC's entropy coefficient; ``"auto_0.01"`` by default (learnt, from 0.01)
         rather than SAC's ``"auto"`` (from 1.0), which spreads a cloned actor's actions before the
-        critic has learnt anything. IQ-Learn starts its MuJoCo temperature at 0.01 as well.
+        critic has learnt anything.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases

@@ -64,7 +64,15 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "1M steps, 8 envs per process (n_steps 256), absorbing state + reward normalisation",
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
-            "-- --env Walker2d-v5 --methods cmz --trials 3 --timesteps 1000000 --eval-every 5 --workers 2"),
+            "-- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 1000000 --eval-every 5 --workers 2"),
+    Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
+            "per run", "results/offpolicy/W-sac-64-abs",
+            "python benchmarks/studies/offpolicy.py W-sac-64-abs --env Walker2d-v5 --trials T --cpu-minutes 20 "
+            "--set 'net_arch=[64,64]' --set absorbing=auto (one process per trial T)"),
+    Variant("Walker2d-v5", "cmz", "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state, 20 CPU-minutes per "
+            "run", "results/offpolicy/W-sac-64-dril-abs",
+            "python benchmarks/studies/offpolicy.py W-sac-64-dril-abs --env Walker2d-v5 --trials T --cpu-minutes 20 "
+            "--set 'net_arch=[64,64]' --set reward=dril --set absorbing=true (one process per trial T)"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
