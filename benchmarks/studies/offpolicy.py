@@ -64,6 +64,8 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     # The grid's split of this trial: the same training episode and held-out episodes as its runs.
     run = resolve_run(plan_run(env_id, "cmz", trial, timesteps=1, output_dir=folder), check=False)
     folder.mkdir(parents=True, exist_ok=True)
+    # An interrupted attempt starts again from scratch: its evaluation rows must not precede the new ones.
+    (folder / "eval.csv").unlink(missing_ok=True)
     kwargs = dict(kwargs)
     net_arch = kwargs.pop("net_arch", None)
     if net_arch is not None:
