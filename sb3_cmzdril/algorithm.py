@@ -46,9 +46,9 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
-from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError, check_finite
-from sb3_cmzdril.imitation import check_imitation_options, restored_state, reward_rule
+from sb3_cmzdril.imitation import check_imitation_options, restored_state, reward_rule, rule_bounds
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, expert_never_terminates
@@ -197,10 +197,8 @@ class CMZDRIL(PPO):
         )
         check_imitation_options(
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
-            bc_epochs_per_update=bc_epochs_per_update,
+            cmz_clip_quantile, bc_epochs_per_update=bc_epochs_per_update,
         )
-        if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
-            raise UserError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
         self.demonstrations: Demonstrations | None = (
@@ -556,16 +554,13 @@ class CMZDRIL(PPO):
             assert self.ensemble.train_loss_ is not None  # set by fit()
             info["ensemble_loss"] = float(np.mean(self.ensemble.train_loss_))
             info["ensemble_seconds"] = time.perf_counter() - start
-        if self.reward == "dril" and (remake_rule or self.dril_threshold is None):
-            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
-        if self.reward == "cmz" and self.cmz_clip_quantile is not None and (remake_rule or self.cmz_u_max is None):
-            u_max = quantile_of_disagreement(self.ensemble, self.demonstrations, self.cmz_clip_quantile)
-            if not u_max > 0:  # an ensemble that agrees exactly on most demo steps: a clip at 0 erases the reward
-                raise UserError(
-                    f"cmz_clip_quantile={self.cmz_clip_quantile} clips u at {u_max:.4g}, the ensemble's disagreement "
-                    "on that share of the demos; choose a higher quantile or None"
-                )
-            self.cmz_u_max = u_max
+        missing = (self.reward == "dril" and self.dril_threshold is None) or (
+            self.reward == "cmz" and self.cmz_clip_quantile is not None and self.cmz_u_max is None
+        )
+        if remake_rule or missing:
+            self.dril_threshold, self.cmz_u_max = rule_bounds(
+                self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.cmz_clip_quantile
+            )
         if remake_rule or self.reward_rule is None:
             self.reward_rule = self._make_rule()
         return info

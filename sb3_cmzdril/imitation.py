@@ -1,9 +1,10 @@
 """What CMZDRIL (PPO) and CMZDRILSAC share of CMZ-DRIL's set-up: the checks of its options, the reward
-rule they name, and the demonstrations as tensors for a model's zip.
+rule they name (with the bounds it takes from the fitted ensemble), and the demonstrations as
+tensors for a model's zip.
 
-Both algorithms take the same imitation options (reward, alpha, ema, u0, dril_quantile, the BC
-pretraining's epochs, held-out share and patience, absorbing) with the same meaning; checking and
-interpreting them here keeps the two from drifting apart.
+Both algorithms take the same imitation options (reward, alpha, ema, u0, dril_quantile,
+cmz_clip_quantile, the BC pretraining's epochs, held-out share and patience, absorbing) with the
+same meaning; checking and interpreting them here keeps the two from drifting apart.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 import torch as th
 
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.ensemble import quantile_of_disagreement
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.rewards import RewardRule, make_rule
 
@@ -30,6 +32,7 @@ def check_imitation_options(
     bc_validation_fraction: float,
     bc_patience: int,
     absorbing: bool | str,
+    cmz_clip_quantile: float | None = None,
     **counts: int,
 ) -> None:
     """UserError naming the first imitation option out of range (``counts``: other options that must
@@ -40,6 +43,8 @@ def check_imitation_options(
         make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
     if not 0.0 < dril_quantile <= 1.0:
         raise UserError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
+    if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
+        raise UserError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
     for name, value in {"bc_pretrain_epochs": bc_pretrain_epochs, **counts}.items():
         if int(value) < 0:
             raise UserError(f"{name} must be >= 0, got {value}")
@@ -61,6 +66,24 @@ def reward_rule(
         assert dril_threshold is not None, "the DRIL threshold is computed when the ensemble is fitted"
         return make_rule("dril", threshold=dril_threshold)
     return make_rule(reward)
+
+
+def rule_bounds(
+    reward: str, ensemble: Any, demos: Demonstrations, dril_quantile: float, cmz_clip_quantile: float | None
+) -> tuple[float | None, float | None]:
+    """What the rule takes from the fitted ensemble: DRIL's threshold (``reward="dril"``) and the CMZ
+    reward's clip of u (``reward="cmz"`` with ``cmz_clip_quantile``), each the named quantile of u on
+    the demos, else None."""
+    dril_threshold = quantile_of_disagreement(ensemble, demos, dril_quantile) if reward == "dril" else None
+    u_max = None
+    if reward == "cmz" and cmz_clip_quantile is not None:
+        u_max = quantile_of_disagreement(ensemble, demos, cmz_clip_quantile)
+        if not u_max > 0:  # an ensemble that agrees exactly on most demo steps: a clip at 0 erases the reward
+            raise UserError(
+                f"cmz_clip_quantile={cmz_clip_quantile} clips u at {u_max:.4g}, the ensemble's disagreement "
+                "on that share of the demos; choose a higher quantile or None"
+            )
+    return dril_threshold, u_max
 
 
 def demo_tensors(demos: Demonstrations) -> dict[str, th.Tensor]:
@@ -96,4 +119,4 @@ def restored_state(saved: np.ndarray, n_envs: int) -> tuple[np.ndarray, bool]:
 
 
 __all__ = ["REWARD_MODES", "check_imitation_options", "demo_tensors", "demos_from_tensors", "reward_rule",
-           "restored_state"]
+           "restored_state", "rule_bounds"]

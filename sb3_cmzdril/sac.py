@@ -49,9 +49,16 @@ from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner, TensorObs
 from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
-from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError, check_finite
-from sb3_cmzdril.imitation import check_imitation_options, demo_tensors, demos_from_tensors, restored_state, reward_rule
+from sb3_cmzdril.imitation import (
+    check_imitation_options,
+    demo_tensors,
+    demos_from_tensors,
+    restored_state,
+    reward_rule,
+    rule_bounds,
+)
 from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import RewardRule, expert_never_terminates, with_absorbing_state
 
@@ -105,6 +112,9 @@ class CMZDRILSAC(SAC):
     :param ema: CMZ EMA factor (paper: 0.99), over the agent's collected steps.
     :param u0: initial EMA value (paper: 0).
     :param dril_quantile: DRIL threshold quantile of u on the demos.
+    :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (None:
+        no clip). Clipped, the reward is bounded as DRIL's is, and so is the absorbing state's value
+        (the reward at the highest u seen, for ever): unclipped, one far-off state sets it.
     :param disagreement: ``"std"`` or ``"quadratic"`` (see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members.
     :param ensemble_hidden: hidden layer widths of each member.
@@ -147,6 +157,7 @@ class CMZDRILSAC(SAC):
         ema: float = 0.99,
         u0: float = 0.0,
         dril_quantile: float = 0.98,
+        cmz_clip_quantile: float | None = None,
         disagreement: str = "std",
         ensemble_size: int = 5,
         ensemble_hidden: Sequence[int] = (64, 64),
@@ -190,13 +201,15 @@ class CMZDRILSAC(SAC):
         _init_setup_model: bool = True,
     ) -> None:
         check_finite(
-            alpha=alpha, ema=ema, u0=u0, dril_quantile=dril_quantile, ensemble_learning_rate=ensemble_learning_rate,
+            alpha=alpha, ema=ema, u0=u0, dril_quantile=dril_quantile, cmz_clip_quantile=cmz_clip_quantile,
+            ensemble_learning_rate=ensemble_learning_rate,
             demo_fraction=demo_fraction, bc_validation_fraction=bc_validation_fraction,
             bc_learning_rate=bc_learning_rate, bc_weight=bc_weight, q_weight=q_weight, log_std_init=log_std_init,
             learning_rate=learning_rate, tau=tau, gamma=gamma, ent_coef=ent_coef, target_entropy=target_entropy,
         )
         check_imitation_options(
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
+            cmz_clip_quantile,
         )
         if not (bc_weight >= 0 and q_weight > 0):
             raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
@@ -217,6 +230,9 @@ class CMZDRILSAC(SAC):
         self.u0 = float(u0)
         self.dril_quantile = float(dril_quantile)
         self.dril_threshold: float | None = None
+        self.cmz_clip_quantile = None if cmz_clip_quantile is None else float(cmz_clip_quantile)
+        #: the CMZ reward's clip of u (``cmz_clip_quantile`` of u on the demos), computed with the ensemble
+        self.cmz_u_max: float | None = None
         self.disagreement = disagreement
         self.ensemble_size = int(ensemble_size)
         self.ensemble_hidden = tuple(int(h) for h in ensemble_hidden)
@@ -356,7 +372,7 @@ class CMZDRILSAC(SAC):
         return 0.0 if self.reward_rule is None else self.reward_rule.absorbing_u
 
     def _make_rule(self) -> RewardRule:
-        return reward_rule(self.reward, self.alpha, self.ema, self.u0, self.dril_threshold)
+        return reward_rule(self.reward, self.alpha, self.ema, self.u0, self.dril_threshold, self.cmz_u_max)
 
     def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the input standardisation, clone the demos into the actor (early
@@ -402,8 +418,9 @@ class CMZDRILSAC(SAC):
             progress_bar,
         )
         info["ensemble_seconds"] = time.perf_counter() - start
-        if self.reward == "dril":
-            self.dril_threshold = quantile_of_disagreement(self.ensemble, self.demonstrations, self.dril_quantile)
+        self.dril_threshold, self.cmz_u_max = rule_bounds(
+            self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.cmz_clip_quantile
+        )
         self.reward_rule = self._make_rule()
         self.pretrained = True
         self.pretrain_info = info

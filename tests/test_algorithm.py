@@ -412,7 +412,7 @@ def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(
 
 def test_cmz_clip_at_zero_disagreement_names_the_option(pendulum_demos, monkeypatch):
     # an ensemble agreeing exactly on most demo steps puts the quantile at 0: every state would score alike
-    monkeypatch.setattr("sb3_cmzdril.algorithm.quantile_of_disagreement", lambda *args: 0.0)
+    monkeypatch.setattr("sb3_cmzdril.imitation.quantile_of_disagreement", lambda *args: 0.0)
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=0.5, **TINY)
     with pytest.raises(ValueError, match=r"cmz_clip_quantile=0.5 clips u at 0, .* choose a higher quantile or None"):
         model.pretrain()

@@ -218,6 +218,20 @@ def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demo
     assert loaded.num_timesteps == 300
 
 
+def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_save_load(pendulum_demos, tmp_path):
+    model = tiny_model(pendulum_demos, cmz_clip_quantile=0.9)
+    model.learn(100)
+    u_demos = model.ensemble.disagreement(pendulum_demos.observations, pendulum_demos.actions)
+    assert model.cmz_u_max == pytest.approx(np.quantile(u_demos, 0.9), rel=1e-5)
+    assert model.reward_rule.u_max == model.cmz_u_max
+    # Every u beyond the clip earns the clip's reward: here u of 10 and 100 score alike.
+    far = model.reward_rule.replayed(np.array([model.cmz_u_max, 10.0, 100.0]), np.zeros(3))
+    assert far[0] == pytest.approx(far[1]) and far[1] == pytest.approx(far[2])
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRILSAC.load(tmp_path / "m.zip", device="cpu")
+    assert loaded.cmz_clip_quantile == 0.9 and loaded.reward_rule.u_max == model.cmz_u_max
+
+
 # -- refusals --------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     ("kwargs", "message"),
@@ -230,6 +244,7 @@ def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demo
         (dict(bc_pretrain_epochs=-1), "bc_pretrain_epochs must be >= 0"),
         (dict(replay_buffer_class=ReplayBuffer), "must be a DemoReplayBuffer"),
         (dict(alpha=0.0), "alpha must be > 0"),
+        (dict(cmz_clip_quantile=1.5), r"cmz_clip_quantile must lie in \(0, 1\] or be None"),
     ],
 )
 def test_bad_options_are_refused_naming_them(pendulum_demos, kwargs, message):
