@@ -54,6 +54,19 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     assert "config.json has no n_demos" in text  # the demo sweep leaves out a run that does not say
 
 
+def test_baselines_from_a_second_folder_add_only_the_trials_the_grid_lacks(root):
+    # A second folder's BC: trial 0 at 900 (the grid's 120 stands) and trial 3 at 500, the trial the
+    # grid lacks; the variant's trial 3 (600) is then paired too.
+    for trial, value in [(0, 900.0), (3, 500.0)]:
+        write_run(root / "more", "bc", trial, [1.0], env=ENV, final={"final": [value, value]})
+    write_run(root / "var", "cmz", 3, [1.0], env=ENV, final={"final": [600.0, 600.0]})
+    text = studies.render(root, _variants("ref", "var"), grid=("results/runs", "more"))
+    lines = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| from")}
+    # Variant against BC: trial 0 250 > 120, trial 1 150 > 120, trial 3 600 > 500: 3 of 3.
+    assert lines["from var"].endswith("| 1 of 2 | 3 of 3 | — |")
+    assert "Final above BC of `results/runs` + `more` (trials)" in text
+
+
 def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     # The variant's two runs took 120 and 180 CPU seconds: median 2.5 minutes. The reference's runs
     # recorded none; with one of its three runs at 600 s, the column says which share it covers.

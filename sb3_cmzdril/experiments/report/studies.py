@@ -170,17 +170,30 @@ def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
     return "no reference runs" if reference is None else above_reference(row, reference)
 
 
+def baseline_row(env: str, method: str, folders: tuple[str, ...], root: Path) -> FinalRow | None:
+    """The final rows of ``method`` in ``folders``, merged by trial: a trial comes from the first
+    folder that has it (the published grid first; later folders add trials it lacks)."""
+    runs: dict[int, RunRecord] = {}
+    for folder in folders:
+        row = variant_rows(Variant(env, method, method, folder, ""), root, [])["final"]
+        for run in [] if row is None else row.runs:
+            runs.setdefault(run.trial, run)
+    return FinalRow(env, method, "final", [runs[t] for t in sorted(runs)]) if runs else None
+
+
 def ablation_markdown(
-    root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = (), grid: str = GRID
+    root: Path, skipped: list[Skipped], ablations: tuple[Variant, ...] = (), grid: tuple[str, ...] = (GRID,)
 ) -> str:
     """One table per env: each variant's numbers, its paired count against the env's first variant
-    and against BC and DRIL of the published grid (``grid``): the issue's targets are paired ones."""
+    and against BC and DRIL of the published grid (``grid``: its folder first, then folders adding
+    trials it lacks): the issue's targets are paired ones."""
     parts = []
+    where = " + ".join(f"`{folder}`" for folder in grid)
     for env in dict.fromkeys(v.env for v in ablations):
         variants = [v for v in ablations if v.env == env]
         rows = [variant_rows(v, root, skipped) for v in variants]
         reference = rows[0]["final"]
-        baselines = {m: variant_rows(Variant(env, m, m, grid, ""), root, [])["final"] for m in ("bc", "dril")}
+        baselines = {m: baseline_row(env, m, grid, root) for m in ("bc", "dril")}
         body = []
         for variant, row in zip(variants, rows, strict=True):
             final, lowest = row["final"], row["lowest_u"]
@@ -205,7 +218,7 @@ def ablation_markdown(
             ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
              "Lowest-u policy: % of expert", "Table I window return", "CPU minutes per run (median)",
              "Final above the reference (trials)",
-             f"Final above BC of `{grid}` (trials)", f"Final above DRIL of `{grid}` (trials)"],
+             f"Final above BC of {where} (trials)", f"Final above DRIL of {where} (trials)"],
             body,
         ))
         parts.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`, made by `{v.made_by}`" for v in variants))
@@ -360,11 +373,11 @@ def render(
     sweeps: tuple[Sweep, ...] = (),
     figures: Path | None = None,
     command: str = "",
-    grid: str = GRID,
+    grid: tuple[str, ...] = (GRID,),
 ) -> str:
     """The page's text (docs/new_tasks.md), from the runs below ``root``; the sweeps' figures go to
     ``figures`` (none are drawn without it). ``command`` is what the page says wrote it; ``grid``
-    the published grid every ablation is paired with."""
+    the published grid every ablation is paired with (then folders adding trials it lacks)."""
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations, grid)
