@@ -38,6 +38,16 @@ ABS_NORMREW = "--set absorbing=auto " + NORMREW
 CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
+DRIL_ABS = "--set reward=dril --set absorbing=true"
+CLIP_ABS = "--set cmz_clip_quantile=0.98 --set absorbing=true"
+SAC_DRIL_LABEL = "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state, 20 CPU-minutes per run"
+
+
+def offpolicy_command(name: str, env: str, sets: str) -> str:
+    return (f"python benchmarks/studies/offpolicy.py {name} --env {env} --trials T --cpu-minutes 20 "
+            f"--set 'net_arch=[64,64]' {sets} (one process per trial T)")
+
+
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
@@ -74,12 +84,12 @@ ABLATIONS: tuple[Variant, ...] = (
             "-- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 1000000 --eval-every 5 --workers 2"),
     Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
             "per run", "results/offpolicy/W-sac-64-abs",
-            "python benchmarks/studies/offpolicy.py W-sac-64-abs --env Walker2d-v5 --trials T --cpu-minutes 20 "
-            "--set 'net_arch=[64,64]' --set absorbing=auto (one process per trial T)"),
-    Variant("Walker2d-v5", "cmz", "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state, 20 CPU-minutes per "
-            "run", "results/offpolicy/W-sac-64-dril-abs",
-            "python benchmarks/studies/offpolicy.py W-sac-64-dril-abs --env Walker2d-v5 --trials T --cpu-minutes 20 "
-            "--set 'net_arch=[64,64]' --set reward=dril --set absorbing=true (one process per trial T)"),
+            offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
+    Variant("Walker2d-v5", "cmz", SAC_DRIL_LABEL, "results/offpolicy/W-sac-64-dril-abs",
+            offpolicy_command("W-sac-64-dril-abs", "Walker2d-v5", DRIL_ABS)),
+    Variant("Walker2d-v5", "cmz", "CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos "
+            "(`cmz_clip_quantile: 0.98`), and the absorbing state, 20 CPU-minutes per run",
+            "results/offpolicy/W-sac-64-clip98-abs", offpolicy_command("W-sac-64-clip98-abs", "Walker2d-v5", CLIP_ABS)),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -89,10 +99,14 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
+    Variant("Hopper-v5", "cmz", SAC_DRIL_LABEL, "results/offpolicy/sac-64-dril-abs",
+            offpolicy_command("sac-64-dril-abs", "Hopper-v5", DRIL_ABS)),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    Variant("HalfCheetah-v5", "cmz", SAC_DRIL_LABEL, "results/offpolicy/sac-64-dril-abs",
+            offpolicy_command("sac-64-dril-abs", "HalfCheetah-v5", DRIL_ABS)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
