@@ -10,7 +10,8 @@ episode with the final policy. Comparing methods at equal CPU time, not equal st
 SAC takes about ten times PPO's CPU per step.
 
 Runs land in ``results/offpolicy/NAME/<Env>/cmz/trial<k>/`` in the grid's layout (config.json,
-eval.csv every ``--eval-every`` steps on the trial's 5 evaluation episodes, final_eval.csv,
+eval.csv every ``--eval-every`` steps on the trial's 5 evaluation episodes, SB3's training log in
+logs/progress_0.csv, final_eval.csv,
 done.json with ``cpu_time_s``), so ``benchmarks/studies/new_tasks.py`` pairs them trial by trial
 with the grid's rows. A finished trial is skipped; an interrupted one starts again (runs are short,
 and SAC's replay buffer is not checkpointed). ``--set`` values (parsed as YAML) go to the
@@ -29,6 +30,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.monitor import Monitor
 from tune import parse_sets  # the sibling script's (its folder is on sys.path when this one runs)
 
@@ -41,6 +43,8 @@ from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
 from sb3_cmzdril.sac import CMZDRILSAC
 
 ROOT = Path(__file__).resolve().parents[2]
+#: SB3's log_interval: a row of logs/progress_0.csv every this many episodes
+LOG_EVERY_EPISODES = 10
 
 
 class CPUBudget(BaseCallback):
@@ -83,8 +87,12 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
                        **kwargs)
     eval_cb = ExpertEvalCallback(env_id, run.pool.select(run.eval_idx), eval_every=eval_every,
                                  csv_path=folder / "eval.csv")
-    model.learn(10**9, callback=[eval_cb, CPUBudget(cpu_minutes * 60, start_cpu)], log_interval=10**6)
+    # What the agent does in training (episode length, u on its own states, the losses), as a grid run keeps it.
+    (folder / "logs").mkdir(exist_ok=True)
+    model.set_logger(Logger(None, [CSVOutputFormat(str(folder / "logs" / "progress_0.csv"))]))  # the grid's name
+    model.learn(10**9, callback=[eval_cb, CPUBudget(cpu_minutes * 60, start_cpu)], log_interval=LOG_EVERY_EPISODES)
     eval_cb.close()
+    model.logger.close()
     held_out = run.held_out
     ev = evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
     atomic_write_text(folder / FINAL_EVAL_CSV,
