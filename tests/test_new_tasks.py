@@ -67,6 +67,19 @@ def test_baselines_from_a_second_folder_add_only_the_trials_the_grid_lacks(root)
     assert "Final above BC of `results/runs` + `more` (trials)" in text
 
 
+def test_a_variant_limited_to_some_trials_counts_only_those(root):
+    # The reference folder's trials 1-2 only (200, 300): paired with the whole reference, it is
+    # the reference itself on those trials, so above it in 0 of 2; above the grid's BC (120) in 2 of 2.
+    tail = studies.Variant(ENV, "cmz", "from ref, trials 1-2", "ref", "pytest", trials=(1, 2))
+    none = studies.Variant(ENV, "cmz", "from ref, trial 7", "ref", "pytest", trials=(7,))
+    text = studies.render(root, (*_variants("ref"), tail, none))
+    lines = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| from")}
+    assert "| 2 |" in lines["from ref, trials 1-2"] and "1: 200, 2: 300" in lines["from ref, trials 1-2"]
+    assert "0: 100" not in lines["from ref, trials 1-2"]
+    assert lines["from ref, trials 1-2"].endswith("| 0 of 2 | 2 of 2 | — |")
+    assert "| from ref, trial 7 | 0 | no finished runs |" in lines["from ref, trial 7"]
+
+
 def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     # The variant's two runs took 120 and 180 CPU seconds: median 2.5 minutes. The reference's runs
     # recorded none; with one of its three runs at 600 s, the column says which share it covers.

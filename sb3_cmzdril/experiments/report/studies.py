@@ -47,6 +47,8 @@ class Variant:
     label: str
     runs: str  #: runs folder, relative to the repository
     made_by: str  #: the command (and commit) that made the runs
+    #: only these trials of the folder (None: all), so tuning trials and confirmation trials get a row each
+    trials: tuple[int, ...] | None = None
 
 
 
@@ -137,7 +139,12 @@ def variant_rows(variant: Variant, root: Path, skipped: list[Skipped]) -> dict[s
         skipped.append(Skipped(folder, "no such runs folder"))
         return {"final": None, "lowest_u": None}
     rows = final_table(load_runs(folder, skipped))
-    return {policy: find(rows, variant.env, variant.method, policy) for policy in ("final", "lowest_u")}
+    found = {policy: find(rows, variant.env, variant.method, policy) for policy in ("final", "lowest_u")}
+    if variant.trials is None:
+        return found
+    kept = {policy: None if row is None else dataclasses.replace(
+        row, runs=[r for r in row.runs if r.trial in variant.trials]) for policy, row in found.items()}
+    return {policy: row if row is not None and row.runs else None for policy, row in kept.items()}
 
 
 def window_return(row: FinalRow) -> float:
