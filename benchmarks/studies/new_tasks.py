@@ -100,8 +100,6 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
-    Variant("Hopper-v5", "cmz", SAC_DRIL_LABEL, "results/offpolicy/sac-64-dril-abs",
-            offpolicy_command("sac-64-dril-abs", "Hopper-v5", DRIL_ABS)),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
