@@ -48,6 +48,13 @@ def offpolicy_command(name: str, env: str, sets: str) -> str:
             f"--set 'net_arch=[64,64]' {sets} (one process per trial T)")
 
 
+def tuning_and_confirmation(label: str, name: str, sets: str) -> tuple[Variant, ...]:
+    """An off-policy Walker2d-v5 variant as two rows: the tuning trials 0-4 and the confirmation trials 5-9."""
+    return tuple(Variant("Walker2d-v5", "cmz", f"{label}: trials {first}-{first + 4}", f"results/offpolicy/{name}",
+                         offpolicy_command(name, "Walker2d-v5", sets), trials=tuple(range(first, first + 5)))
+                 for first in (0, 5))
+
+
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
@@ -85,12 +92,10 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
             "per run", "results/offpolicy/W-sac-64-abs",
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
-    *(Variant("Walker2d-v5", "cmz", f"{SAC_DRIL_LABEL}: trials {first}-{first + 4}",
-              "results/offpolicy/W-sac-64-dril-abs", offpolicy_command("W-sac-64-dril-abs", "Walker2d-v5", DRIL_ABS),
-              trials=tuple(range(first, first + 5))) for first in (0, 5)),
-    Variant("Walker2d-v5", "cmz", "CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos "
-            "(`cmz_clip_quantile: 0.98`), and the absorbing state, 20 CPU-minutes per run",
-            "results/offpolicy/W-sac-64-clip98-abs", offpolicy_command("W-sac-64-clip98-abs", "Walker2d-v5", CLIP_ABS)),
+    *tuning_and_confirmation(SAC_DRIL_LABEL, "W-sac-64-dril-abs", DRIL_ABS),
+    *tuning_and_confirmation("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos "
+                             "(`cmz_clip_quantile: 0.98`), and the absorbing state, 20 CPU-minutes per run",
+                             "W-sac-64-clip98-abs", CLIP_ABS),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
