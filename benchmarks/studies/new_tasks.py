@@ -41,6 +41,8 @@ CLIP98 = "--set cmz_clip_quantile=0.98"
 DRIL_ABS = "--set reward=dril --set absorbing=true"
 CLIP_ABS = "--set cmz_clip_quantile=0.98 --set absorbing=true"
 SAC_DRIL_LABEL = "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state, 20 CPU-minutes per run"
+SAC_CLIP_LABEL = ("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: "
+                  "0.98`), and the absorbing state, 20 CPU-minutes per run")
 
 
 def offpolicy_command(name: str, env: str, sets: str) -> str:
@@ -48,11 +50,12 @@ def offpolicy_command(name: str, env: str, sets: str) -> str:
             f"--set 'net_arch=[64,64]' {sets} (one process per trial T)")
 
 
-def tuning_and_confirmation(label: str, name: str, sets: str) -> tuple[Variant, ...]:
-    """An off-policy Walker2d-v5 variant as two rows: the tuning trials 0-4 and the confirmation trials 5-9."""
-    return tuple(Variant("Walker2d-v5", "cmz", f"{label}: trials {first}-{first + 4}", f"results/offpolicy/{name}",
-                         offpolicy_command(name, "Walker2d-v5", sets), trials=tuple(range(first, first + 5)))
-                 for first in (0, 5))
+def tuning_and_confirmation(label: str, name: str, sets: str, env: str = "Walker2d-v5",
+                            firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
+    """An off-policy variant as a row per five trials: the tuning trials 0-4, the confirmation trials 5-9."""
+    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", f"results/offpolicy/{name}",
+                         offpolicy_command(name, env, sets), trials=tuple(range(first, first + 5)))
+                 for first in firsts)
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -93,9 +96,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "per run", "results/offpolicy/W-sac-64-abs",
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
     *tuning_and_confirmation(SAC_DRIL_LABEL, "W-sac-64-dril-abs", DRIL_ABS),
-    *tuning_and_confirmation("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos "
-                             "(`cmz_clip_quantile: 0.98`), and the absorbing state, 20 CPU-minutes per run",
-                             "W-sac-64-clip98-abs", CLIP_ABS),
+    *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -105,10 +106,12 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
+    *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5", firsts=(0,)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
 )
