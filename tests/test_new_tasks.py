@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from helpers import write_run
@@ -94,6 +95,38 @@ def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": 600.0}))
     text = studies.render(root, _variants("ref", "var"))
     assert "| 10.0 (1 of 3 runs) |" in text
+
+
+def _with_cost(run: Path, cpu_seconds: float, steps: int) -> None:
+    done = run / "done.json"
+    done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": cpu_seconds, "num_timesteps": steps}))
+
+
+def test_cost_curves_put_the_runs_on_one_cpu_time_axis_by_hand(tmp_path):
+    # Evaluations 0, 100, 200 at steps 0, 2048, 4096 of 4096. Run 0 spent 120 CPU seconds: its evaluations
+    # sit at 0, 1 and 2 CPU minutes; run 1 spent 240: at 0, 2 and 4. Run 2 kept no CPU time.
+    runs = [write_run(tmp_path / "v", "cmz", t, [0.0, 100.0, 200.0], env=ENV, final={"final": [1.0]})
+            for t in range(3)]
+    _with_cost(runs[0], 120.0, 4096)
+    _with_cost(runs[1], 240.0, 4096)
+    records = studies.variant_rows(studies.Variant(ENV, "cmz", "v", "v", ""), tmp_path, [])["final"].runs
+    assert studies.cpu_minutes_axis(records[0]).tolist() == [0.0, 1.0, 2.0]
+    assert studies.cpu_minutes_axis(records[2]) is None
+    axis, mean, std, n = studies.cost_band(records)
+    # The axis ends where run 0 ended (2 minutes). There run 0 is at 200 and run 1 at 100; at 1 minute
+    # 100 and 50.
+    assert n == 2 and axis[-1] == 2.0
+    assert mean[-1] == pytest.approx(150.0) and std[-1] == pytest.approx(50.0)
+    assert float(np.interp(1.0, axis, mean)) == pytest.approx(75.0)
+    curves = studies.CostCurves(ENV, "against CPU", "cost.png",
+                                (studies.Variant(ENV, "cmz", "v", "v", ""), studies.Variant(ENV, "cmz", "w", "w", "")))
+    text = studies.render(tmp_path, cost_curves=(curves,), figures=tmp_path / "figures")
+    # Steps per CPU second: 4096 / 120 = 34.1 and 4096 / 240 = 17.1, median 25.6; CPU minutes: 2 and 4, median 3.
+    assert "| v | 3 | 25.6 | 3.0 (2 of 3 runs) |" in text
+    assert (tmp_path / "figures" / "cost.png").stat().st_size > 0 and "## Against CPU time" in text
+    empty = studies.CostCurves(ENV, "nothing", "none.png", (studies.Variant(ENV, "cmz", "w", "w", ""),))
+    assert "No finished runs yet." in studies.render(tmp_path, cost_curves=(empty,))
+    assert "## Against CPU time" not in studies.render(tmp_path)
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sb3_cmzdril.experiments.report.studies import GRID, RolloutTable, Sweep, Variant, render
+from sb3_cmzdril.experiments.report.studies import GRID, CostCurves, RolloutTable, Sweep, Variant, render
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -128,6 +128,18 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
                  ("Walker2d-v5",), runs="results/tuning/W-clip98"),
 )
 
+#: Walker2d-v5's learners that kept their CPU time, drawn against it (each its ablation rows' runs, all trials)
+COST_CURVES: tuple[CostCurves, ...] = (
+    CostCurves("Walker2d-v5", "evaluation return against CPU time", "new_tasks_cpu_time.png", (
+        Variant("Walker2d-v5", "cmz", "PPO, 1M steps, 8 envs, absorbing state + reward normalisation",
+                "results/tuning/W-1m-8env-abs-normrew", ""),
+        Variant("Walker2d-v5", "cmz", "CMZDRILSAC, CMZ reward", "results/offpolicy/W-sac-64-abs", ""),
+        Variant("Walker2d-v5", "cmz", "CMZDRILSAC, DRIL's reward", "results/offpolicy/W-sac-64-dril-abs", ""),
+        Variant("Walker2d-v5", "cmz", "CMZDRILSAC, CMZ reward with u clipped at its 0.98-quantile",
+                "results/offpolicy/W-sac-64-clip98-abs", ""),
+    )),
+)
+
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
           ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
@@ -159,7 +171,7 @@ def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)
     page = render(root, ABLATIONS, ROLLOUT_TABLES, SWEEPS, figures=out.parent / "figures", command=COMMAND,
-                  grid=BASELINES)
+                  grid=BASELINES, cost_curves=COST_CURVES)
     atomic_write_text(out, page)
     print(out)
     return 0

@@ -79,6 +79,21 @@ class Sweep:
 
 
 
+@dataclasses.dataclass(frozen=True)
+class CostCurves:
+    """Variants of one env whose evaluations are drawn against the CPU time their runs spent, so
+    learners of different cost per step (PPO with several envs, SAC) meet on one axis."""
+
+    env: str
+    title: str
+    figure: str  #: file name of the figure under docs/figures
+    variants: tuple[Variant, ...]
+
+
+#: points of the common CPU-time axis the runs' curves are interpolated onto
+COST_GRID_POINTS = 60
+
+
 #: Epochs (PPO rollouts) averaged at each end of training.
 EDGE_EPOCHS = 10
 
@@ -373,6 +388,92 @@ def sweeps_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
     return "\n\n".join(parts)
 
 
+def cpu_minutes_axis(run: RunRecord) -> np.ndarray | None:
+    """Each evaluation's CPU minutes into ``run``: done.json's ``cpu_time_s`` (pretraining, training
+    and evaluations) spread over its steps in proportion, so pretraining is smeared over the run
+    rather than charged before step 0; None where done.json kept no CPU time."""
+    cpu, steps = run.summary.get("cpu_time_s"), run.summary.get("num_timesteps")
+    if not isinstance(cpu, (int, float)) or not isinstance(steps, (int, float)) or steps <= 0:
+        return None
+    return np.asarray(run.columns["timesteps"], dtype=np.float64) / float(steps) * float(cpu) / 60.0
+
+
+def cost_band(runs: list[RunRecord]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(CPU minutes, mean, std, runs used) of the runs' evaluation returns, each run interpolated onto
+    a common axis. The axis ends where the first run ended: past it the mean would be that of the
+    runs that went on, a different set of trials at every point."""
+    curves = [(x, np.asarray(r.columns["return_mean"], dtype=np.float64))
+              for r in runs if (x := cpu_minutes_axis(r)) is not None and len(x)]
+    if not curves:
+        return np.empty(0), np.empty(0), np.empty(0), 0
+    axis = np.linspace(0.0, min(float(x[-1]) for x, _ in curves), COST_GRID_POINTS)
+    grid = np.array([np.interp(axis, x, y) for x, y in curves])
+    return axis, grid.mean(axis=0), grid.std(axis=0), len(curves)
+
+
+def steps_per_cpu_second(row: FinalRow) -> str:
+    """Median over runs of done.json's ``num_timesteps / cpu_time_s``; "—" where none kept CPU time."""
+    values = [r.summary["num_timesteps"] / r.summary["cpu_time_s"] for r in row.runs
+              if isinstance(r.summary.get("cpu_time_s"), (int, float)) and r.summary["cpu_time_s"] > 0
+              and isinstance(r.summary.get("num_timesteps"), (int, float))]
+    return fmt(float(np.median(values))) if values else "—"
+
+
+def plot_cost_curves(curves: CostCurves, rows: list[tuple[Variant, FinalRow]], bc: FinalRow | None,
+                     path: Path) -> Path:
+    """Evaluation return against CPU minutes, mean over trials ±1 std, per variant (up to where its
+    first run ended); the expert's and BC's final returns as lines. ``rows`` is not empty."""
+    fig = new_figure(8.5, 5.0)
+    ax = fig.subplots()
+    palette = ("tab:purple", "tab:blue", "tab:orange", "tab:green", "tab:brown", "tab:pink")
+    for k, (variant, row) in enumerate(rows):
+        axis, mean, std, n = cost_band(row.runs)
+        if not n:
+            continue
+        color = palette[k % len(palette)]
+        ax.plot(axis, mean, color=color, label=f"{variant.label} (n={n})")
+        ax.fill_between(axis, mean - std, mean + std, color=color, alpha=0.12, linewidth=0)
+    expert = expert_by_env([row for _, row in rows])[curves.env][0]
+    ax.axhline(expert, color="black", linestyle=":", linewidth=1.2, label="expert (held-out mean)")
+    if bc is not None:
+        ax.axhline(bc.stat("return")[0], color=COLORS["bc"], linestyle="--", linewidth=1.2,
+                   label=f"BC, final policy (mean of {bc.n_trials} trials)")
+    ax.set_xlabel("CPU minutes into the run (pretraining and evaluations included, spread over its steps)")
+    episodes = sorted({int(n) for _, row in rows for r in row.runs for n in r.columns["n_episodes"]})
+    ax.set_ylabel(f"evaluation return ({'/'.join(map(str, episodes))} held-out episodes)")
+    ax.set_title(f"{curves.env}: {curves.title}; mean over trials ±1 std, up to where a variant's first run "
+                 "ended", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+    return save_png(fig, path)
+
+
+def cost_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
+                  cost_curves: tuple[CostCurves, ...] = (), grid: tuple[str, ...] = (GRID,)) -> str:
+    """A section per :class:`CostCurves`: steps per CPU second and the final policy per variant, and
+    the figure (written to ``figures`` when given)."""
+    parts = []
+    for curves in cost_curves:
+        found = [(v, variant_rows(v, root, skipped)["final"]) for v in curves.variants]
+        rows = [(v, row) for v, row in found if row is not None]
+        text = [f"### {curves.env}: {curves.title}"]
+        if not rows:
+            parts.append("\n\n".join([*text, "No finished runs yet."]))
+            continue
+        text.append(md_table(
+            ["Variant", "Trials", "Steps per CPU second (median)", "CPU minutes per run (median)",
+             "Final policy: % of expert [95% CI]"],
+            [[v.label, str(row.n_trials), steps_per_cpu_second(row), cpu_minutes(row),
+              fmt_ci(*row.stat("pct_of_expert"))] for v, row in rows],
+        ))
+        if figures is not None:
+            plot_cost_curves(curves, rows, baseline_row(curves.env, "bc", grid, root), figures / curves.figure)
+            text.append(f"![{curves.title}](figures/{curves.figure})")
+        text.append("Runs: the ablation rows of the same labels.")
+        parts.append("\n\n".join(text))
+    return "\n\n".join(parts)
+
+
 def render(
     root: Path,
     ablations: tuple[Variant, ...] = (),
@@ -381,13 +482,16 @@ def render(
     figures: Path | None = None,
     command: str = "",
     grid: tuple[str, ...] = (GRID,),
+    cost_curves: tuple[CostCurves, ...] = (),
 ) -> str:
     """The page's text (docs/new_tasks.md), from the runs below ``root``; the sweeps' figures go to
     ``figures`` (none are drawn without it). ``command`` is what the page says wrote it; ``grid``
-    the published grid every ablation is paired with (then folders adding trials it lacks)."""
+    the published grid every ablation is paired with (then folders adding trials it lacks);
+    ``cost_curves`` the variants drawn against CPU time."""
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations, grid)
+    cost = cost_markdown(root, skipped, figures, cost_curves, grid)
     rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
@@ -408,6 +512,9 @@ def render(
         sweep_tables,
         "## Ablations",
         tables,
+        *(["## Against CPU time\n\nLearners differ in CPU per step (PPO with one or several envs per process, "
+           "SAC with a gradient step per env step), so the evaluations are drawn against the CPU time a run had "
+           "spent when it made them.", cost] if cost_curves else []),
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
         "ended in a fall, and a reward that favours staying alive lengthens it. u: the ensemble's disagreement "
@@ -425,15 +532,21 @@ def render(
 
 
 __all__ = [
+    "COST_GRID_POINTS",
+    "CostCurves",
     "EDGE_EPOCHS",
     "GRID",
     "RolloutTable",
     "Sweep",
     "Variant",
     "ablation_markdown",
+    "cost_band",
+    "cost_markdown",
+    "cpu_minutes_axis",
     "render",
     "rollout_edges",
     "rollout_markdown",
+    "steps_per_cpu_second",
     "sweep_markdown",
     "sweep_rows",
     "sweeps_markdown",
