@@ -168,6 +168,15 @@ def window_return(row: FinalRow) -> float:
     return mean_ci(values)[0]
 
 
+def cpu_and_steps(run: RunRecord) -> tuple[float, float] | None:
+    """done.json's ``cpu_time_s`` and ``num_timesteps`` (both positive), None where either is
+    missing (runs made before the records kept CPU time)."""
+    cpu, steps = run.summary.get("cpu_time_s"), run.summary.get("num_timesteps")
+    if not isinstance(cpu, (int, float)) or not isinstance(steps, (int, float)) or cpu <= 0 or steps <= 0:
+        return None
+    return float(cpu), float(steps)
+
+
 def cpu_minutes(row: FinalRow) -> str:
     """Median CPU minutes per run (done.json's ``cpu_time_s``: pretraining, training and evaluations),
     "—" where no run recorded it (runs made before the records kept CPU time)."""
@@ -392,10 +401,11 @@ def cpu_minutes_axis(run: RunRecord) -> np.ndarray | None:
     """Each evaluation's CPU minutes into ``run``: done.json's ``cpu_time_s`` (pretraining, training
     and evaluations) spread over its steps in proportion, so pretraining is smeared over the run
     rather than charged before step 0; None where done.json kept no CPU time."""
-    cpu, steps = run.summary.get("cpu_time_s"), run.summary.get("num_timesteps")
-    if not isinstance(cpu, (int, float)) or not isinstance(steps, (int, float)) or steps <= 0:
+    cost = cpu_and_steps(run)
+    if cost is None:
         return None
-    return np.asarray(run.columns["timesteps"], dtype=np.float64) / float(steps) * float(cpu) / 60.0
+    cpu, steps = cost
+    return np.asarray(run.columns["timesteps"], dtype=np.float64) / steps * cpu / 60.0
 
 
 def cost_band(runs: list[RunRecord]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -413,9 +423,7 @@ def cost_band(runs: list[RunRecord]) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 def steps_per_cpu_second(row: FinalRow) -> str:
     """Median over runs of done.json's ``num_timesteps / cpu_time_s``; "—" where none kept CPU time."""
-    values = [r.summary["num_timesteps"] / r.summary["cpu_time_s"] for r in row.runs
-              if isinstance(r.summary.get("cpu_time_s"), (int, float)) and r.summary["cpu_time_s"] > 0
-              and isinstance(r.summary.get("num_timesteps"), (int, float))]
+    values = [steps / cpu for r in row.runs if (cost := cpu_and_steps(r)) is not None for cpu, steps in [cost]]
     return fmt(float(np.median(values))) if values else "—"
 
 
@@ -469,7 +477,8 @@ def cost_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
         if figures is not None:
             plot_cost_curves(curves, rows, baseline_row(curves.env, "bc", grid, root), figures / curves.figure)
             text.append(f"![{curves.title}](figures/{curves.figure})")
-        text.append("Runs: the ablation rows of the same labels.")
+        text.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`" for v, _ in rows)
+                    + " (the commands: the ablation rows of the same folders).")
         parts.append("\n\n".join(text))
     return "\n\n".join(parts)
 
@@ -542,6 +551,7 @@ __all__ = [
     "ablation_markdown",
     "cost_band",
     "cost_markdown",
+    "cpu_and_steps",
     "cpu_minutes_axis",
     "render",
     "rollout_edges",
