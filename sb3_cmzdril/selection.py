@@ -1,28 +1,63 @@
-"""Reward-free selection of a policy: the one whose own rollout the ensemble disagreed on least.
+"""Reward-free selection of a policy during training, without the true reward.
 
-PPO fine-tuning can drift away from a near-expert behaviour-cloned start, and the true reward is not
-available to an imitation learner to notice it. The ensemble's disagreement is: it is low where the
-expert's data is dense. :class:`LowestDisagreementPolicy` watches the mean disagreement ``u`` of each
-training rollout (``CMZDRIL.rollout_disagreement``, computed by the rollout scorer for every reward
-mode) and keeps a copy of the policy that collected the rollout with the lowest one. Rollout ``k`` is
-collected by the policy after ``k`` updates, so epoch ``k`` here is the same policy that the per-epoch
-evaluation calls epoch ``k``; epoch 0 is the behaviour-cloned start.
+Fine-tuning can drift away from a near-expert behaviour-cloned start, or find the expert's behaviour
+and lose it again, and the true reward is not available to an imitation learner to notice it. Two
+signals are:
+
+* :class:`LowestDisagreementPolicy` (for :class:`~sb3_cmzdril.algorithm.CMZDRIL`): the ensemble's
+  disagreement is low where the expert's data is dense. It watches the mean disagreement ``u`` of each
+  training rollout (``CMZDRIL.rollout_disagreement``, computed by the rollout scorer for every reward
+  mode) and keeps a copy of the policy that collected the rollout with the lowest one. Rollout ``k``
+  is collected by the policy after ``k`` updates, so epoch ``k`` here is the same policy that the
+  per-epoch evaluation calls epoch ``k``; epoch 0 is the behaviour-cloned start.
+* :class:`LongestEpisodesPolicy` (any SB3 algorithm, meant for the off-policy
+  :class:`~sb3_cmzdril.sac.CMZDRILSAC`): on a task that ends an episode when the agent fails (a
+  fall), an expert's episodes run to the time limit. Every ``check_every`` steps it plays the policy
+  deterministically from a fixed set of starts and keeps the policy whose episodes lasted longest,
+  the latest on a tie. It reads termination, never reward; on a task without failure terminations
+  every check ties and it keeps the last policy.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, cast
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 
 
-class LowestDisagreementPolicy(BaseCallback):
+class _KeptWeights(BaseCallback):
+    """What the selectors share: a CPU copy of the chosen policy's weights and loading it back."""
+
+    def __init__(self, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.best_state: dict[str, th.Tensor] | None = None
+
+    def _keep(self) -> None:
+        # On the CPU: a copy per improvement should not hold accelerator memory.
+        self.best_state = {k: v.detach().to("cpu", copy=True) for k, v in self.model.policy.state_dict().items()}
+
+    def _on_step(self) -> bool:
+        return True
+
+    def apply(self, model: Any) -> None:
+        """Load the kept weights into ``model.policy``."""
+        if self.best_state is None:
+            raise RuntimeError("no policy has been scored yet: nothing to select")
+        model.policy.load_state_dict(self.best_state)
+
+
+class LowestDisagreementPolicy(_KeptWeights):
     """Keep the policy weights of the training rollout with the lowest mean disagreement.
 
     Use with :class:`~sb3_cmzdril.algorithm.CMZDRIL` (any reward mode). After ``learn()``,
@@ -34,7 +69,6 @@ class LowestDisagreementPolicy(BaseCallback):
         super().__init__(verbose)
         self.best_u = float("inf")
         self.best_epoch: int | None = None
-        self.best_state: dict[str, th.Tensor] | None = None
         self._epoch = 0
 
     def _on_rollout_start(self) -> None:
@@ -42,24 +76,14 @@ class LowestDisagreementPolicy(BaseCallback):
         model = cast(OnPolicyAlgorithm, self.model)
         self._epoch = int(model.num_timesteps // (model.n_steps * model.n_envs))
 
-    def _on_step(self) -> bool:
-        return True
-
     def _on_rollout_end(self) -> None:
         u = getattr(self.model, "rollout_disagreement", None)
         if u is None or not np.isfinite(u) or u >= self.best_u:
             return
         self.best_u, self.best_epoch = float(u), self._epoch
-        # On the CPU: a copy per improvement should not hold accelerator memory.
-        self.best_state = {k: v.detach().to("cpu", copy=True) for k, v in self.model.policy.state_dict().items()}
+        self._keep()
         if self.verbose >= 1:
             print(f"[lowest u] epoch {self._epoch}: rollout disagreement {u:.4g}")
-
-    def apply(self, model: Any) -> None:
-        """Load the kept weights into ``model.policy``."""
-        if self.best_state is None:
-            raise RuntimeError("no rollout has been scored yet: nothing to select")
-        model.policy.load_state_dict(self.best_state)
 
     def save(self, path: PathLike) -> None:
         """Write the choice (weights, epoch, u) atomically; nothing is written before a choice exists."""
@@ -88,4 +112,85 @@ class LowestDisagreementPolicy(BaseCallback):
         return True
 
 
-__all__ = ["LowestDisagreementPolicy"]
+class LongestEpisodesPolicy(_KeptWeights):
+    """Keep the policy whose deterministic episodes from fixed starts last longest (latest on a tie).
+
+    The policy is checked when training starts (the behaviour-cloned start), every ``check_every``
+    steps and when training ends. Each check plays ``n_episodes`` episodes with
+    ``predict(deterministic=True)`` on its own env, reset with ``seed`` before each check so that every
+    check starts from the same states: the comparison between checks is paired. The episodes are not
+    training data; they cost CPU time and env steps (:attr:`env_steps`) beside the training's.
+
+    After ``learn()``, :meth:`apply` loads the kept weights into a model. The choice is held in memory.
+
+    :param eval_env: env id (made with ``env_kwargs``) or a gymnasium Env with the observation and
+        action spaces of the training env, without reward wrappers (the reward is not read).
+    :param check_every: training steps between checks.
+    :param n_episodes: episodes per check.
+    :param seed: the reset seed of each check's first episode.
+    """
+
+    def __init__(
+        self,
+        eval_env: str | gym.Env,
+        check_every: int = 10_000,
+        n_episodes: int = 5,
+        seed: int = 0,
+        env_kwargs: Mapping[str, Any] | None = None,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        for name, value in (("check_every", check_every), ("n_episodes", n_episodes)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise UserError(f"{name} must be a positive integer, got {value!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise UserError(f"seed must be an integer, got {seed!r}")
+        if isinstance(eval_env, str):
+            eval_env = gym.make(eval_env, **dict(env_kwargs or {}))
+        elif env_kwargs:
+            raise UserError("env_kwargs applies only to an env id; the env given is made already")
+        self.check_every, self.n_episodes, self.seed = int(check_every), int(n_episodes), int(seed)
+        self.eval_env = DummyVecEnv([lambda: Monitor(eval_env)])
+        self.best_length = -float("inf")
+        self.best_timesteps: int | None = None
+        #: (training steps, mean episode length) of every check
+        self.history: list[tuple[int, float]] = []
+        #: env steps the checks' episodes took
+        self.env_steps = 0
+        self._next_check = 0
+
+    def _on_training_start(self) -> None:
+        self._next_check = int(self.model.num_timesteps)
+        self._check()
+
+    def _on_step(self) -> bool:
+        if self.model.num_timesteps >= self._next_check:
+            self._check()
+        return True
+
+    def _on_training_end(self) -> None:
+        if not self.history or self.history[-1][0] != self.model.num_timesteps:
+            self._check()
+
+    def _check(self) -> None:
+        timesteps = int(self.model.num_timesteps)
+        self._next_check = timesteps + self.check_every
+        self.eval_env.seed(self.seed)
+        _, lengths = evaluate_policy(self.model, self.eval_env, n_eval_episodes=self.n_episodes, deterministic=True,
+                                     return_episode_rewards=True)
+        length = float(np.mean(lengths))
+        self.env_steps += int(np.sum(lengths))
+        self.history.append((timesteps, length))
+        if length >= self.best_length:
+            self.best_length, self.best_timesteps = length, timesteps
+            self._keep()
+        if self.verbose >= 1:
+            print(f"[longest episodes] {timesteps} steps: mean episode length {length:.1f} "
+                  f"(kept: {self.best_timesteps} steps, {self.best_length:.1f})")
+
+    def close(self) -> None:
+        """Close the checks' env."""
+        self.eval_env.close()
+
+
+__all__ = ["LongestEpisodesPolicy", "LowestDisagreementPolicy"]

@@ -16,6 +16,7 @@ from sb3_cmzdril import CMZReward, Demonstrations, DRILReward, UserError
 from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
 from sb3_cmzdril.rewards import EnvReward, ZeroReward
 from sb3_cmzdril.sac import CMZDRILSAC, ScaledActionMSE
+from sb3_cmzdril.selection import LongestEpisodesPolicy
 
 #: A CMZDRILSAC whose learn() calls take a second: TINY's networks and fits, TINY_SAC's buffer.
 TINY_CMZ_SAC = dict(
@@ -273,3 +274,100 @@ def test_learning_without_demonstrations_says_what_to_pass():
     model = CMZDRILSAC("MlpPolicy", "Pendulum-v1", **TINY_CMZ_SAC)
     with pytest.raises(UserError, match="needs demonstrations"):
         model.learn(10)
+
+
+# -- reward-free selection: the longest episodes -----------------------------------------------------------
+class _FallsAfterW(gym.Env):
+    """An episode ends (a fall) after round(action) steps, at most 20; the reward punishes standing, so
+    a selector that read it would choose otherwise. Each reset draws its start from the env's RNG."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(0.0, 50.0, (1,), np.float32)
+
+    def __init__(self) -> None:
+        self.starts: list[float] = []
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        self.starts.append(float(self.np_random.uniform(-1, 1)))
+        return np.array([self.starts[-1]], np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        return np.zeros(1, np.float32), -float(self.t), self.t >= round(float(action[0])), self.t >= 20, {}
+
+
+class _ConstantPolicy(th.nn.Module):
+    """Acts ``w`` everywhere; ``tag`` changes nothing the env sees, so two ties can be told apart."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.w, self.tag = th.nn.Parameter(th.zeros(())), th.nn.Parameter(th.zeros(()))
+
+
+class _ConstantModel:
+    def __init__(self) -> None:
+        self.policy, self.num_timesteps = _ConstantPolicy(), 0
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=False):
+        assert deterministic
+        return np.full((len(obs), 1), self.policy.w.item()), None
+
+
+def test_longest_episodes_keeps_the_longest_latest_on_a_tie_from_the_same_starts():
+    env = _FallsAfterW()
+    selector = LongestEpisodesPolicy(env, check_every=10, n_episodes=3, seed=7)
+    model = _ConstantModel()
+    selector.init_callback(model)
+    # (steps, w, tag): lengths 3, 7, 20 (time limit), 5, 20 again (a tie: the later one is kept), 2.
+    for steps, w, tag in [(0, 3, 0), (10, 7, 1), (20, 25, 2), (30, 5, 3), (40, 20, 4), (50, 2, 5)]:
+        model.num_timesteps = steps
+        with th.no_grad():
+            model.policy.w.fill_(w)
+            model.policy.tag.fill_(tag)
+        selector.on_step()
+    assert selector.history == [(0, 3.0), (10, 7.0), (20, 20.0), (30, 5.0), (40, 20.0), (50, 2.0)]
+    assert selector.best_timesteps == 40 and selector.best_length == 20.0
+    assert selector.env_steps == 3 * (3 + 7 + 20 + 5 + 20 + 2)
+    # Every check starts its three episodes from the same three states: the comparison is paired. (The
+    # vectorised env also resets once after a check's last episode: four resets a check.)
+    blocks = [env.starts[i:i + 4] for i in range(0, len(env.starts), 4)]
+    assert len(blocks) == 6 and all(b == blocks[0] for b in blocks) and len(set(blocks[0][:3])) == 3
+    selector.apply(model)
+    assert model.policy.w.item() == 20.0 and model.policy.tag.item() == 4.0
+
+
+def test_longest_episodes_checks_the_clone_every_k_steps_and_the_end_and_keeps_the_last_without_falls(
+    pendulum_demos,
+):
+    model = tiny_model(pendulum_demos)
+    selector = LongestEpisodesPolicy("Pendulum-v1", check_every=100, n_episodes=1, seed=3,
+                                     env_kwargs={"max_episode_steps": 30})
+    model.learn(250, callback=selector)
+    # The clone before any SAC step, every 100 steps, and the last policy; Pendulum never terminates.
+    assert [steps for steps, _ in selector.history] == [0, 100, 200, 250]
+    assert {length for _, length in selector.history} == {30.0} and selector.env_steps == 4 * 30
+    assert selector.best_timesteps == 250
+    final = {k: v.clone() for k, v in model.policy.state_dict().items()}
+    selector.apply(model)
+    assert all(th.equal(final[k], v) for k, v in model.policy.state_dict().items())
+    selector.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"check_every": 0}, "check_every must be a positive integer, got 0"),
+     ({"n_episodes": 2.5}, "n_episodes must be a positive integer, got 2.5"),
+     ({"seed": "a"}, "seed must be an integer, got 'a'"),
+     ({"env_kwargs": {"g": 9.81}, "eval_env": None}, "env_kwargs applies only to an env id")],
+)
+def test_longest_episodes_refuses_bad_options_naming_them(kwargs, message):
+    env = kwargs.pop("eval_env", "Pendulum-v1") or gym.make("Pendulum-v1")
+    with pytest.raises(UserError, match=message):
+        LongestEpisodesPolicy(env, **kwargs)
+
+
+def test_longest_episodes_has_nothing_to_apply_before_a_check():
+    with pytest.raises(RuntimeError, match="nothing to select"):
+        LongestEpisodesPolicy("Pendulum-v1").apply(_ConstantModel())

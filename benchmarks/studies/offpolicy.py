@@ -9,6 +9,12 @@ spent ``--cpu-minutes`` of CPU time (pretraining included), then replays every h
 episode with the final policy. Comparing methods at equal CPU time, not equal steps, is the point:
 SAC takes about ten times PPO's CPU per step.
 
+``--select longest`` keeps, reward-free, the policy whose deterministic episodes from 5 fixed starts
+(seeds 100000 + 100 * trial + i, none of them a pool episode's) lasted longest at the start, every
+``--eval-every`` steps and at the end, the latest on a tie
+(:class:`sb3_cmzdril.selection.LongestEpisodesPolicy`). That kept policy is the run's "final"
+policy in final_eval.csv; the last weights are evaluated on the same held-out episodes as "last".
+
 Runs land in ``results/offpolicy/NAME/<Env>/cmz/trial<k>/`` in the grid's layout (config.json,
 eval.csv every ``--eval-every`` steps on the trial's 5 evaluation episodes, SB3's training log in
 logs/progress_0.csv, final_eval.csv,
@@ -41,10 +47,13 @@ from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import atomic_write_text, write_json
 from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
 from sb3_cmzdril.sac import CMZDRILSAC
+from sb3_cmzdril.selection import LongestEpisodesPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
 #: SB3's log_interval: a row of logs/progress_0.csv every this many episodes
 LOG_EVERY_EPISODES = 10
+#: episodes of each check of ``--select longest``, and the first reset seed of trial 0's checks
+SELECT_EPISODES, SELECT_SEED = 5, 100_000
 
 
 class CPUBudget(BaseCallback):
@@ -59,7 +68,7 @@ class CPUBudget(BaseCallback):
 
 
 def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every: int, kwargs: dict[str, Any],
-              out_root: Path, command: str) -> dict[str, Any] | None:
+              out_root: Path, command: str, select: str = "last") -> dict[str, Any] | None:
     """Train and evaluate one trial; its done.json summary (None: it was finished already)."""
     folder = out_root / name / env_name(env_id) / "cmz" / f"trial{trial}"
     if (folder / DONE_FILE).is_file():
@@ -78,7 +87,8 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
         "env_id": env_id, "env_name": env_name(env_id), "method": "cmz", "reward": kwargs.get("reward", "cmz"),
         "algorithm": "CMZDRILSAC", "seed": trial, "demos": str(Path(run.spec.demos).relative_to(ROOT)),
         "train_episodes": list(run.train_idx), "eval_episodes": list(run.eval_idx), "n_demos": len(run.train_idx),
-        "cpu_minutes": cpu_minutes, "eval_every_steps": eval_every, "model_kwargs": kwargs, "command": command,
+        "cpu_minutes": cpu_minutes, "eval_every_steps": eval_every, "model_kwargs": kwargs, "select": select,
+        "command": command,
     })
     start_cpu, start_wall = time.process_time(), time.perf_counter()
     env = Monitor(gym.make(env_id))
@@ -90,19 +100,35 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     # What the agent does in training (episode length, u on its own states, the losses), as a grid run keeps it.
     (folder / "logs").mkdir(exist_ok=True)
     model.set_logger(Logger(None, [CSVOutputFormat(str(folder / "logs" / "progress_0.csv"))]))  # the grid's name
-    model.learn(10**9, callback=[eval_cb, CPUBudget(cpu_minutes * 60, start_cpu)], log_interval=LOG_EVERY_EPISODES)
+    callbacks: list[BaseCallback] = [eval_cb]
+    selector = None
+    if select == "longest":
+        selector = LongestEpisodesPolicy(env_id, check_every=eval_every, n_episodes=SELECT_EPISODES,
+                                         seed=SELECT_SEED + 100 * trial)
+        callbacks.append(selector)
+    model.learn(10**9, callback=[*callbacks, CPUBudget(cpu_minutes * 60, start_cpu)], log_interval=LOG_EVERY_EPISODES)
     eval_cb.close()
     model.logger.close()
     held_out = run.held_out
-    ev = evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
-    atomic_write_text(folder / FINAL_EVAL_CSV,
-                      "\n".join([",".join(FINAL_EVAL_COLUMNS), *final_eval_rows("final", held_out, ev)]) + "\n")
+    evaluations = {}
+    if selector is not None:
+        selector.close()
+        evaluations["last"] = evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
+        selector.apply(model)
+    ev = evaluations["final"] = evaluate_against_expert(model, env_id, run.pool.select(held_out),
+                                                        start_mismatch="ignore")
+    rows = [line for policy, e in evaluations.items() for line in final_eval_rows(policy, held_out, e)]
+    atomic_write_text(folder / FINAL_EVAL_CSV, "\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
     summary = {
         "status": "done", "env_id": env_id, "method": "cmz", "algorithm": "CMZDRILSAC", "seed": trial,
         "num_timesteps": int(model.num_timesteps), "cpu_time_s": time.process_time() - start_cpu,
         "wall_time_s": time.perf_counter() - start_wall, "pretrain": model.pretrain_info,
-        "final_evaluation": {"episodes": held_out, "final": ev.summary()},
+        "final_evaluation": {"episodes": held_out, **{policy: e.summary() for policy, e in evaluations.items()}},
     }
+    if selector is not None:
+        summary["selection"] = {"rule": select, "kept_timesteps": selector.best_timesteps,
+                                "kept_mean_length": selector.best_length, "env_steps": selector.env_steps,
+                                "checks": [list(check) for check in selector.history]}
     write_json(folder / DONE_FILE, summary)
     expert = float(np.mean(ev.expert_returns))
     print(f"{folder}: {model.num_timesteps} steps in {summary['cpu_time_s'] / 60:.1f} CPU-min; final return "
@@ -119,13 +145,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-every", type=int, default=10240, help="steps between evaluations in eval.csv")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="CMZDRILSAC constructor argument (repeatable); net_arch goes to policy_kwargs")
+    parser.add_argument("--select", choices=("last", "longest"), default="last",
+                        help="the run's final policy: the last weights, or the reward-free longest-episodes choice")
     parser.add_argument("-o", "--output", default=str(ROOT / "results" / "offpolicy"))
     args = parser.parse_args(argv)
     th.set_num_threads(1)  # two runs side by side on two cores, as the grid runs
     command = "python benchmarks/studies/offpolicy.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     kwargs = parse_sets(args.set)
     for trial in args.trials:
-        run_trial(args.name, args.env, trial, args.cpu_minutes, args.eval_every, kwargs, Path(args.output), command)
+        run_trial(args.name, args.env, trial, args.cpu_minutes, args.eval_every, kwargs, Path(args.output), command,
+                  args.select)
     return 0
 
 
