@@ -226,3 +226,30 @@ def test_a_budget_sweep_draws_its_curves_and_a_sweep_without_runs_says_so(tmp_pa
     empty_text = studies.sweeps_markdown(tmp_path, [], tmp_path / "figures", (empty,))
     assert f"### {ENV}: steps, clip\n\nNo finished runs yet." in empty_text
     assert not (tmp_path / "figures" / "e.png").exists()
+
+
+def test_selection_table_puts_the_kept_policy_beside_the_last_weights_by_hand(tmp_path):
+    # Expert returns on the two held-out episodes: 1000 + 10 t + (0, 1), mean 1000.5 + 10 t. Kept policies
+    # at 100%, 50% and 100% of it, last weights at 50%, 100% and 0%: the kept one is above in 2 of 3.
+    kept, last = [100.0, 50.0, 100.0], [50.0, 100.0, 0.0]
+    for t in range(3):
+        expert = 1000.5 + 10 * t
+        run = write_run(tmp_path / "v", "cmz", t, [1.0], env=ENV,
+                        final={"final": [kept[t] * expert / 100] * 2, "last": [last[t] * expert / 100] * 2})
+        done = json.loads((run / "done.json").read_text())
+        done.update(num_timesteps=20480, selection={"rule": "longest", "kept_timesteps": 10240 * t,
+                                                    "kept_mean_length": 900.0 + t, "checks": [[0, 1.0]] * 3})
+        (run / "done.json").write_text(json.dumps(done))
+    # A run of the folder that chose nothing (no selection, no last weights) is not in the table.
+    write_run(tmp_path / "v", "cmz", 3, [1.0], env=ENV, final={"final": [1.0, 1.0]})
+    variant = studies.Variant(ENV, "cmz", "kept", "v", "python make_it.py")
+    kept_row, last_row = studies.kept_and_last(variant, tmp_path, [])
+    assert [r.trial for r in kept_row.runs] == [0, 1, 2] and last_row.policy == "last"
+    text = studies.render(tmp_path, selections=(variant,))
+    assert "## Keeping the policy that lasts longest" in text
+    assert "| 1 | 3 | 10240 of 20480 | 901 | 100 | 50.0 |" in text
+    assert "Kept policy above the last weights in 2 of 3 trials" in text and "`python make_it.py`" in text
+    assert "| mean [95% CI] |  |  |  | 50.0 [0, 100] | 83.3 [50.0, 100] |" in text
+    empty = studies.Variant(ENV, "cmz", "none", "absent", "")
+    assert "No finished runs yet." in studies.selection_markdown(tmp_path, [], (empty,))
+    assert "## Keeping the policy" not in studies.render(tmp_path)

@@ -43,6 +43,9 @@ CLIP_ABS = "--set cmz_clip_quantile=0.98 --set absorbing=true"
 SAC_DRIL_LABEL = "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state, 20 CPU-minutes per run"
 SAC_CLIP_LABEL = ("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: "
                   "0.98`), and the absorbing state, 20 CPU-minutes per run")
+CLIP_ABS_LONGEST = CLIP_ABS + " --select longest"
+SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (`--select longest`, reward-free), "
+                     "20 CPU-minutes per run")
 
 
 def offpolicy_command(name: str, env: str, sets: str) -> str:
@@ -97,6 +100,7 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
     *tuning_and_confirmation(SAC_DRIL_LABEL, "W-sac-64-dril-abs", DRIL_ABS),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
+    *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, firsts=(0,)),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -107,6 +111,8 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
+    *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5",
+                             firsts=(0,)),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
@@ -140,6 +146,9 @@ COST_CURVES: tuple[CostCurves, ...] = (
     )),
 )
 
+#: The variants whose runs chose their final policy reward-free (``--select longest``)
+SELECTIONS: tuple[Variant, ...] = tuple(v for v in ABLATIONS if v.runs.endswith("-longest"))
+
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
           ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
@@ -171,7 +180,7 @@ def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)
     page = render(root, ABLATIONS, ROLLOUT_TABLES, SWEEPS, figures=out.parent / "figures", command=COMMAND,
-                  grid=BASELINES, cost_curves=COST_CURVES)
+                  grid=BASELINES, cost_curves=COST_CURVES, selections=SELECTIONS)
     atomic_write_text(out, page)
     print(out)
     return 0

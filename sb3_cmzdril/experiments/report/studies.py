@@ -483,6 +483,50 @@ def cost_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
     return "\n\n".join(parts)
 
 
+def kept_and_last(variant: Variant, root: Path, skipped: list[Skipped]) -> tuple[FinalRow, FinalRow] | None:
+    """The variant's runs that kept a policy by a reward-free choice (done.json ``selection``, and
+    final_eval.csv rows of the kept policy, "final", and of the last weights, "last"), as the kept
+    row and the last row over the same runs; None when it has none."""
+    row = variant_rows(variant, root, skipped)["final"]
+    runs = [r for r in ([] if row is None else row.runs)
+            if "last" in r.final and isinstance(r.summary.get("selection"), dict)]
+    if not runs:
+        return None
+    return (FinalRow(variant.env, variant.method, "final", runs), FinalRow(variant.env, variant.method, "last", runs))
+
+
+def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Variant, ...] = ()) -> str:
+    """A table per variant whose runs chose their final policy reward-free: per trial, where the kept
+    policy was found and what it and the last weights return on the same held-out episodes."""
+    parts = []
+    for variant in variants:
+        found = kept_and_last(variant, root, skipped)
+        text = [f"### {variant.env}: {variant.label}"]
+        if found is None:
+            parts.append("\n\n".join([*text, "No finished runs yet."]))
+            continue
+        kept, last = found
+        kept_pct, last_pct = kept.per_trial("pct_of_expert"), last.per_trial("pct_of_expert")
+        body = []
+        for run in kept.runs:
+            selection = run.summary["selection"]
+            body.append([
+                str(run.trial), str(len(selection.get("checks", []))),
+                f"{selection.get('kept_timesteps')} of {run.summary.get('num_timesteps')}",
+                fmt(float(selection.get("kept_mean_length", math.nan))),
+                fmt(last_pct[run.trial]), fmt(kept_pct[run.trial]),
+            ])
+        body.append(["mean [95% CI]", "", "", "", fmt_ci(*last.stat("pct_of_expert")),
+                     fmt_ci(*kept.stat("pct_of_expert"))])
+        text.append(md_table(
+            ["Trial", "Checks", "Kept: at step (of the run's)", "Kept: mean episode length at its check",
+             "Last weights: % of expert", "Kept policy: % of expert"], body))
+        text.append(f"Kept policy above the last weights in {above_reference(kept, last)} trials. "
+                    f"Runs: `{variant.runs}`, made by `{variant.made_by}`.")
+        parts.append("\n\n".join(text))
+    return "\n\n".join(parts)
+
+
 def render(
     root: Path,
     ablations: tuple[Variant, ...] = (),
@@ -492,15 +536,18 @@ def render(
     command: str = "",
     grid: tuple[str, ...] = (GRID,),
     cost_curves: tuple[CostCurves, ...] = (),
+    selections: tuple[Variant, ...] = (),
 ) -> str:
     """The page's text (docs/new_tasks.md), from the runs below ``root``; the sweeps' figures go to
     ``figures`` (none are drawn without it). ``command`` is what the page says wrote it; ``grid``
     the published grid every ablation is paired with (then folders adding trials it lacks);
-    ``cost_curves`` the variants drawn against CPU time."""
+    ``cost_curves`` the variants drawn against CPU time; ``selections`` the variants whose runs
+    chose their final policy reward-free (:func:`selection_markdown`)."""
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations, grid)
     cost = cost_markdown(root, skipped, figures, cost_curves, grid)
+    kept = selection_markdown(root, skipped, selections)
     rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
@@ -524,6 +571,12 @@ def render(
         *(["## Against CPU time\n\nLearners differ in CPU per step (PPO with one or several envs per process, "
            "SAC with a gradient step per env step), so the evaluations are drawn against the CPU time a run had "
            "spent when it made them.", cost] if cost_curves else []),
+        *(["## Keeping the policy that lasts longest\n\nThe off-policy learner reaches the expert's level and "
+           "loses it again. These runs check the policy at the start, every evaluation interval and at the end, "
+           "playing it deterministically for 5 episodes from fixed starts (no pool episode's), and keep the one "
+           "whose episodes lasted longest, the latest on a tie: a choice that reads termination, never reward. "
+           "The kept policy is the run's final policy in the ablation tables; here it is beside the last "
+           "weights of the same runs, both on every held-out episode.", kept] if selections else []),
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
         "ended in a fall, and a reward that favours staying alive lengthens it. u: the ensemble's disagreement "
@@ -553,9 +606,11 @@ __all__ = [
     "cost_markdown",
     "cpu_and_steps",
     "cpu_minutes_axis",
+    "kept_and_last",
     "render",
     "rollout_edges",
     "rollout_markdown",
+    "selection_markdown",
     "steps_per_cpu_second",
     "sweep_markdown",
     "sweep_rows",
