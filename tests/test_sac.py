@@ -9,10 +9,13 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from helpers import TINY, TINY_SAC
-from sb3_cmzdril import CMZReward, Demonstrations, DRILReward, UserError
+from sb3_cmzdril import CMZDRIL, CMZReward, Demonstrations, DRILReward, UserError
 from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
 from sb3_cmzdril.rewards import EnvReward, ZeroReward
 from sb3_cmzdril.sac import CMZDRILSAC, ScaledActionMSE
@@ -371,3 +374,21 @@ def test_longest_episodes_refuses_bad_options_naming_them(kwargs, message):
 def test_longest_episodes_has_nothing_to_apply_before_a_check():
     with pytest.raises(RuntimeError, match="nothing to select"):
         LongestEpisodesPolicy("Pendulum-v1").apply(_ConstantModel())
+
+
+def test_longest_episodes_serves_cmzdril_and_the_kept_policy_replays_its_check(cartpole_demos):
+    # A large step size moves this tiny PPO's policy between checks: the longest check is not the last.
+    model = CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, device="cpu",
+                    **{**TINY, "learning_rate": 0.03, "bc_pretrain_epochs": 1})
+    selector = LongestEpisodesPolicy("CartPole-v1", check_every=64, n_episodes=2, seed=5)
+    model.learn(320, callback=selector)
+    steps = [s for s, _ in selector.history]
+    lengths = [length for _, length in selector.history]
+    assert steps == [0, 64, 128, 192, 256, 320] and selector.best_length == max(lengths) > lengths[-1]
+    assert selector.best_timesteps == max(s for s, length in selector.history if length == max(lengths))
+    selector.apply(model)
+    # From the same starts, the kept weights last as long as at their check (the last ones would not).
+    env = DummyVecEnv([lambda: Monitor(gym.make("CartPole-v1"))])
+    env.seed(5)
+    _, replayed = evaluate_policy(model, env, n_eval_episodes=2, deterministic=True, return_episode_rewards=True)
+    assert float(np.mean(replayed)) == selector.best_length
