@@ -521,7 +521,11 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
         text.append(md_table(
             ["Trial", "Checks", "Kept: at step (of the run's)", "Kept: mean episode length at its check",
              "Last weights: % of expert", "Kept policy: % of expert"], body))
-        text.append(f"Kept policy above the last weights in {above_reference(kept, last)} trials. "
+        earlier = [r.trial for r in kept.runs if r.summary["selection"].get("kept_timesteps") != r.summary.get(
+            "num_timesteps")]
+        above = sum(kept_pct[t] > last_pct[t] for t in earlier)
+        text.append(f"The kept policy is the last one in {len(kept.runs) - len(earlier)} of {len(kept.runs)} trials; "
+                    f"where it is an earlier one, it is above the last weights in {above} of {len(earlier)}. "
                     f"Runs: `{variant.runs}`, made by `{variant.made_by}`.")
         parts.append("\n\n".join(text))
     return "\n\n".join(parts)
