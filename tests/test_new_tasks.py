@@ -238,7 +238,8 @@ def test_selection_table_puts_the_kept_policy_beside_the_last_weights_by_hand(tm
                         final={"final": [kept[t] * expert / 100] * 2, "last": [last[t] * expert / 100] * 2})
         done = json.loads((run / "done.json").read_text())
         done.update(num_timesteps=20480, selection={"rule": "longest", "kept_timesteps": 10240 * t,
-                                                    "kept_mean_length": 900.0 + t, "checks": [[0, 1.0]] * 3})
+                                                    "kept_mean_length": 900.0 + t, "checks": [[0, 1.0]] * 3,
+                                                    "env_steps": 15})
         (run / "done.json").write_text(json.dumps(done))
     # A run of the folder that chose nothing (no selection, no last weights) is not in the table.
     write_run(tmp_path / "v", "cmz", 3, [1.0], env=ENV, final={"final": [1.0, 1.0]})
@@ -247,7 +248,7 @@ def test_selection_table_puts_the_kept_policy_beside_the_last_weights_by_hand(tm
     assert [r.trial for r in kept_row.runs] == [0, 1, 2] and last_row.policy == "last"
     text = studies.render(tmp_path, selections=(variant,))
     assert "## Keeping the policy that lasts longest" in text
-    assert "| 1 | 3 | 10240 of 20480 | 901 | 100 | 50.0 |" in text
+    assert "| 1 | 3 (15) | 10240 of 20480 | 901 | 100 | 50.0 |" in text
     # Trial 2 kept its last policy (step 20480 of 20480); of trials 0 and 1 the kept one is above in trial 0.
     assert ("is the last one in 1 of 3 trials; where it is an earlier one, it is above the last weights in 1 of 2"
             in text)

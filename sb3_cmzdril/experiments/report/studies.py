@@ -511,7 +511,7 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
         for run in kept.runs:
             selection = run.summary["selection"]
             body.append([
-                str(run.trial), str(len(selection.get("checks", []))),
+                str(run.trial), f"{len(selection.get('checks', []))} ({selection.get('env_steps')})",
                 f"{selection.get('kept_timesteps')} of {run.summary.get('num_timesteps')}",
                 fmt(float(selection.get("kept_mean_length", math.nan))),
                 fmt(last_pct[run.trial]), fmt(kept_pct[run.trial]),
@@ -519,7 +519,7 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
         body.append(["mean [95% CI]", "", "", "", fmt_ci(*last.stat("pct_of_expert")),
                      fmt_ci(*kept.stat("pct_of_expert"))])
         text.append(md_table(
-            ["Trial", "Checks", "Kept: at step (of the run's)", "Kept: mean episode length at its check",
+            ["Trial", "Checks (their env steps)", "Kept: at step (of the run's)", "Kept: mean episode length at its check",
              "Last weights: % of expert", "Kept policy: % of expert"], body))
         earlier = [r.trial for r in kept.runs if r.summary["selection"].get("kept_timesteps") != r.summary.get(
             "num_timesteps")]
