@@ -519,8 +519,8 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
         body.append(["mean [95% CI]", "", "", "", fmt_ci(*last.stat("pct_of_expert")),
                      fmt_ci(*kept.stat("pct_of_expert"))])
         text.append(md_table(
-            ["Trial", "Checks (their env steps)", "Kept: at step (of the run's)", "Kept: mean episode length at its check",
-             "Last weights: % of expert", "Kept policy: % of expert"], body))
+            ["Trial", "Checks (their env steps)", "Kept: at step (of the run's)",
+             "Kept: mean episode length at its check", "Last weights: % of expert", "Kept policy: % of expert"], body))
         earlier = [r.trial for r in kept.runs if r.summary["selection"].get("kept_timesteps") != r.summary.get(
             "num_timesteps")]
         above = sum(kept_pct[t] > last_pct[t] for t in earlier)
