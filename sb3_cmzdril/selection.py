@@ -169,12 +169,14 @@ class LongestEpisodesPolicy(_KeptWeights):
         return True
 
     def _on_training_end(self) -> None:
-        if not self.history or self.history[-1][0] != self.model.num_timesteps:
-            self._check()
+        self._check()
 
     def _check(self) -> None:
         timesteps = int(self.model.num_timesteps)
         self._next_check = timesteps + self.check_every
+        # The end of one learn() and the start of the next (reset_num_timesteps=False) are one policy.
+        if self.history and self.history[-1][0] == timesteps:
+            return
         self.eval_env.seed(self.seed)
         _, lengths = evaluate_policy(self.model, self.eval_env, n_eval_episodes=self.n_episodes, deterministic=True,
                                      return_episode_rewards=True)

@@ -110,13 +110,16 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     eval_cb.close()
     model.logger.close()
     held_out = run.held_out
+
+    def held_out_evaluation() -> Any:
+        return evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
+
     evaluations = {}
     if selector is not None:
         selector.close()
-        evaluations["last"] = evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
+        evaluations["last"] = held_out_evaluation()
         selector.apply(model)
-    ev = evaluations["final"] = evaluate_against_expert(model, env_id, run.pool.select(held_out),
-                                                        start_mismatch="ignore")
+    ev = evaluations["final"] = held_out_evaluation()
     rows = [line for policy, e in evaluations.items() for line in final_eval_rows(policy, held_out, e)]
     atomic_write_text(folder / FINAL_EVAL_CSV, "\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
     summary = {
