@@ -18,6 +18,7 @@ observation the pool does not keep, is left out. Flat ``Box`` observations only.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
@@ -77,6 +78,15 @@ class DemoReplayBuffer(ReplayBuffer):
         if self.optimize_memory_usage:
             raise UserError("DemoReplayBuffer does not support optimize_memory_usage=True")
         self.demos, self.demo_fraction, self.relabel = demos, float(demo_fraction), relabel
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A saved buffer (SB3's save_replay_buffer pickles it) holds the agent's transitions only.
+        # relabel is a method of the learner, so pickling it would pickle the whole model with its env;
+        # the learner sets both again at every learn().
+        state = dict(self.__dict__)
+        for name in ("demos", "demo_fraction", "relabel"):
+            state.pop(name, None)
+        return state
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         n_demo = int(round(batch_size * self.demo_fraction)) if self.demos is not None else 0
