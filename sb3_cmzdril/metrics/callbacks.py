@@ -11,6 +11,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
 
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import UserError
@@ -28,8 +29,9 @@ class ExpertEvalCallback(BaseCallback):
     """Evaluate against held-out expert episodes every ``eval_every`` policy updates.
 
     *Epoch* = number of completed rollout+update cycles (PPO updates). For on-policy algorithms it
-    is computed from ``num_timesteps // (n_steps * n_envs)``, so it continues across resumed runs
-    (``learn(..., reset_num_timesteps=False)``). Epoch 0 (the policy before the first update, e.g.
+    is computed from ``num_timesteps // (n_steps * n_envs)``, and for off-policy ones that train every
+    ``train_freq`` steps (SAC, TD3...) from ``num_timesteps // (train_freq * n_envs)``, so it continues
+    across resumed runs (``learn(..., reset_num_timesteps=False)``). Epoch 0 (the policy before the first update, e.g.
     the BC-pretrained one) is evaluated at the first rollout, then every ``eval_every`` epochs, and
     the last epoch at the end of training if it was not already.
 
@@ -86,7 +88,7 @@ class ExpertEvalCallback(BaseCallback):
         self.history: list[dict[str, float]] = []
         self.last_evaluation: ExpertEvaluation | None = None
         self._done: set = set()  # (epoch, timesteps) already evaluated
-        self._rollouts_completed = 0  # fallback epoch counter for algorithms without n_steps
+        self._rollouts_completed = 0  # epochs of a run that trains every k episodes: from this learn() on
 
     # -- setup ----------------------------------------------------------------------------------
     def _init_callback(self) -> None:
@@ -138,6 +140,10 @@ class ExpertEvalCallback(BaseCallback):
         if isinstance(n_steps, (int, np.integer)) and n_steps > 0:
             # A rollout is exactly n_steps * n_envs steps and each completed one is followed by an update.
             return int(self.model.num_timesteps // (n_steps * self.model.n_envs))
+        train_freq = getattr(self.model, "train_freq", None)
+        if isinstance(train_freq, TrainFreq) and train_freq.unit == TrainFrequencyUnit.STEP:
+            # Each off-policy rollout collects train_freq steps per env, then trains.
+            return int(self.model.num_timesteps // (train_freq.frequency * self.model.n_envs))
         return self._rollouts_completed
 
     def _on_rollout_start(self) -> None:
