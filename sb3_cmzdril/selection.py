@@ -37,7 +37,11 @@ from sb3_cmzdril.io import PathLike, atomic_path
 
 
 class _KeptWeights(BaseCallback):
-    """What the selectors share: a CPU copy of the chosen policy's weights and loading it back."""
+    """What the selectors share: a CPU copy of the chosen policy's weights, loading it back, and
+    saving the choice for a resumed run."""
+
+    #: what :meth:`load` calls the file when it cannot read it
+    _file_kind = "kept-policy"
 
     def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
@@ -56,6 +60,40 @@ class _KeptWeights(BaseCallback):
             raise RuntimeError("no policy has been scored yet: nothing to select")
         model.policy.load_state_dict(self.best_state)
 
+    def _choice(self) -> dict[str, th.Tensor]:
+        """Besides the weights, what :meth:`save` writes: tensors only, so that loading needs no pickle."""
+        raise NotImplementedError
+
+    def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
+        """Take back what :meth:`_choice` gave; a KeyError or ValueError when the file lacks it."""
+        raise NotImplementedError
+
+    def save(self, path: PathLike) -> None:
+        """Write the choice (weights and what led to them) atomically; nothing is written before a choice exists."""
+        if self.best_state is None:
+            return
+        with atomic_path(path, suffix=".pt") as tmp:
+            th.save({"state_dict": self.best_state, **self._choice()}, tmp)
+
+    def load(self, path: PathLike) -> bool:
+        """Restore a choice written by :meth:`save`, so that a resumed run continues the same search;
+        False when there is no such file, a UserError naming it when it is damaged."""
+        if not Path(path).is_file():
+            return False
+        try:
+            blob = th.load(path, map_location="cpu", weights_only=True)
+            state = blob["state_dict"]
+            if not isinstance(state, dict):
+                raise TypeError(f"state_dict is a {type(state).__name__}")
+            self._restore(blob)
+        except Exception as e:  # torch raises RuntimeError, OSError (errno 22), pickle errors... for damage
+            raise UserError(
+                f"{path} is truncated or not a {self._file_kind} file ({type(e).__name__}: {e}); delete it to "
+                "resume without the earlier choice"
+            ) from None
+        self.best_state = state
+        return True
+
 
 class LowestDisagreementPolicy(_KeptWeights):
     """Keep the policy weights of the training rollout with the lowest mean disagreement.
@@ -64,6 +102,8 @@ class LowestDisagreementPolicy(_KeptWeights):
     :meth:`apply` loads the kept weights into a model; :meth:`save`/:meth:`load` persist the choice
     so a resumed run continues the same search.
     """
+
+    _file_kind = "lowest-u policy"
 
     def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
@@ -85,31 +125,11 @@ class LowestDisagreementPolicy(_KeptWeights):
         if self.verbose >= 1:
             print(f"[lowest u] epoch {self._epoch}: rollout disagreement {u:.4g}")
 
-    def save(self, path: PathLike) -> None:
-        """Write the choice (weights, epoch, u) atomically; nothing is written before a choice exists."""
-        if self.best_state is None:
-            return
-        blob = {"state_dict": self.best_state, "epoch": th.tensor(self.best_epoch), "u": th.tensor(self.best_u)}
-        with atomic_path(path, suffix=".pt") as tmp:
-            th.save(blob, tmp)
+    def _choice(self) -> dict[str, th.Tensor]:
+        return {"epoch": th.tensor(self.best_epoch), "u": th.tensor(self.best_u)}
 
-    def load(self, path: PathLike) -> bool:
-        """Restore a choice written by :meth:`save`; False when there is no such file, a ValueError
-        naming it when it is damaged."""
-        if not Path(path).is_file():
-            return False
-        try:
-            blob = th.load(path, map_location="cpu", weights_only=True)
-            state, epoch, u = blob["state_dict"], int(blob["epoch"]), float(blob["u"])
-            if not isinstance(state, dict):
-                raise TypeError(f"state_dict is a {type(state).__name__}")
-        except Exception as e:  # torch raises RuntimeError, OSError (errno 22), pickle errors... for damage
-            raise UserError(
-                f"{path} is truncated or not a lowest-u policy file ({type(e).__name__}: {e}); delete it to "
-                "resume without the earlier choice"
-            ) from None
-        self.best_state, self.best_epoch, self.best_u = state, epoch, u
-        return True
+    def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
+        self.best_epoch, self.best_u = int(blob["epoch"]), float(blob["u"])
 
 
 class LongestEpisodesPolicy(_KeptWeights):
@@ -121,7 +141,9 @@ class LongestEpisodesPolicy(_KeptWeights):
     check starts from the same states: the comparison between checks is paired. The episodes are not
     training data; they cost CPU time and env steps (:attr:`env_steps`) beside the training's.
 
-    After ``learn()``, :meth:`apply` loads the kept weights into a model. The choice is held in memory.
+    After ``learn()``, :meth:`apply` loads the kept weights into a model. :meth:`save`/:meth:`load`
+    persist the choice with the checks so far, so that a resumed run (``learn(...,
+    reset_num_timesteps=False)`` after loading the model) neither repeats nor forgets a check.
 
     :param eval_env: env id (made with ``env_kwargs``) or a gymnasium Env with the observation and
         action spaces of the training env, without reward wrappers (the reward is not read).
@@ -129,6 +151,8 @@ class LongestEpisodesPolicy(_KeptWeights):
     :param n_episodes: episodes per check.
     :param seed: the reset seed of each check's first episode.
     """
+
+    _file_kind = "longest-episodes policy"
 
     def __init__(
         self,
@@ -189,6 +213,19 @@ class LongestEpisodesPolicy(_KeptWeights):
         if self.verbose >= 1:
             print(f"[longest episodes] {timesteps} steps: mean episode length {length:.1f} "
                   f"(kept: {self.best_timesteps} steps, {self.best_length:.1f})")
+
+    def _choice(self) -> dict[str, th.Tensor]:
+        return {
+            "history": th.tensor(self.history, dtype=th.float64).reshape(-1, 2),
+            "best_length": th.tensor(self.best_length, dtype=th.float64),
+            "best_timesteps": th.tensor(self.best_timesteps, dtype=th.int64),
+            "env_steps": th.tensor(self.env_steps, dtype=th.int64),
+        }
+
+    def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
+        history = [(int(steps), float(length)) for steps, length in blob["history"].tolist()]
+        self.best_length, self.best_timesteps = float(blob["best_length"]), int(blob["best_timesteps"])
+        self.history, self.env_steps = history, int(blob["env_steps"])
 
     def close(self) -> None:
         """Close the checks' env."""
