@@ -222,6 +222,42 @@ def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demo
     assert loaded.num_timesteps == 300
 
 
+def test_a_saved_replay_buffer_holds_the_agents_transitions_and_resumes_with_the_demos_mixed_in_again(
+    pendulum_demos, tmp_path
+):
+    model = tiny_model(pendulum_demos)
+    model.learn(120)
+    model.save(tmp_path / "m.zip")
+    model.save_replay_buffer(tmp_path / "buffer.pkl")
+    # The buffer's relabelling function is a method of the learner: pickled with the buffer, it would
+    # take the whole model (and its env) into the file.
+    assert b"CMZDRILSAC" not in (tmp_path / "buffer.pkl").read_bytes()
+    loaded = CMZDRILSAC.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"), device="cpu")
+    loaded.load_replay_buffer(tmp_path / "buffer.pkl")
+    buffer = loaded.replay_buffer
+    assert isinstance(buffer, DemoReplayBuffer) and buffer.pos == 120 and buffer.demos is None
+    np.testing.assert_array_equal(buffer.observations[:120], model.replay_buffer.observations[:120])
+    loaded.learn(30, reset_num_timesteps=False)
+    assert buffer.demos is not None and buffer.relabel is not None and buffer.pos == 150
+
+
+def test_expert_evaluation_epochs_go_on_across_a_resumed_sac_run(pendulum_demos, tmp_path):
+    from sb3_cmzdril.metrics import ExpertEvalCallback
+
+    csv_path = tmp_path / "eval.csv"
+    model = tiny_model(pendulum_demos)
+    model.learn(100, callback=ExpertEvalCallback("Pendulum-v1", pendulum_demos, eval_every=50, csv_path=csv_path))
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRILSAC.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"), device="cpu")
+    loaded.learn(100, callback=ExpertEvalCallback("Pendulum-v1", pendulum_demos, eval_every=50, csv_path=csv_path),
+                 reset_num_timesteps=False)
+    with open(csv_path, newline="") as f:
+        rows = [(int(r["epoch"]), int(r["timesteps"])) for r in csv.DictReader(f)]
+    # SAC trains after every step, so an epoch is a step; the second learn() neither restarts at 0 nor
+    # evaluates step 100 again.
+    assert rows == [(0, 0), (50, 50), (100, 100), (150, 150), (200, 200)]
+
+
 def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_save_load(pendulum_demos, tmp_path):
     model = tiny_model(pendulum_demos, cmz_clip_quantile=0.9)
     model.learn(100)
@@ -356,6 +392,41 @@ def test_longest_episodes_checks_the_clone_every_k_steps_and_the_end_and_keeps_t
     selector.apply(model)
     assert all(th.equal(final[k], v) for k, v in model.policy.state_dict().items())
     selector.close()
+
+
+def test_a_saved_longest_episodes_choice_resumes_without_repeating_or_forgetting_a_check(tmp_path):
+    path = tmp_path / "selection.pt"
+    first, model = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7), _ConstantModel()
+    first.save(path)
+    assert not path.exists()  # no check, no choice to keep
+    first.init_callback(model)
+    for steps, w in [(0, 3), (10, 25), (20, 5)]:
+        model.num_timesteps = steps
+        with th.no_grad():
+            model.policy.w.fill_(w)
+        first.on_step()
+    first.save(path)
+
+    # A resumed run: the model comes back at step 20 with its last weights (w = 5).
+    second = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7)
+    assert second.load(path)
+    assert second.history == [(0, 3.0), (10, 20.0), (20, 5.0)] and second.env_steps == 2 * (3 + 20 + 5)
+    assert (second.best_timesteps, second.best_length) == (10, 20.0)
+    second.init_callback(model)
+    second.on_training_start({}, {})  # the check at step 20 was made before the checkpoint
+    model.num_timesteps = 30
+    second.on_step()
+    assert [steps for steps, _ in second.history] == [0, 10, 20, 30]
+    second.apply(model)
+    assert model.policy.w.item() == 25.0
+
+
+def test_a_damaged_longest_episodes_file_is_named_and_a_missing_one_is_no_choice(tmp_path):
+    selector = LongestEpisodesPolicy(_FallsAfterW())
+    assert not selector.load(tmp_path / "none.pt")
+    (tmp_path / "bad.pt").write_bytes(b"not a torch file")
+    with pytest.raises(UserError, match=r"bad.pt is truncated or not a longest-episodes policy file"):
+        selector.load(tmp_path / "bad.pt")
 
 
 @pytest.mark.parametrize(
