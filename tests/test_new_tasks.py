@@ -147,7 +147,7 @@ def test_episode_lengths_by_hand(tmp_path):
     for trial, lengths in enumerate([[100 + 10 * i for i in range(12)], [300] * 12]):
         run = write_run(tmp_path / "runs", "cmz", trial, [1.0], env=ENV, final={"final": [5.0, 5.0]})
         (run / "logs").mkdir()
-        rows = ["time/iterations,rollout/ep_len_mean"] + [f"{i},{n}" for i, n in enumerate(lengths)]
+        rows = ["time/total_timesteps,rollout/ep_len_mean"] + [f"{i},{n}" for i, n in enumerate(lengths)]
         (run / "logs" / "progress_0.csv").write_text("\n".join(rows) + "\n")
     write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0, 5.0]})
     table = studies.RolloutTable("rollout/ep_len_mean", "length", (ENV,), "runs", final_column="length")
@@ -158,10 +158,22 @@ def test_episode_lengths_by_hand(tmp_path):
     assert next(line for line in text.splitlines() if line.startswith("| BC")).split(" | ")[2:4] == ["—", "—"]
 
 
+def test_a_resumed_runs_rollout_ends_come_from_every_segment(tmp_path):
+    # Segment 0 logged steps 1-12 (u = 1 each), then the run resumed from its checkpoint at step 8:
+    # steps 9-12 of segment 0 are replaced by segment 8's steps 9-20 (u = 3). The first ten steps hold
+    # eight 1s and two 3s; the last ten, 3s only.
+    (tmp_path / "logs").mkdir()
+    header = "time/total_timesteps,rollout/disagreement_mean"
+    (tmp_path / "logs" / "progress_0.csv").write_text("\n".join([header] + [f"{t},1" for t in range(1, 13)]) + "\n")
+    (tmp_path / "logs" / "progress_8.csv").write_text("\n".join([header] + [f"{t},3" for t in range(9, 21)]) + "\n")
+    first, last = studies.rollout_edges(tmp_path, "rollout/disagreement_mean")
+    assert (first, last) == (pytest.approx((8 * 1 + 2 * 3) / 10), 3.0)
+
+
 def test_a_rollout_only_table_leaves_out_methods_without_rollouts(tmp_path):
     run = write_run(tmp_path / "runs", "dril", 0, [1.0], env=ENV, final={"final": [5.0]})
     (run / "logs").mkdir()
-    (run / "logs" / "progress_0.csv").write_text("rollout/disagreement_mean\n0.5\n0.25\n")
+    (run / "logs" / "progress_0.csv").write_text("time/total_timesteps,rollout/disagreement_mean\n1,0.5\n2,0.25\n")
     write_run(tmp_path / "runs", "bc", 0, [1.0], env=ENV, final={"final": [5.0]})
     table = studies.RolloutTable("rollout/disagreement_mean", "u", (ENV,), "runs")
     lines = [line for line in studies.rollout_markdown(tmp_path, [], (table,)).splitlines() if line.startswith("| ")]

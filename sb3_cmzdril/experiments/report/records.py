@@ -129,6 +129,23 @@ def read_final_eval(path: PathLike) -> dict[str, dict[str, np.ndarray]]:
     return result
 
 
+def progress_rows(run_dir: Path) -> list[dict[str, str]]:
+    """A run's SB3 progress CSVs (one per segment, ``logs/progress_<start step>.csv``) joined in step
+    order; a resumed segment replaces the rows its predecessor logged after the checkpoint it resumed
+    from. [] without logs."""
+    segments = []
+    for path in (run_dir / "logs").glob("progress_*.csv"):
+        suffix = path.stem.split("_")[-1]
+        if suffix.isdigit():
+            segments.append((int(suffix), path))
+    rows: list[dict[str, str]] = []
+    for start, path in sorted(segments):
+        rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
+        with open(path, newline="", encoding="utf-8") as f:
+            rows += [row for row in csv.DictReader(f) if row.get("time/total_timesteps")]
+    return rows
+
+
 def run_identity(folder: Path) -> tuple[tuple[str, str, int], dict[str, Any]] | str:
     """``((env, method, trial), config)`` from the folder's config.json, or why it names no run
     the report knows (no or a corrupt config.json, an unknown method, no trial seed)."""

@@ -14,7 +14,6 @@ is appended from ``docs/new_tasks_discussion.md`` when it exists.
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 from datetime import datetime, timezone
@@ -31,6 +30,7 @@ from sb3_cmzdril.experiments.report.records import (
     RunRecord,
     Skipped,
     load_runs,
+    progress_rows,
     relative,
 )
 
@@ -100,12 +100,8 @@ EDGE_EPOCHS = 10
 
 def rollout_edges(run: Path, key: str) -> tuple[float, float]:
     """Mean of a logged rollout quantity over the first and the last :data:`EDGE_EPOCHS` epochs of a
-    run; NaN when its progress log has none."""
-    logs = sorted((run / "logs").glob("progress*.csv"))
-    if not logs:
-        return math.nan, math.nan
-    with open(logs[0], newline="", encoding="utf-8") as f:
-        values = [float(r[key]) for r in csv.DictReader(f) if r.get(key)]
+    run (every segment of a resumed one); NaN when its progress log has none."""
+    values = [float(r[key]) for r in progress_rows(run) if r.get(key)]
     if not values:
         return math.nan, math.nan
     first, last = values[:EDGE_EPOCHS], values[-EDGE_EPOCHS:]

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments.report.records import RunRecord, group
+from sb3_cmzdril.experiments.report.records import RunRecord, group, progress_rows
 from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW, window_means
 from sb3_cmzdril.io import PathLike
 
@@ -166,19 +166,8 @@ SIGNAL_EPOCHS = 10
 
 
 def _progress_log(record: RunRecord) -> dict[str, np.ndarray]:
-    """The run's SB3 progress CSVs (one per segment, ``progress_<start step>.csv``) joined in step
-    order; a resumed segment replaces the rows its predecessor logged after the checkpoint it
-    resumed from. {} without logs."""
-    segments = []
-    for path in (record.path / "logs").glob("progress_*.csv"):
-        suffix = path.stem.split("_")[-1]
-        if suffix.isdigit():
-            segments.append((int(suffix), path))
-    rows: list[dict[str, str]] = []
-    for start, path in sorted(segments):
-        rows = [row for row in rows if float(row["time/total_timesteps"]) <= start]
-        with open(path, newline="", encoding="utf-8") as f:
-            rows += [row for row in csv.DictReader(f) if row.get("time/total_timesteps")]
+    """The :data:`SIGNAL_COLUMNS` of the run's progress logs, every segment joined; {} without logs."""
+    rows = progress_rows(record.path)
     columns: dict[str, np.ndarray] = {}
     for key, column in SIGNAL_COLUMNS:
         values = [float(row[column]) if row.get(column) else np.nan for row in rows]
