@@ -102,6 +102,8 @@ class CMZDRILSAC(SAC):
 
     SAC's arguments (``learning_rate`` ... ``device``) mean what they mean for
     :class:`stable_baselines3.SAC`; the defaults are SAC's except ``ent_coef`` (below).
+    ``optimize_memory_usage`` must stay False and ``n_steps`` 1: the replay buffer that mixes in the
+    demonstrations keeps next observations apart and samples one-step transitions.
     The imitation arguments mean what they mean for :class:`~sb3_cmzdril.algorithm.CMZDRIL`:
 
     :param demonstrations: a :class:`~sb3_cmzdril.demos.Demonstrations`, a path to a saved one, or a
@@ -186,6 +188,8 @@ class CMZDRILSAC(SAC):
         action_noise: ActionNoise | None = None,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
         ent_coef: str | float = "auto_0.01",
         target_update_interval: int = 1,
         target_entropy: str | float = "auto",
@@ -215,6 +219,12 @@ class CMZDRILSAC(SAC):
             raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
         if not 0.0 <= demo_fraction < 1.0:
             raise UserError(f"demo_fraction must lie in [0, 1), got {demo_fraction}")
+        if optimize_memory_usage:
+            raise UserError("optimize_memory_usage=True is not supported: the demo-mixing replay buffer keeps each "
+                            "next observation apart; leave it False")
+        if n_steps != 1:
+            raise UserError(f"n_steps must be 1, got {n_steps!r}: the demo-mixing replay buffer samples one-step "
+                            "transitions (SB3's n-step returns need its NStepReplayBuffer)")
         if replay_buffer_class is None:
             replay_buffer_class = DemoReplayBuffer
         elif not (isinstance(replay_buffer_class, type) and issubclass(replay_buffer_class, DemoReplayBuffer)):
@@ -528,6 +538,10 @@ class CMZDRILSAC(SAC):
         logs: dict[str, list[float]] = {"ent_coef": [], "actor_loss": [], "critic_loss": [], "bc_loss": []}
         for step in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            if self.use_sde:
+                # New exploration weights each step: the last ones hang on a graph of log_std that the
+                # previous actor step has freed (and log_std has moved since).
+                self.actor.reset_noise()
             actions_pi, log_prob = self.actor.action_log_prob(data.observations)
             log_prob = log_prob.reshape(-1, 1)
 
