@@ -51,7 +51,9 @@ class DemoTransitions:
         obs = np.asarray(demos.observations, dtype=np.float32)
         self.observations = obs[rows]
         self.next_observations = obs[rows + 1]
-        self.actions = np.clip(scale_action(demos.actions[rows]), -1.0, 1.0).astype(np.float32)
+        # Flat, as the buffer stores the actions of any Box shape.
+        actions = np.clip(scale_action(demos.actions[rows]), -1.0, 1.0).astype(np.float32)
+        self.actions = actions.reshape(len(rows), -1)
         rewards = demos.rewards if demos.rewards is not None else np.zeros(len(demos), np.float32)
         self.rewards = np.asarray(rewards, dtype=np.float32)[rows]
         #: whether the demos recorded the env's rewards (the true-reward rule needs them)
