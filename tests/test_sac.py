@@ -206,6 +206,45 @@ def test_the_clone_collects_from_the_first_step(pendulum_demos):
         np.testing.assert_allclose(buffer_action, model.policy.scale_action(expected), atol=1e-4)
 
 
+def test_gsde_draws_new_exploration_weights_for_every_gradient_step(pendulum_demos):
+    # As SAC does: the weights drawn for one step hang on a graph of log_std that its actor step frees.
+    model = tiny_model(pendulum_demos, use_sde=True, gradient_steps=2, learning_starts=20)
+    model.learn(60)
+    assert model._n_updates == 2 * 40
+
+
+class _MatrixActions(gym.Env):
+    """Actions are 2x2 matrices; the episode checks that each one arrives in its shape."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
+    action_space = gym.spaces.Box(-2.0, 2.0, (2, 2), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self.np_random.uniform(-1, 1, 3).astype(np.float32), {}
+
+    def step(self, action):
+        assert np.shape(action) == (2, 2)
+        self.t += 1
+        return self.np_random.uniform(-1, 1, 3).astype(np.float32), 0.0, False, self.t >= 20, {}
+
+
+def test_box_actions_of_any_shape_are_cloned_and_mixed_into_batches_flat():
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(-1, 1, (40, 3)).astype(np.float32)
+    actions = np.stack([np.outer(o[:2], [1.0, -1.0]) for o in obs]).astype(np.float32)  # a function of obs
+    demos = Demonstrations.from_episodes([{"observations": obs[:20], "actions": actions[:20]},
+                                          {"observations": obs[20:], "actions": actions[20:]}])
+    model = CMZDRILSAC("MlpPolicy", _MatrixActions(), demonstrations=demos,
+                       **{**TINY_CMZ_SAC, "bc_pretrain_epochs": 300, "learning_starts": 10})
+    model.pretrain()
+    cloned = model.predict(obs, deterministic=True)[0]
+    assert cloned.shape == (40, 2, 2) and np.abs(cloned - actions).mean() < 0.2 * np.abs(actions).mean()
+    model.learn(40)  # batches of the agent's flat actions and the demos' (2, 2) ones
+    assert model.replay_buffer.sample(16).actions.shape == (16, 4)
+
+
 def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demos, tmp_path):
     model = tiny_model(pendulum_demos)
     model.learn(200)
@@ -285,6 +324,8 @@ def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_sav
         (dict(replay_buffer_class=ReplayBuffer), "must be a DemoReplayBuffer"),
         (dict(alpha=0.0), "alpha must be > 0"),
         (dict(cmz_clip_quantile=1.5), r"cmz_clip_quantile must lie in \(0, 1\] or be None"),
+        (dict(optimize_memory_usage=True), "optimize_memory_usage=True is not supported"),
+        (dict(n_steps=3), "n_steps must be 1, got 3"),
     ],
 )
 def test_bad_options_are_refused_naming_them(pendulum_demos, kwargs, message):
