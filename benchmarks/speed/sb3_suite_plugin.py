@@ -1,10 +1,12 @@
 """The pytest plugin of benchmarks/speed/sb3_suite.py (``-p sb3_suite_plugin``): CMZDRIL stands in
-for SB3's PPO, and only SB3's PPO cases are kept.
+for SB3's PPO (or CMZDRILSAC for SAC, ``--sb3-algo sac``), and only SB3's cases of that algorithm
+are kept.
 
-Before SB3's test modules are imported it replaces ``stable_baselines3.PPO`` by a CMZDRIL on its
-defaults whose demonstrations are recorded from the model's own env with random actions (a few
-hundred steps). It keeps the cases parametrised with PPO and the unparametrised tests whose code uses
-PPO; those that differ from PPO by design (:data:`BY_DESIGN`) run only with ``--sb3-by-design``.
+Before SB3's test modules are imported it replaces ``stable_baselines3.PPO`` (``.SAC``) by a CMZDRIL
+(CMZDRILSAC) on its defaults whose demonstrations are recorded from the model's own env with random
+actions (a few hundred steps). It keeps the cases parametrised with the algorithm and the
+unparametrised tests whose code uses it and no other; those that differ by design (:data:`BY_DESIGN`)
+run only with ``--sb3-by-design``.
 """
 from __future__ import annotations
 
@@ -14,10 +16,14 @@ from typing import Any
 
 import numpy as np
 
-BY_DESIGN = ("test_gae.py", "test_identity.py", "test_tensorboard.py")
+#: per algorithm, the test files whose cases differ by design: returns or learning checked against the
+#: env's reward, which the imitation reward replaces (test_gae.py, test_identity.py), and the default
+#: run name, which is the class's (test_tensorboard.py)
+BY_DESIGN = {"ppo": ("test_gae.py", "test_identity.py", "test_tensorboard.py"),
+             "sac": ("test_identity.py", "test_tensorboard.py")}
 #: random-action steps recorded per model (split over the envs of a VecEnv)
 DEMO_STEPS = 256
-_OTHER_ALGOS = ("A2C", "DQN", "SAC", "TD3", "DDPG", "HER")
+_ALGOS = ("A2C", "DQN", "PPO", "SAC", "TD3", "DDPG", "HER")
 
 
 def _record_demos(venv: Any, n_steps: int = DEMO_STEPS) -> Any:
@@ -59,53 +65,61 @@ def _record_demos(venv: Any, n_steps: int = DEMO_STEPS) -> Any:
     return Demonstrations.from_episodes(episodes)
 
 
-def _make_stand_in() -> type:
-    from sb3_cmzdril import CMZDRIL
+def _make_stand_in(algo: str) -> type:
+    from sb3_cmzdril import CMZDRIL, CMZDRILSAC
 
-    class CMZDRILAsPPO(CMZDRIL):
-        """CMZDRIL with demonstrations recorded from its env when none are given."""
+    base = {"ppo": CMZDRIL, "sac": CMZDRILSAC}[algo]
+
+    class StandIn(base):  # type: ignore[valid-type,misc]
+        """The package's learner with demonstrations recorded from its env when none are given."""
 
         def __init__(self, policy: Any, env: Any, *args: Any, **kwargs: Any) -> None:
             super().__init__(policy, env, *args, **kwargs)
             if self.demonstrations is None and self.env is not None and kwargs.get("_init_setup_model", True):
                 self.demonstrations = _record_demos(self.env)
 
-    CMZDRILAsPPO.__name__ = CMZDRILAsPPO.__qualname__ = "PPO"
-    return CMZDRILAsPPO
+    StandIn.__name__ = StandIn.__qualname__ = algo.upper()
+    return StandIn
 
 
 def pytest_configure(config: Any) -> None:
+    import importlib
+
     import stable_baselines3
-    import stable_baselines3.ppo
 
-    stand_in = _make_stand_in()
-    stable_baselines3.PPO = stand_in  # type: ignore[misc]
-    stable_baselines3.ppo.PPO = stand_in  # type: ignore[misc]
+    algo = config.getoption("sb3_algo", "ppo")
+    stand_in = _make_stand_in(algo)
+    setattr(stable_baselines3, algo.upper(), stand_in)
+    setattr(importlib.import_module(f"stable_baselines3.{algo}"), algo.upper(), stand_in)
 
 
-def _is_ppo_case(item: Any) -> bool:
+def _is_case_of(item: Any, algo: str) -> bool:
+    others = tuple(a for a in _ALGOS if a != algo.upper())
     params = item.nodeid.partition("[")[2].rstrip("]")
-    if "ppo" in [p.lower() for p in params.split("-")]:  # [PPO], [True-PPO], test_tensorboard's [ppo]
+    if algo in [p.lower() for p in params.split("-")]:  # [PPO], [True-PPO], test_tensorboard's [ppo]
         return True
-    if any(algo in params for algo in _OTHER_ALGOS):
+    if any(other in params for other in others):
         return False
     try:
         source = inspect.getsource(item.function)
     except (OSError, TypeError):
         return False
-    return "PPO" in source and not any(algo in source for algo in _OTHER_ALGOS)
+    return algo.upper() in source and not any(other in source for other in others)
 
 
 def pytest_collection_modifyitems(session: Any, config: Any, items: list[Any]) -> None:
     by_design = config.getoption("sb3_by_design", False)
+    algo = config.getoption("sb3_algo", "ppo")
     keep, drop = [], []
     for item in items:
-        designed = Path(str(item.fspath)).name in BY_DESIGN
-        (keep if _is_ppo_case(item) and designed == by_design else drop).append(item)
+        designed = Path(str(item.fspath)).name in BY_DESIGN[algo]
+        (keep if _is_case_of(item, algo) and designed == by_design else drop).append(item)
     items[:] = keep
     config.hook.pytest_deselected(items=drop)
 
 
 def pytest_addoption(parser: Any) -> None:
     parser.addoption("--sb3-by-design", action="store_true", dest="sb3_by_design",
-                     help="run only the PPO cases that differ by design")
+                     help="run only the cases that differ by design")
+    parser.addoption("--sb3-algo", choices=sorted(BY_DESIGN), default="ppo", dest="sb3_algo",
+                     help="the algorithm whose cases run, with the package's learner in its place")
