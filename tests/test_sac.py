@@ -12,6 +12,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from helpers import TINY, TINY_SAC
@@ -243,6 +244,29 @@ def test_box_actions_of_any_shape_are_cloned_and_mixed_into_batches_flat():
     assert cloned.shape == (40, 2, 2) and np.abs(cloned - actions).mean() < 0.2 * np.abs(actions).mean()
     model.learn(40)  # batches of the agent's flat actions and the demos' (2, 2) ones
     assert model.replay_buffer.sample(16).actions.shape == (16, 4)
+
+
+class _BatchNormExtractor(BaseFeaturesExtractor):
+    """Flatten, then batch norm: its running statistics move whenever it runs in training mode."""
+
+    def __init__(self, observation_space: gym.spaces.Box) -> None:
+        super().__init__(observation_space, int(np.prod(observation_space.shape)))
+        self.norm = th.nn.BatchNorm1d(self.features_dim)
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return self.norm(th.flatten(observations, start_dim=1))
+
+
+def test_collecting_leaves_batch_norm_alone_after_the_clone(pendulum_demos):
+    model = tiny_model(pendulum_demos, gradient_steps=0, learning_starts=10,
+                       policy_kwargs=dict(net_arch=[16, 16], features_extractor_class=_BatchNormExtractor))
+    norm = model.actor.features_extractor.norm
+    before = norm.running_mean.clone()
+    model.pretrain()  # cloning trains the actor, batch norm included
+    cloned = norm.running_mean.clone()
+    assert not th.equal(before, cloned)
+    model.learn(100)  # collecting only: SAC takes no gradient step
+    assert th.equal(norm.running_mean, cloned)
 
 
 def test_save_and_load_keep_policy_ensemble_demos_and_reward_state(pendulum_demos, tmp_path):
