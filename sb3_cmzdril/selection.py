@@ -223,9 +223,10 @@ class LongestEpisodesPolicy(_KeptWeights):
         }
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
-        history = [(int(steps), float(length)) for steps, length in blob["history"].tolist()]
-        self.best_length, self.best_timesteps = float(blob["best_length"]), int(blob["best_timesteps"])
-        self.history, self.env_steps = history, int(blob["env_steps"])
+        # Everything is read before anything is set: a file that lacks a part changes nothing.
+        restored = ([(int(steps), float(length)) for steps, length in blob["history"].tolist()],
+                    float(blob["best_length"]), int(blob["best_timesteps"]), int(blob["env_steps"]))
+        self.history, self.best_length, self.best_timesteps, self.env_steps = restored
 
     def close(self) -> None:
         """Close the checks' env."""
