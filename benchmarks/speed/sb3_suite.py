@@ -6,9 +6,10 @@ CMZDRILSAC standing in for SAC): how much of a drop-in replacement each is.
 The argument is a checkout of the stable-baselines3 repository (only its ``tests/`` and
 ``pyproject.toml`` are used; nothing is fetched or modified). The command runs pytest there with the
 plugin beside this file (``sb3_suite_plugin.py``, ``-p sb3_suite_plugin``): before SB3's test
-modules are imported it replaces ``stable_baselines3.PPO`` by a CMZDRIL on its defaults whose
-demonstrations are recorded from the model's own env with random actions (a few hundred steps), and
-it keeps only the PPO cases: those parametrised with PPO, and unparametrised tests whose code uses PPO.
+modules are imported it replaces ``stable_baselines3.PPO`` (``.SAC``) by a CMZDRIL (CMZDRILSAC) on
+its defaults whose demonstrations are recorded from the model's own env with random actions (a few
+hundred steps), and it keeps only that algorithm's cases: those parametrised with it, and
+unparametrised tests whose code uses it and no other.
 
 Cases that differ by design are counted apart (``--by-design`` lists them; the README's
 "Spaces" paragraph says why): ``test_gae.py`` (it checks PPO's returns against the env reward, which

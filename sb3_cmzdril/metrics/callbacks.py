@@ -30,10 +30,10 @@ class ExpertEvalCallback(BaseCallback):
 
     *Epoch* = number of completed rollout+update cycles (PPO updates). For on-policy algorithms it
     is computed from ``num_timesteps // (n_steps * n_envs)``, and for off-policy ones that train every
-    ``train_freq`` steps (SAC, TD3...) from ``num_timesteps // (train_freq * n_envs)``, so it continues
-    across resumed runs (``learn(..., reset_num_timesteps=False)``). Epoch 0 (the policy before the first update, e.g.
-    the BC-pretrained one) is evaluated at the first rollout, then every ``eval_every`` epochs, and
-    the last epoch at the end of training if it was not already.
+    ``train_freq`` steps (SAC, TD3...) from ``num_timesteps // (train_freq * n_envs)``, so it
+    continues across resumed runs (``learn(..., reset_num_timesteps=False)``). Epoch 0 (the policy
+    before the first update, e.g. the BC-pretrained one) is evaluated at the first rollout, then
+    every ``eval_every`` epochs, and the last epoch at the end of training if it was not already.
 
     Each evaluation records SB3's EvalCallback keys ``eval/mean_reward``, ``eval/std_reward`` and
     ``eval/mean_ep_length`` (the true return; the same keys as the expert training's evaluation), plus
