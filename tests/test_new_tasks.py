@@ -269,3 +269,31 @@ def test_selection_table_puts_the_kept_policy_beside_the_last_weights_by_hand(tm
     empty = studies.Variant(ENV, "cmz", "none", "absent", "")
     assert "No finished runs yet." in studies.selection_markdown(tmp_path, [], (empty,))
     assert "## Keeping the policy" not in studies.render(tmp_path)
+
+
+def test_across_tasks_scores_each_method_on_its_own_folders_by_hand(tmp_path):
+    # "new" has trials 0-1 on two tasks, except trial 1 of the second; "bc" both trials on both.
+    tasks = ("Hopper-v5", ENV)
+    for trial in (0, 1):
+        for k, env in enumerate(tasks):
+            write_run(tmp_path / "grid", "bc", trial, [1.0], env=env, final={"final": [100.0 + k, 100.0 + k]})
+            if (k, trial) != (1, 1):
+                write_run(tmp_path / "new", "cmz", trial, [1.0], env=env, final={"final": [900.0, 900.0]})
+    study = studies.AcrossTasks(
+        "t", trials=(0, 1),
+        methods=(("new", "New learner", tuple(studies.Variant(env, "cmz", "x", "new", "") for env in tasks)),
+                 ("bc", "BC", tuple(studies.Variant(env, "bc", "x", "grid", "") for env in tasks))),
+        pairs=(("new", "bc"), ("bc", "new")), figure="across.png")
+    scores = studies.across_scores(study, tmp_path, [])
+    assert scores.tasks == {"new": ("Hopper-v5",), "bc": tasks}
+    assert scores.left_out == (f"{ENV} New learner: no finished trial 1",)
+    # write_run's expert: 1000 + 10 t + episode on episodes 0 and 1, so a mean of 1000.5 + 10 t.
+    np.testing.assert_allclose(scores.by_method["new"][:, 0], [900 / 1000.5, 900 / 1010.5])
+    np.testing.assert_allclose(scores.by_method["bc"][:, 1], [101 / 1000.5, 101 / 1010.5])
+    pytest.importorskip("rliable")
+    page = studies.across_markdown(tmp_path, [], tmp_path / "figures", (study,))
+    assert (tmp_path / "figures" / "across.png").is_file() and "](figures/across.png)" in page
+    # Every run of the new learner is above every BC run on the one task both have.
+    assert "| New learner | BC | 1.00 [1.00, 1.00] | Hopper-v5 |" in page
+    assert "| BC | New learner | 0.00 [0.00, 0.00] | Hopper-v5 |" in page
+    assert "`new` (New learner on Hopper-v5, Walker2d-v5)" in page

@@ -67,6 +67,8 @@ class Scores:
     tasks: dict[str, tuple[str, ...]]
     by_method: dict[str, np.ndarray]
     left_out: tuple[str, ...] = ()  #: (task, method)s not aggregated, each with the reason
+    #: how tables and figures name each method (a study may compare methods the grid does not have)
+    labels: dict[str, str] = dataclasses.field(default_factory=lambda: dict(METHOD_LABELS))
 
     def on(self, method: str, tasks: Sequence[str]) -> np.ndarray:
         """``method``'s (trials, len(tasks)) scores restricted to ``tasks``."""
@@ -190,8 +192,9 @@ class Aggregates:
 STATISTICS: tuple[str, ...] = ("IQM", "Mean", "Median")
 
 
-def aggregate(scores: Scores) -> Aggregates:
-    """Every aggregate of ``scores``: rliable's statistics (the ``experiments`` extra), bootstrapped."""
+def aggregate(scores: Scores, pairs: Sequence[tuple[str, str]] = IMPROVEMENT_PAIRS) -> Aggregates:
+    """Every aggregate of ``scores``: rliable's statistics (the ``experiments`` extra), bootstrapped, and the
+    probability of improvement of each (method, baseline) of ``pairs`` that both have tasks in common."""
     from sb3_cmzdril.extras import require_extra
 
     metrics = require_extra("rliable.metrics", "experiments", "the across-task aggregate (rliable)")
@@ -208,7 +211,7 @@ def aggregate(scores: Scores) -> Aggregates:
         summary[m] = {st: (float(point[i]), float(low[i]), float(high[i])) for i, st in enumerate(STATISTICS)}
         profiles[m] = stratified_bootstrap([matrix], profile, batch_profile)
     improvement = {}
-    for a, b in IMPROVEMENT_PAIRS:
+    for a, b in pairs:
         shared = scores.shared_tasks(a, b) if a in scores.tasks and b in scores.tasks else ()
         if shared:
             point, low, high = stratified_bootstrap(
@@ -222,8 +225,9 @@ def _pct(point: float, low: float, high: float) -> str:
     return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
 
 
-def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
-    """The report's "Across tasks" section: the method, the tables and the figure."""
+def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
+    """The report's "Across tasks" section: the method, the tables and the figure (``figure``: its link
+    from the page)."""
     s = agg.scores
     counts = sorted({len(t) for t in s.trials.values()})
     trials = " or ".join(str(n) for n in counts)
@@ -238,7 +242,7 @@ def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
         "",
         md_table(
             ["Method", "Tasks", *(f"{st}, % of expert [CI]" for st in STATISTICS)],
-            [[METHOD_LABELS[m], ", ".join(s.tasks[m]), *(_pct(*agg.summary[m][st]) for st in STATISTICS)]
+            [[s.labels[m], ", ".join(s.tasks[m]), *(_pct(*agg.summary[m][st]) for st in STATISTICS)]
              for m in s.by_method],
         ),
         "",
@@ -247,7 +251,7 @@ def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
         "",
         md_table(
             ["Method", "Over", "P(improvement) [CI]", "Tasks"],
-            [[METHOD_LABELS[a], METHOD_LABELS[b], f"{p:.2f} [{lo:.2f}, {hi:.2f}]", ", ".join(tasks)]
+            [[s.labels[a], s.labels[b], f"{p:.2f} [{lo:.2f}, {hi:.2f}]", ", ".join(tasks)]
              for (a, b), (p, lo, hi, tasks) in agg.improvement.items()],
         ),
         "",
@@ -258,7 +262,7 @@ def aggregate_markdown(agg: Aggregates, figure: Path | None = None) -> str:
             "fraction of the expert, with its bootstrap band; a curve above another is better everywhere. Right: "
             "the IQM with its interval.",
             "",
-            f"![Across tasks]({figure.name})",
+            f"![Across tasks]({figure})",
             "",
         ]
     return "\n".join(parts)
@@ -282,8 +286,8 @@ def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
     methods = list(agg.scores.by_method)
     most = max(len(agg.scores.tasks[m]) for m in methods)
     # A method on fewer tasks than the others is not comparable at a glance: its label says so.
-    names = {m: METHOD_LABELS[m] + ("" if len(agg.scores.tasks[m]) == most else f" ({len(agg.scores.tasks[m])} tasks)")
-             for m in methods}
+    tasks = {m: len(agg.scores.tasks[m]) for m in methods}
+    names = {m: agg.scores.labels[m] + ("" if tasks[m] == most else f" ({tasks[m]} tasks)") for m in methods}
     for m in methods:
         profile, low, high = agg.profiles[m]
         left.plot(100 * PROFILE_TAUS, profile, label=names[m], color=COLORS.get(m))
@@ -310,5 +314,5 @@ def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = Tru
     agg = aggregate(scores)
     out = Path(out)
     atomic_write_text(out / CSV, aggregate_csv(agg))
-    figure = plot_aggregate(agg, out / FIGURE) if figures else None
+    figure = plot_aggregate(agg, out / FIGURE).name if figures else None
     return aggregate_markdown(agg, figure)

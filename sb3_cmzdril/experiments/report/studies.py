@@ -21,6 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_cmzdril.experiments.report.aggregate import (
+    Scores,
+    aggregate,
+    aggregate_markdown,
+    normalised_score,
+    plot_aggregate,
+)
 from sb3_cmzdril.experiments.report.figures import COLORS, SMOOTHING_SIGMA, new_figure, save_png, smoothed_band
 from sb3_cmzdril.experiments.report.final_eval import FinalRow, expert_by_env, final_table, find, mean_ci
 from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
@@ -88,6 +95,19 @@ class CostCurves:
     title: str
     figure: str  #: file name of the figure under docs/figures
     variants: tuple[Variant, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class AcrossTasks:
+    """Methods compared across tasks with rliable's aggregates (:mod:`.aggregate`) on the same trials:
+    each method is a key, its label and one variant (runs folder) per task."""
+
+    title: str
+    trials: tuple[int, ...]
+    methods: tuple[tuple[str, str, tuple[Variant, ...]], ...]
+    pairs: tuple[tuple[str, str], ...]  #: (method, baseline) keys for the probability of improvement
+    figure: str  #: file name of the figure under docs/figures
+    intro: str = ""  #: what the comparison is for, before its tables
 
 
 #: points of the common CPU-time axis the runs' curves are interpolated onto
@@ -527,6 +547,64 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
     return "\n\n".join(parts)
 
 
+def across_scores(study: AcrossTasks, root: Path, skipped: list[Skipped]) -> Scores | None:
+    """The normalised final scores (:func:`.aggregate.normalised_score`) of each method on the study's
+    trials; a task where a method lacks one of them is left out of that method with a note."""
+    tasks: dict[str, list[str]] = {}
+    columns: dict[str, list[list[float]]] = {}
+    left_out = []
+    for key, label, variants in study.methods:
+        for variant in variants:
+            row = variant_rows(dataclasses.replace(variant, trials=study.trials), root, skipped)["final"]
+            by_trial = {} if row is None else {run.trial: normalised_score(run.final["final"]) for run in row.runs}
+            missing = [t for t in study.trials if t not in by_trial]
+            if missing:
+                left_out.append(f"{variant.env} {label}: no finished trial {', '.join(map(str, missing))}")
+                continue
+            values = [by_trial[t] for t in study.trials]
+            if not np.isfinite(values).all():
+                left_out.append(f"{variant.env} {label}: no positive expert mean")
+                continue
+            tasks.setdefault(key, []).append(variant.env)
+            columns.setdefault(key, []).append(values)
+    if not columns:
+        return None
+    keys = [key for key, _, _ in study.methods if key in columns]
+    return Scores(
+        trials={k: study.trials for k in keys},
+        tasks={k: tuple(tasks[k]) for k in keys},
+        by_method={k: np.asarray(columns[k], dtype=np.float64).T for k in keys},
+        left_out=tuple(left_out),
+        labels={key: label for key, label, _ in study.methods},
+    )
+
+
+def across_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
+                    studies: tuple[AcrossTasks, ...] = ()) -> str:
+    """Per study: its aggregates (IQM, mean, median, probability of improvement), the performance
+    profiles' figure in ``figures`` (none without it), and the runs each method's tasks came from."""
+    parts = []
+    for study in studies:
+        text = [f"### {study.title}", *([study.intro] if study.intro else [])]
+        scores = across_scores(study, root, skipped)
+        if scores is None:
+            parts.append("\n\n".join([*text, "No finished runs yet."]))
+            continue
+        result = aggregate(scores, study.pairs)
+        if figures is not None:
+            plot_aggregate(result, figures / study.figure)
+        section = aggregate_markdown(result, None if figures is None else f"figures/{study.figure}")
+        folders: dict[tuple[str, str], tuple[dict[str, None], dict[str, None]]] = {}
+        for _, label, variants in study.methods:
+            for v in variants:
+                labels, envs = folders.setdefault((v.runs, v.made_by), ({}, {}))
+                labels[label], envs[v.env] = None, None
+        runs = [f"`{folder}` ({', '.join(labels)} on {', '.join(envs)})" + (f", made by `{made_by}`" if made_by else "")
+                for (folder, made_by), (labels, envs) in folders.items()]
+        parts.append("\n\n".join([*text, section.strip(), "Runs: " + "; ".join(runs) + "."]))
+    return "\n\n".join(parts)
+
+
 def render(
     root: Path,
     ablations: tuple[Variant, ...] = (),
@@ -537,17 +615,20 @@ def render(
     grid: tuple[str, ...] = (GRID,),
     cost_curves: tuple[CostCurves, ...] = (),
     selections: tuple[Variant, ...] = (),
+    across: tuple[AcrossTasks, ...] = (),
 ) -> str:
     """The page's text (docs/new_tasks.md), from the runs below ``root``; the sweeps' figures go to
     ``figures`` (none are drawn without it). ``command`` is what the page says wrote it; ``grid``
     the published grid every ablation is paired with (then folders adding trials it lacks);
     ``cost_curves`` the variants drawn against CPU time; ``selections`` the variants whose runs
-    chose their final policy reward-free (:func:`selection_markdown`)."""
+    chose their final policy reward-free (:func:`selection_markdown`); ``across`` the comparisons
+    across tasks (:func:`across_markdown`)."""
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations, grid)
     cost = cost_markdown(root, skipped, figures, cost_curves, grid)
     kept = selection_markdown(root, skipped, selections)
+    across_tables = across_markdown(root, skipped, figures, across)
     rollout_tables = rollout_markdown(root, skipped, rollouts)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = [
@@ -577,6 +658,7 @@ def render(
            "whose episodes lasted longest, the latest on a tie: a choice that reads termination, never reward. "
            "The kept policy is the run's final policy in the ablation tables; here it is beside the last "
            "weights of the same runs, both on every held-out episode.", kept] if selections else []),
+        *(["## Across tasks", across_tables] if across else []),
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
         "ended in a fall, and a reward that favours staying alive lengthens it. u: the ensemble's disagreement "
@@ -594,6 +676,7 @@ def render(
 
 
 __all__ = [
+    "AcrossTasks",
     "COST_GRID_POINTS",
     "CostCurves",
     "EDGE_EPOCHS",
@@ -602,6 +685,8 @@ __all__ = [
     "Sweep",
     "Variant",
     "ablation_markdown",
+    "across_markdown",
+    "across_scores",
     "cost_band",
     "cost_markdown",
     "cpu_and_steps",
