@@ -44,6 +44,9 @@ SAC_DRIL_LABEL = "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state,
 SAC_CLIP_LABEL = ("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: "
                   "0.98`), and the absorbing state, 20 CPU-minutes per run")
 CLIP_ABS_LONGEST = CLIP_ABS + " --select longest"
+CLONE = "--max-timesteps 0"
+CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
+               "the demo's actions), no SAC step (`--max-timesteps 0`)")
 SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (`--select longest`, reward-free), "
                      "20 CPU-minutes per run")
 
@@ -104,6 +107,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_DRIL_LABEL, "W-sac-64-dril-abs", DRIL_ABS),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
+    *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -115,16 +119,19 @@ ABLATIONS: tuple[Variant, ...] = (
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
+    *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5", firsts=(0,)),
+    *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5", firsts=(0,)),
+    *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
 )
 
 
@@ -172,19 +179,26 @@ ACROSS: tuple[AcrossTasks, ...] = (
             ("sac", "CMZDRILSAC", tuple(
                 Variant(env, "cmz", "CMZDRILSAC", f"results/offpolicy/{name}", offpolicy_command(name, env, sets))
                 for env, name, sets in OFFPOLICY_RUNS)),
+            ("clone", "CMZDRILSAC's clone", tuple(
+                Variant(env, "cmz", "clone", f"results/offpolicy/{prefix}-sac-64-clone",
+                        offpolicy_command(f"{prefix}-sac-64-clone", env, CLONE))
+                for env, prefix in zip(MUJOCO, ("HC", "H", "W", "S"), strict=True))),
             *((method, label, tuple(Variant(env, method, label, GRID, GRID_MADE_BY) for env in MUJOCO))
               for method, label in (("cmz", "CMZ-DRIL"), ("dril", "DRIL"), ("bc", "BC"),
                                     ("env", "Env. reward (PPO, 300k steps)"))),
         ),
-        pairs=(("sac", "bc"), ("sac", "dril"), ("sac", "cmz"), ("sac", "env"), ("cmz", "bc")),
+        pairs=(("sac", "bc"), ("sac", "dril"), ("sac", "cmz"), ("sac", "env"), ("sac", "clone"), ("clone", "bc"),
+               ("cmz", "bc")),
         figure="new_tasks_across_offpolicy.png",
         intro=("The off-policy learner (CMZDRILSAC: the CMZ reward with u clipped at its 0.98-quantile on the "
                "demos, the absorbing state, 64x64 networks, the policy whose episodes last longest kept; 20 "
                "CPU-minutes per run) beside the published grid's methods (300k PPO steps, package defaults) on "
                "the tasks whose observations it takes, with the same trials, demo and held-out episodes. "
                "HalfCheetah-v5's runs keep the last weights, which is what the choice keeps on a task whose "
-               "episodes all last 1,000 steps. WaypointNav-v0 (Dict observations) is left to CMZDRIL, and the "
-               "off-policy learner has no LunarLander runs, so this is no six-task aggregate."),
+               "episodes all last 1,000 steps. CMZDRILSAC's clone is its actor before any SAC step: what the SAC "
+               "phase starts from, beside the grid's BC (the PPO policy's clone). WaypointNav-v0 (Dict "
+               "observations) is left to CMZDRIL, and the off-policy learner has no LunarLander runs, so this is "
+               "no six-task aggregate."),
     ),
 )
 
