@@ -65,3 +65,21 @@ def test_a_checkpoint_of_other_settings_is_not_resumed(offpolicy, tmp_path, monk
     interrupted_at(150, offpolicy, tmp_path, monkeypatch)
     with pytest.raises(UserError, match="holds a checkpoint of a run with other settings"):
         run(offpolicy, tmp_path, batch_size=64)
+
+
+def test_no_steps_evaluates_the_clone_the_runs_start_from(offpolicy, tmp_path):
+    done = offpolicy.run_trial("t", "Hopper-v5", 0, 60.0, 100, SMALL, tmp_path, "cmd", "longest", 0)
+    assert done is not None and done["num_timesteps"] == 0 and done["segments"] == [0]
+    assert done["selection"]["kept_timesteps"] == 0 and [c[0] for c in done["selection"]["checks"]] == [0]
+    folder = tmp_path / "t" / "Hopper-v5" / "cmz" / "trial0"
+    rows = (folder / "eval.csv").read_text().splitlines()[1:]
+    assert [int(line.split(",")[1]) for line in rows] == [0]
+    # The clone is both the kept policy and the last weights.
+    assert done["final_evaluation"]["final"] == done["final_evaluation"]["last"]
+
+
+def test_a_negative_step_cap_is_refused_in_one_line(offpolicy, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        offpolicy.main(["x", "--max-timesteps", "-1"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith("--max-timesteps must be 0 or more, got -1")

@@ -240,9 +240,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--select", choices=("last", "longest"), default="last",
                         help="the run's final policy: the last weights, or the reward-free longest-episodes choice")
     parser.add_argument("--max-timesteps", type=int, default=None,
-                        help="also stop at this many steps, if the CPU budget lasts that long")
+                        help="also stop at this many steps, if the CPU budget lasts that long (0: evaluate the "
+                             "clone, the actor after pretraining, with no SAC step)")
     parser.add_argument("-o", "--output", default=str(ROOT / "results" / "offpolicy"))
     args = parser.parse_args(argv)
+    if args.max_timesteps is not None and args.max_timesteps < 0:
+        parser.error(f"--max-timesteps must be 0 or more, got {args.max_timesteps}")
     th.set_num_threads(1)  # two runs side by side on two cores, as the grid runs
     command = "python benchmarks/studies/offpolicy.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     kwargs = parse_sets(args.set)
