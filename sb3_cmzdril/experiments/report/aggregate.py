@@ -284,21 +284,25 @@ def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
     fig = new_figure(11.0, 4.0)
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})
     methods = list(agg.scores.by_method)
+    # The grid's methods keep their colours; a study's other learners take colours none of them uses.
+    spare = iter(c for c in ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "black")
+                 if c not in COLORS.values())
+    colors = {m: COLORS[m] if m in COLORS else next(spare, None) for m in methods}
     most = max(len(agg.scores.tasks[m]) for m in methods)
     # A method on fewer tasks than the others is not comparable at a glance: its label says so.
     tasks = {m: len(agg.scores.tasks[m]) for m in methods}
     names = {m: agg.scores.labels[m] + ("" if tasks[m] == most else f" ({tasks[m]} tasks)") for m in methods}
     for m in methods:
         profile, low, high = agg.profiles[m]
-        left.plot(100 * PROFILE_TAUS, profile, label=names[m], color=COLORS.get(m))
-        left.fill_between(100 * PROFILE_TAUS, low, high, color=COLORS.get(m), alpha=0.2)
+        left.plot(100 * PROFILE_TAUS, profile, label=names[m], color=colors[m])
+        left.fill_between(100 * PROFILE_TAUS, low, high, color=colors[m], alpha=0.2)
     left.set_xlabel("normalised score τ (% of expert)")
     left.set_ylabel("share of runs with score > τ")
     left.set_ylim(0, 1.02)
     left.legend(loc="lower left", fontsize=8)
     for y, m in enumerate(methods):
         iqm, iqm_low, iqm_high = agg.summary[m]["IQM"]
-        right.barh(y, 100 * (iqm_high - iqm_low), left=100 * iqm_low, height=0.6, alpha=0.4, color=COLORS.get(m))
+        right.barh(y, 100 * (iqm_high - iqm_low), left=100 * iqm_low, height=0.6, alpha=0.4, color=colors[m])
         right.plot([100 * iqm] * 2, [y - 0.3, y + 0.3], color="black")
     right.set_yticks(range(len(methods)), [names[m] for m in methods])
     right.set_xlabel("IQM, % of expert (95% CI)")
