@@ -10,7 +10,9 @@ and trial by trial), the lowest-u policy's, the Table I window's return, the CPU
 (where its records kept them), and in how many shared
 trials the final policy beats the env's reference variant (the first listed). The numbers come from
 the runs' final_eval.csv and done.json (:mod:`.final_eval`, :mod:`.records`); a hand-written reading
-is appended from ``docs/new_tasks_discussion.md`` when it exists.
+is appended from ``docs/new_tasks_discussion.md`` when it exists. :class:`AcrossTasks` compares
+learners over several tasks at once, with the report's rliable aggregates (:mod:`.aggregate`), so
+a learner outside the grid (the off-policy one) meets the grid's methods on one scale.
 """
 from __future__ import annotations
 
