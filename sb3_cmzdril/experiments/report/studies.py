@@ -165,13 +165,19 @@ def rollout_markdown(root: Path, skipped: list[Skipped], tables: tuple[RolloutTa
     return "\n\n".join(parts)
 
 
-def variant_rows(variant: Variant, root: Path, skipped: list[Skipped]) -> dict[str, FinalRow | None]:
-    """The variant's final and lowest-u rows (None where its folder has no such finished runs)."""
+def variant_rows(variant: Variant, root: Path, skipped: list[Skipped],
+                 loaded: dict[Path, list[FinalRow]] | None = None) -> dict[str, FinalRow | None]:
+    """The variant's final and lowest-u rows (None where its folder has no such finished runs);
+    ``loaded`` keeps each folder's rows for the next variant of the same folder."""
     folder = root / variant.runs
     if not folder.is_dir():
         skipped.append(Skipped(folder, "no such runs folder"))
         return {"final": None, "lowest_u": None}
-    rows = final_table(load_runs(folder, skipped))
+    rows = None if loaded is None else loaded.get(folder)
+    if rows is None:
+        rows = final_table(load_runs(folder, skipped))
+        if loaded is not None:
+            loaded[folder] = rows
     found = {policy: find(rows, variant.env, variant.method, policy) for policy in ("final", "lowest_u")}
     if variant.trials is None:
         return found
@@ -555,9 +561,10 @@ def across_scores(study: AcrossTasks, root: Path, skipped: list[Skipped]) -> Sco
     tasks: dict[str, list[str]] = {}
     columns: dict[str, list[list[float]]] = {}
     left_out = []
+    loaded: dict[Path, list[FinalRow]] = {}  # the grid's folder serves every grid method on every task
     for key, label, variants in study.methods:
         for variant in variants:
-            row = variant_rows(dataclasses.replace(variant, trials=study.trials), root, skipped)["final"]
+            row = variant_rows(dataclasses.replace(variant, trials=study.trials), root, skipped, loaded)["final"]
             by_trial = {} if row is None else {run.trial: normalised_score(run.final["final"]) for run in row.runs}
             missing = [t for t in study.trials if t not in by_trial]
             if missing:
