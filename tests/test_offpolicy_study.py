@@ -83,3 +83,14 @@ def test_a_negative_step_cap_is_refused_in_one_line(offpolicy, capsys):
         offpolicy.main(["x", "--max-timesteps", "-1"])
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.splitlines()[-1].endswith("--max-timesteps must be 0 or more, got -1")
+
+
+def test_the_yaml_entry_gives_the_env_its_kwargs_and_the_run_its_demos(offpolicy, tmp_path):
+    # A hopper that is never healthy: every held-out episode ends at its first step.
+    yaml = tmp_path / "outside.yml"
+    yaml.write_text("Hopper-v5:\n  env_kwargs: dict(healthy_z_range=(10.0, 20.0))\n  n_demos: 2\n")
+    done = offpolicy.run_trial("t", "Hopper-v5", 0, 60.0, 100, SMALL, tmp_path, "cmd", "last", 0, hyperparams=yaml)
+    assert done is not None and done["final_evaluation"]["final"]["length_mean"] == 1
+    config = json.loads((tmp_path / "t" / "Hopper-v5" / "cmz" / "trial0" / "config.json").read_text())
+    assert config["env_kwargs"] == {"healthy_z_range": [10.0, 20.0]}
+    assert len(config["train_episodes"]) == 2 and config["demos"] == "experts/Hopper-v5/demos.npz"

@@ -22,6 +22,13 @@ done.json with ``cpu_time_s``), so ``benchmarks/studies/new_tasks.py`` pairs the
 with the grid's rows. ``--set`` values (parsed as YAML) go to the constructor; ``net_arch`` goes
 into ``policy_kwargs``.
 
+An env outside the grid takes the demo pool and YAML entry (``env_kwargs``, ``n_demos``) its grid
+runs used, as ``plan_run`` takes them::
+
+    python benchmarks/studies/offpolicy.py LL-sac-64-clip98-auto --env LunarLander-v3 --trials 0 \
+        --demos results/outside_env/LunarLander-v3/demos.npz --hyperparams benchmarks/studies/outside_env.yml \
+        --set 'net_arch=[64,64]' --set cmz_clip_quantile=0.98 --set absorbing=auto
+
 A finished trial is skipped. Every ``--eval-every`` steps a run keeps a checkpoint in its folder's
 ``checkpoint/`` (the model, its replay buffer, the longest-episodes choice so far; removed when the
 run is done), and the same command resumes an interrupted run from it, as a grid run resumes: the
@@ -122,6 +129,12 @@ class Checkpoint(BaseCallback):
         return True
 
 
+def _shown(path: Path) -> str:
+    """A path as config.json keeps it: relative to the repository when inside it, so records move with it."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def _start_afresh(folder: Path) -> None:
     """Remove what an attempt without a checkpoint left: its rows must not precede the new ones."""
     for stale in (EVAL_CSV, DISCARDED_CSV, STATE_FILE):
@@ -132,21 +145,29 @@ def _start_afresh(folder: Path) -> None:
 
 def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every: int, kwargs: dict[str, Any],
               out_root: Path, command: str, select: str = "last",
-              max_timesteps: int | None = None) -> dict[str, Any] | None:
-    """Train (or resume) and evaluate one trial; its done.json summary (None: it was finished already)."""
+              max_timesteps: int | None = None, demos: Path | None = None,
+              hyperparams: Path | None = None) -> dict[str, Any] | None:
+    """Train (or resume) and evaluate one trial; its done.json summary (None: it was finished already).
+
+    ``demos`` and ``hyperparams`` are the grid's (``plan_run``'s) pool and YAML: from the YAML entry
+    the run takes the env's ``env_kwargs`` and ``n_demos``, nothing else (the constructor's
+    arguments are ``kwargs``)."""
     folder = out_root / name / env_name(env_id) / "cmz" / f"trial{trial}"
     if (folder / DONE_FILE).is_file():
         print(f"{folder}: finished already, skipped")
         return None
     # The grid's split of this trial: the same training episode and held-out episodes as its runs.
-    run = resolve_run(plan_run(env_id, "cmz", trial, timesteps=1, output_dir=folder), check=False)
+    run = resolve_run(plan_run(env_id, "cmz", trial, timesteps=1, output_dir=folder, demos=demos,
+                               hyperparams=hyperparams), check=False)
+    env_kwargs = dict(run.hp.env_kwargs or {})
     kwargs = dict(kwargs)
     net_arch = kwargs.pop("net_arch", None)
     if net_arch is not None:
         kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), "net_arch": net_arch}
     config = {
         "env_id": env_id, "env_name": env_name(env_id), "method": "cmz", "reward": kwargs.get("reward", "cmz"),
-        "algorithm": "CMZDRILSAC", "seed": trial, "demos": str(Path(run.spec.demos).relative_to(ROOT)),
+        "algorithm": "CMZDRILSAC", "seed": trial, "demos": _shown(Path(run.spec.demos)),
+        **({"env_kwargs": env_kwargs} if env_kwargs else {}),
         "train_episodes": list(run.train_idx), "eval_episodes": list(run.eval_idx), "n_demos": len(run.train_idx),
         "cpu_minutes": cpu_minutes, "eval_every_steps": eval_every, "model_kwargs": kwargs, "select": select,
         **({} if max_timesteps is None else {"max_timesteps": max_timesteps}),
@@ -162,7 +183,7 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
         folder.mkdir(parents=True, exist_ok=True)
         _start_afresh(folder)
         write_json(folder / CONFIG_FILE, {**config, "command": command})
-    env = Monitor(gym.make(env_id))
+    env = Monitor(gym.make(env_id, **env_kwargs))
     if resuming:
         model = CMZDRILSAC.load(checkpoint / MODEL_FILE, env=env, device="cpu")
         model.load_replay_buffer(checkpoint / REPLAY_FILE)
@@ -177,7 +198,7 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     start = int(model.num_timesteps)
     state = RunState(folder, dataclasses.replace(run.spec, command=command), start)
     eval_cb = ExpertEvalCallback(env_id, run.pool.select(run.eval_idx), eval_every=eval_every,
-                                 csv_path=folder / EVAL_CSV)
+                                 csv_path=folder / EVAL_CSV, env_kwargs=env_kwargs)
     # What the agent does in training (episode length, u on its own states, the losses), as a grid run
     # keeps it: one CSV per segment, named by the step it starts from.
     (folder / "logs").mkdir(exist_ok=True)
@@ -186,7 +207,7 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     selector = None
     if select == "longest":
         selector = LongestEpisodesPolicy(env_id, check_every=eval_every, n_episodes=SELECT_EPISODES,
-                                         seed=SELECT_SEED + 100 * trial)
+                                         seed=SELECT_SEED + 100 * trial, env_kwargs=env_kwargs)
         if resuming and not selector.load(checkpoint / SELECTION_FILE):
             raise UserError(f"{checkpoint} has no {SELECTION_FILE}: it is not a --select longest run's checkpoint")
         callbacks.append(selector)
@@ -198,7 +219,8 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     held_out = run.held_out
 
     def held_out_evaluation() -> Any:
-        return evaluate_against_expert(model, env_id, run.pool.select(held_out), start_mismatch="ignore")
+        return evaluate_against_expert(model, env_id, run.pool.select(held_out), env_kwargs=env_kwargs,
+                                       start_mismatch="ignore")
 
     evaluations = {}
     if selector is not None:
@@ -242,6 +264,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-timesteps", type=int, default=None,
                         help="also stop at this many steps, if the CPU budget lasts that long (0: evaluate the "
                              "clone, the actor after pretraining, with no SAC step)")
+    parser.add_argument("--demos", type=Path, default=None,
+                        help="the demo pool (default: the grid's, experts/<EnvName>/demos.npz)")
+    parser.add_argument("--hyperparams", type=Path, default=None,
+                        help="zoo-format YAML whose entry for --env gives env_kwargs and n_demos (default: the "
+                             "grid's hyperparams/cmzdril.yml), e.g. benchmarks/studies/outside_env.yml")
     parser.add_argument("-o", "--output", default=str(ROOT / "results" / "offpolicy"))
     args = parser.parse_args(argv)
     if args.max_timesteps is not None and args.max_timesteps < 0:
@@ -252,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for trial in args.trials:
             run_trial(args.name, args.env, trial, args.cpu_minutes, args.eval_every, kwargs, Path(args.output),
-                      command, args.select, args.max_timesteps)
+                      command, args.select, args.max_timesteps, args.demos, args.hyperparams)
     except UserError as e:
         print(f"offpolicy.py: {e}", file=sys.stderr)
         return 2
