@@ -191,6 +191,12 @@ def grid_variants(method: str, label: str, envs: tuple[str, ...]) -> tuple[Varia
                  else Variant(env, method, label, GRID, GRID_MADE_BY) for env in envs)
 
 
+def offpolicy_variants(envs: tuple[str, ...]) -> tuple[Variant, ...]:
+    """The off-policy learner's runs on ``envs``."""
+    return tuple(Variant(env, "cmz", "CMZDRILSAC", f"results/offpolicy/{name}", offpolicy_command(name, env, sets))
+                 for env, name, sets in (*OFFPOLICY_RUNS, *OFFPOLICY_ENDING_RUNS) if env in envs)
+
+
 SIX_TASKS = (*MUJOCO, "WaypointNav-v0", "LunarLander-v3")
 #: the tasks where the grid's BC stays under 90% of the expert
 BC_UNDER_90 = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "WaypointNav-v0")
@@ -199,9 +205,7 @@ ACROSS: tuple[AcrossTasks, ...] = (
         "CMZDRILSAC against the grid's methods on the four MuJoCo tasks, trials 0-4",
         trials=(0, 1, 2, 3, 4),
         methods=(
-            ("sac", "CMZDRILSAC", tuple(
-                Variant(env, "cmz", "CMZDRILSAC", f"results/offpolicy/{name}", offpolicy_command(name, env, sets))
-                for env, name, sets in OFFPOLICY_RUNS)),
+            ("sac", "CMZDRILSAC", offpolicy_variants(MUJOCO)),
             ("clone", "CMZDRILSAC's clone", tuple(
                 Variant(env, "cmz", "clone", f"results/offpolicy/{prefix}-sac-64-clone",
                         offpolicy_command(f"{prefix}-sac-64-clone", env, CLONE))
@@ -216,7 +220,7 @@ ACROSS: tuple[AcrossTasks, ...] = (
         intro=("The off-policy learner (CMZDRILSAC: the CMZ reward with u clipped at its 0.98-quantile on the "
                "demos, the absorbing state, 64x64 networks, the policy whose episodes last longest kept; 20 "
                "CPU-minutes per run) beside the published grid's methods (300k PPO steps, package defaults) on "
-               "the tasks whose observations it takes, with the same trials, demo and held-out episodes. "
+               "the four MuJoCo tasks, with the same trials, demo and held-out episodes. "
                "HalfCheetah-v5's runs keep the last weights, which is what the choice keeps on a task whose "
                "episodes all last 1,000 steps. CMZDRILSAC's clone is its actor before any SAC step: what the SAC "
                "phase starts from, beside the grid's BC (the PPO policy's clone). The six tasks of the report's "
@@ -226,9 +230,7 @@ ACROSS: tuple[AcrossTasks, ...] = (
         "CMZDRILSAC against the grid's methods on the report's six tasks, trials 0-4",
         trials=(0, 1, 2, 3, 4),
         methods=(
-            ("sac", "CMZDRILSAC", tuple(
-                Variant(env, "cmz", "CMZDRILSAC", f"results/offpolicy/{name}", offpolicy_command(name, env, sets))
-                for env, name, sets in (*OFFPOLICY_RUNS, *OFFPOLICY_ENDING_RUNS))),
+            ("sac", "CMZDRILSAC", offpolicy_variants(SIX_TASKS)),
             *((method, label, grid_variants(method, label, envs))
               for method, label, envs in (("cmz", "CMZ-DRIL", SIX_TASKS), ("dril", "DRIL", SIX_TASKS[:-1]),
                                           ("bc", "BC", SIX_TASKS), ("zero", "No reward", SIX_TASKS),
@@ -243,8 +245,8 @@ ACROSS: tuple[AcrossTasks, ...] = (
                "steps and the choice would keep the last weights, which its runs keep), neither where the "
                "expert ends its episodes (WaypointNav-v0 reaches its goals, LunarLander-v3 lands; `absorbing: "
                "auto` turns the state off there by the same test, and the runs keep the last weights). "
-               "LunarLander-v3 trains on 3 demonstrations and WaypointNav-v0 on the grid's, as their grid runs "
-               "do, with the same trials and held-out episodes. LunarLander-v3 has no DRIL or env-reward runs "
+               "LunarLander-v3 trains on 3 demonstrations and WaypointNav-v0 on 5, as their grid runs do, "
+               " with the same trials and held-out episodes. LunarLander-v3 has no DRIL or env-reward runs "
                "(its study, `benchmarks/studies/outside_env.py`, ran BC, CMZ-DRIL and no reward), so those two "
                "methods count on five tasks."),
     ),
@@ -252,9 +254,7 @@ ACROSS: tuple[AcrossTasks, ...] = (
         "Over BC on the four tasks where BC stays under 90% of the expert, trials 0-4",
         trials=(0, 1, 2, 3, 4),
         methods=(
-            ("sac", "CMZDRILSAC", tuple(
-                Variant(env, "cmz", "CMZDRILSAC", f"results/offpolicy/{name}", offpolicy_command(name, env, sets))
-                for env, name, sets in (*OFFPOLICY_RUNS, *OFFPOLICY_ENDING_RUNS) if env in BC_UNDER_90)),
+            ("sac", "CMZDRILSAC", offpolicy_variants(BC_UNDER_90)),
             *((method, label, grid_variants(method, label, BC_UNDER_90))
               for method, label in (("cmz", "CMZ-DRIL"), ("bc", "BC"))),
         ),
