@@ -246,7 +246,7 @@ ACROSS: tuple[AcrossTasks, ...] = (
                "expert ends its episodes (WaypointNav-v0 reaches its goals, LunarLander-v3 lands; `absorbing: "
                "auto` turns the state off there by the same test, and the runs keep the last weights). "
                "LunarLander-v3 trains on 3 demonstrations and WaypointNav-v0 on 5, as their grid runs do, "
-               " with the same trials and held-out episodes. LunarLander-v3 has no DRIL or env-reward runs "
+               "on the same trials and held-out episodes. LunarLander-v3 has no DRIL or env-reward runs "
                "(its study, `benchmarks/studies/outside_env.py`, ran BC, CMZ-DRIL and no reward), so those two "
                "methods count on five tasks."),
     ),
