@@ -28,8 +28,9 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 
-#: (raw observations, buffer actions (scaled to [-1, 1]), env rewards, terminated) -> rewards, all (batch,)
-Relabel = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+#: (raw observations, buffer actions (scaled to [-1, 1]), env rewards, terminated, raw next observations)
+#: -> rewards, all (batch,)
+Relabel = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 class DemoTransitions:
@@ -115,7 +116,7 @@ class DemoReplayBuffer(ReplayBuffer):
             env_rewards = np.concatenate([env_rewards, self.demos.rewards[rows]])
             terminated = np.concatenate([terminated, np.zeros(n_demo, terminated.dtype)])
         if self.relabel is not None:
-            rewards = np.asarray(self.relabel(obs, actions, env_rewards, terminated.astype(bool)), np.float32)
+            rewards = np.asarray(self.relabel(obs, actions, env_rewards, terminated.astype(bool), next_obs), np.float32)
         else:
             rewards = self._normalize_reward(env_rewards, env)
         # Flat Box observations only (set_demonstrations' DemoTransitions refuse dicts): arrays.

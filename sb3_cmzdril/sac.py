@@ -12,7 +12,8 @@ as the off-policy imitation learners do it (SQIL, Reddy et al. 2020; DAC, Kostri
 3. Every SAC batch holds ``demo_fraction`` demonstration transitions; every sampled transition,
    the agent's and the expert's, gets its reward from the rule at sampling time
    (:class:`~sb3_cmzdril.demo_replay.DemoReplayBuffer`). A true termination (never a time limit) can be
-   scored as entering an absorbing state, as in CMZDRIL.
+   scored as entering an absorbing state, as in CMZDRIL: at the highest u seen, or at the u of the
+   observation the episode ended in (``absorbing_score``).
 4. The actor's loss is SAC's with Q divided by the batch's mean |Q| (at least 1) and multiplied by
    ``q_weight``, plus ``bc_weight`` times the BC loss of a demo minibatch: TD3+BC's form (Fujimoto
    and Gu 2021), which keeps the two terms on one scale whatever the reward's. BC as separate optimiser steps (DRIL's
@@ -142,6 +143,13 @@ class CMZDRILSAC(SAC):
     :param absorbing: score a true termination as entering an absorbing state at the highest u seen
         so far (``True``, ``False`` or ``"auto"``: the ``"cmz"`` reward, where every demonstration
         lasts the env's time limit), as :class:`~sb3_cmzdril.algorithm.CMZDRIL` does.
+    :param absorbing_score: the absorbing state's disagreement: ``"highest"``, the highest u seen so
+        far (every termination as bad as the worst state met); ``"terminal"``, the ensemble's u at the
+        observation the episode ended in (for the actor's action there where the disagreement needs
+        actions), so that ending as the expert ends (a landing, a goal reached) stays worth what the
+        state it ends in is worth, and a crash what staying in the crashed state would be. Where the
+        expert ends its episodes, ``"highest"`` makes every ending, the expert's own included, the
+        worst outcome, and no absorbing state makes it free under the mean-zero reward.
     :param ent_coef: SAC's entropy coefficient; ``"auto_0.01"`` by default (learnt, from 0.01)
         rather than SAC's ``"auto"`` (from 1.0), which spreads a cloned actor's actions before the
         critic has learnt anything.
@@ -177,6 +185,7 @@ class CMZDRILSAC(SAC):
         bc_learning_rate: float = 1e-3,
         log_std_init: float | None = -1.0,
         absorbing: bool | str = False,
+        absorbing_score: str = "highest",
         learning_rate: float | Schedule = 3e-4,
         buffer_size: int = 1_000_000,
         learning_starts: int = 100,
@@ -215,6 +224,8 @@ class CMZDRILSAC(SAC):
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
             cmz_clip_quantile,
         )
+        if absorbing_score not in ("highest", "terminal"):
+            raise UserError(f"absorbing_score must be 'highest' or 'terminal', got {absorbing_score!r}")
         if not (bc_weight >= 0 and q_weight > 0):
             raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
         if not 0.0 <= demo_fraction < 1.0:
@@ -260,6 +271,7 @@ class CMZDRILSAC(SAC):
         self.bc_learning_rate = float(bc_learning_rate)
         self.log_std_init = None if log_std_init is None else float(log_std_init)
         self.absorbing = absorbing
+        self.absorbing_score = absorbing_score
         #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
         self.absorbing_active = False
         #: the policy is pretrained and the ensemble fitted: ``learn()`` goes straight to SAC
@@ -514,7 +526,8 @@ class CMZDRILSAC(SAC):
         return self.ensemble.disagreement(obs, actions)
 
     def _replay_rewards(
-        self, obs: np.ndarray, buffer_actions: np.ndarray, env_rewards: np.ndarray, terminated: np.ndarray
+        self, obs: np.ndarray, buffer_actions: np.ndarray, env_rewards: np.ndarray, terminated: np.ndarray,
+        next_obs: np.ndarray,
     ) -> np.ndarray:
         """The reward of each sampled transition (the agent's and the expert's), from the rule now."""
         assert self.reward_rule is not None
@@ -524,8 +537,20 @@ class CMZDRILSAC(SAC):
         rewards = self.reward_rule.replayed(u, env_rewards)
         if self.absorbing_active:
             seen = np.full(u.shape, self.absorbing_u)
+            if self.absorbing_score == "terminal" and terminated.any():
+                seen[terminated] = self._terminal_disagreement(next_obs[terminated])
             rewards = with_absorbing_state(self.reward_rule, rewards, u, terminated, seen, self.gamma)
         return rewards
+
+    def _terminal_disagreement(self, raw_obs: np.ndarray) -> np.ndarray:
+        """The ensemble's u at the observations episodes ended in; where it needs actions, at the
+        actor's deterministic ones there (no action was taken in them)."""
+        actions = None
+        if self.ensemble.needs_actions:
+            normalize = self._vec_normalize_env
+            policy_obs = raw_obs if normalize is None else normalize.normalize_obs(raw_obs)
+            actions, _ = self.policy.predict(policy_obs, deterministic=True)
+        return self.ensemble.disagreement(raw_obs, actions)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update (temperature, twin critics, actor, target critics), with the actor's loss

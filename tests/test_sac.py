@@ -101,8 +101,8 @@ def test_buffer_mixes_the_demo_share_into_each_batch_and_relabels_raw_transition
     buffer = _buffer()
     seen = {}
 
-    def relabel(obs, actions, env_rewards, terminated):
-        seen.update(obs=obs, terminated=terminated, env_rewards=env_rewards)
+    def relabel(obs, actions, env_rewards, terminated, next_obs):
+        seen.update(obs=obs, terminated=terminated, env_rewards=env_rewards, next_obs=next_obs)
         return obs[:, 0] * 10.0
 
     demos = DemoTransitions(_two_episodes(), lambda a: a / 2.0)
@@ -113,6 +113,7 @@ def test_buffer_mixes_the_demo_share_into_each_batch_and_relabels_raw_transition
     demo_rows = seen["obs"][6:]  # the last round(0.25 * 8) = 2 rows are the expert's
     assert all(row.tolist() in demos.observations.tolist() for row in demo_rows)
     assert all(row[0] == row[1] and row[0] < 6 for row in seen["obs"][:6])  # the agent's stored steps
+    np.testing.assert_array_equal(seen["next_obs"][:6], seen["obs"][:6] + 1)  # raw, each its own step's
     np.testing.assert_allclose(batch.rewards[:, 0].numpy(), seen["obs"][:, 0] * 10.0)
     # Step 3 terminated, step 4 was cut by the time limit: only the termination is a done.
     agent = seen["obs"][:6, 0]
@@ -187,11 +188,32 @@ def test_replayed_rewards_of_terminations_carry_the_absorbing_value(pendulum_dem
     obs = pendulum_demos.observations[:2]
     actions = np.zeros((2, 1), np.float32)
     u = model.ensemble.disagreement(obs)
-    rewards = model._replay_rewards(obs, actions, np.zeros(2), np.array([False, True]))
+    rewards = model._replay_rewards(obs, actions, np.zeros(2), np.array([False, True]), obs)
     plain = rule.replayed(u, np.zeros(2))
     assert rewards[0] == pytest.approx(plain[0])
     # The terminating step also earns gamma / (1 - gamma) = 9 times the reward at the highest u seen.
     absorbing = -model.alpha * (model.absorbing_u - float(rule.get_state().mean()))
+    assert rewards[1] == pytest.approx(plain[1] + 9.0 * absorbing, rel=1e-5)
+
+
+@pytest.mark.parametrize("disagreement", ["std", "quadratic"])
+def test_a_termination_can_be_scored_at_the_u_of_the_state_it_ended_in(pendulum_demos, disagreement):
+    model = tiny_model(pendulum_demos, absorbing=True, absorbing_score="terminal", gamma=0.9,
+                       disagreement=disagreement)
+    model.learn(60)
+    rule = model.reward_rule
+    obs, ended_in = pendulum_demos.observations[:2], pendulum_demos.observations[5:7]
+    buffer_actions = np.array([[0.5], [-0.5]], np.float32)
+    rewards = model._replay_rewards(obs, buffer_actions, np.zeros(2), np.array([False, True]), ended_in)
+    actions = model.policy.unscale_action(buffer_actions)
+    u = model.ensemble.disagreement(obs, actions if model.ensemble.needs_actions else None)
+    plain = rule.replayed(u, np.zeros(2))
+    assert rewards[0] == pytest.approx(plain[0])  # no termination: the absorbing state plays no part
+    # The actor's action where the episode ended, for a disagreement that needs one.
+    there, _ = model.policy.predict(ended_in[1:], deterministic=True)
+    u_end = model.ensemble.disagreement(ended_in[1:], there if model.ensemble.needs_actions else None)[0]
+    assert u_end != pytest.approx(model.absorbing_u)  # the case differs from the highest-u rule's
+    absorbing = -model.alpha * (u_end - float(rule.get_state().mean()))
     assert rewards[1] == pytest.approx(plain[1] + 9.0 * absorbing, rel=1e-5)
 
 
@@ -343,6 +365,7 @@ def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_sav
         (dict(demo_fraction=1.0), "demo_fraction must lie in"),
         (dict(demo_fraction=float("nan")), "demo_fraction must be finite"),
         (dict(absorbing="yes"), "absorbing must be"),
+        (dict(absorbing_score="lowest"), "absorbing_score must be 'highest' or 'terminal', got 'lowest'"),
         (dict(bc_weight=-1.0), "bc_weight must be >= 0"),
         (dict(bc_pretrain_epochs=-1), "bc_pretrain_epochs must be >= 0"),
         (dict(replay_buffer_class=ReplayBuffer), "must be a DemoReplayBuffer"),
