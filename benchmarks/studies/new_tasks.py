@@ -30,7 +30,9 @@ COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: results/runs_bc_trials10`, whose trials 0-4 repeat the grid's exactly; DRIL by `sb3-cmzdril train --env
 #: Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 --hyperparams hyperparams/cmzdril.yml
 #: -o results/runs_dril_trials5-9/Walker2d-v5/dril/trialT` for T in 5-9)
-BASELINES = (GRID, "results/runs_bc_trials10", "results/runs_dril_trials5-9")
+OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
+OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
+BASELINES = (GRID, "results/runs_bc_trials10", "results/runs_dril_trials5-9", OUTSIDE)
 
 
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
@@ -44,6 +46,15 @@ SAC_DRIL_LABEL = "CMZDRILSAC with DRIL's reward (+1/-1) and the absorbing state,
 SAC_CLIP_LABEL = ("CMZDRILSAC with the CMZ reward, u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: "
                   "0.98`), and the absorbing state, 20 CPU-minutes per run")
 CLIP_ABS_LONGEST = CLIP_ABS + " --select longest"
+#: LunarLander-v3's pool and YAML entry (3 demonstrations, the continuous env), as its grid runs took them
+LUNAR_DATA = ("--demos results/outside_env/LunarLander-v3/demos.npz "
+              "--hyperparams benchmarks/studies/outside_env.yml")
+CLIP_AUTO = "--set cmz_clip_quantile=0.98 --set absorbing=auto"
+CLIP_TERMINAL = "--set cmz_clip_quantile=0.98 --set absorbing=true --set absorbing_score=terminal"
+SAC_AUTO_LABEL = ("CMZDRILSAC, u clipped at its 0.98-quantile, `absorbing: auto` (off: the expert ends its "
+                  "episodes), 20 CPU-minutes per run")
+SAC_TERMINAL_LABEL = ("CMZDRILSAC, u clipped at its 0.98-quantile, the absorbing state at the u of the observation "
+                      "the episode ended in (`absorbing_score: terminal`), 20 CPU-minutes per run")
 CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
@@ -132,6 +143,17 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5", firsts=(0,)),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
+    Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
+    Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
+            offpolicy_command("WN-sac-64-clip98-auto", "WaypointNav-v0", CLIP_AUTO)),
+    Variant("WaypointNav-v0", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/WN-sac-64-clip98-abs-terminal",
+            offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
+    Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
+            OUTSIDE, OUTSIDE_MADE_BY),
+    Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
+            offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
+    Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
+            offpolicy_command("LL-sac-64-clip98-abs-terminal", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_TERMINAL}")),
 )
 
 
@@ -171,18 +193,13 @@ OFFPOLICY_RUNS = (
     ("Walker2d-v5", "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     ("Swimmer-v5", "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
 )
-#: the two tasks whose expert ends its episodes (reaching the goal, landing): there the absorbing state
-#: (``absorbing=auto``) and the longest-episodes choice are both off, by the same test, and the runs keep
-#: the last weights
-OUTSIDE = "results/outside_env"
-LUNAR_DATA = ("--demos results/outside_env/LunarLander-v3/demos.npz "
-              "--hyperparams benchmarks/studies/outside_env.yml")
-CLIP_AUTO = "--set cmz_clip_quantile=0.98 --set absorbing=auto"
+#: the two tasks whose expert ends its episodes (reaching the goal, landing): the absorbing state at the u
+#: of the observation an episode ended in, and the last weights (the longest-episodes choice would keep
+#: the policy that ends latest, which is no aim there)
 OFFPOLICY_ENDING_RUNS = (
-    ("WaypointNav-v0", "WN-sac-64-clip98-auto", CLIP_AUTO),
-    ("LunarLander-v3", "LL-sac-64-clip98-auto", f"{LUNAR_DATA} {CLIP_AUTO}"),
+    ("WaypointNav-v0", "WN-sac-64-clip98-abs-terminal", CLIP_TERMINAL),
+    ("LunarLander-v3", "LL-sac-64-clip98-abs-terminal", f"{LUNAR_DATA} {CLIP_TERMINAL}"),
 )
-OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 
 
 def grid_variants(method: str, label: str, envs: tuple[str, ...]) -> tuple[Variant, ...]:
