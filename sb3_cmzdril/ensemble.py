@@ -29,6 +29,12 @@ Disagreement forms (``disagreement=``), per action space:
     bits (the probability of the agent's bit, ``p`` or ``1 - p``, has the same spread, so no actions
     are needed).
 
+* ``"std_unclipped"`` (Box only): the ``"std"`` form on the members' outputs as they are, not
+  clipped to the action bounds. Where the expert's actions often sit on a bound (LunarLander's
+  heuristic lander fires its main engine at full or not at all), members trained on those
+  clipped targets extrapolate past the bound off the expert's states, and clipped they agree
+  exactly: u is 0, the lowest there is, where they know least.
+
 * ``"quadratic"`` (DRIL's original form): Box: ``a^T Cov a`` with the agent's clipped action ``a``
   and the covariance across members of their predicted actions; the categorical and binary spaces
   use the variance across members of the same probabilities (the square of each component's "std"
@@ -63,7 +69,7 @@ from sb3_cmzdril.spaces import (
     take,
 )
 
-DISAGREEMENT_FORMS = ("std", "quadratic")
+DISAGREEMENT_FORMS = ("std", "quadratic", "std_unclipped")
 # Up to this batch size numpy (no dispatch overhead) is faster; above it torch's batched matmul
 # is (numpy's float32 matmul ran at ~1 GFLOP/s here: 40 ms per layer for 2048 observations,
 # against 2.5 ms for torch.bmm).
@@ -140,6 +146,9 @@ class BCEnsemble(nn.Module):
             raise UserError(f"an ensemble needs at least 2 members to disagree; got n_members={n_members}")
         if disagreement not in DISAGREEMENT_FORMS:
             raise UserError(f"disagreement must be one of {DISAGREEMENT_FORMS}, got {disagreement!r}")
+        if disagreement == "std_unclipped" and not isinstance(action_space, spaces.Box):
+            raise UserError(f"disagreement='std_unclipped' needs Box actions (it leaves the members' actions "
+                            f"unclipped), got {type(action_space).__name__}; use 'std'")
         hidden_sizes = tuple(int(h) for h in hidden_sizes)
         if any(h < 1 for h in hidden_sizes):
             raise UserError(f"hidden sizes must be positive, got {hidden_sizes}")
@@ -324,15 +333,16 @@ class BCEnsemble(nn.Module):
             }
         return self._np_cache
 
-    def member_outputs(self, obs: Observations) -> np.ndarray:
-        """Each member's output on a batch (or a single observation): (E, B, out_dim) clipped actions
-        (Box, flattened), probabilities of each component's actions (Discrete, MultiDiscrete) or of
-        each bit (MultiBinary). The returned array may be a reused buffer: copy it to keep it."""
+    def member_outputs(self, obs: Observations, clip: bool = True) -> np.ndarray:
+        """Each member's output on a batch (or a single observation): (E, B, out_dim) actions clipped
+        to the bounds (Box, flattened; as they are with ``clip=False``), probabilities of each
+        component's actions (Discrete, MultiDiscrete) or of each bit (MultiBinary). The returned
+        array may be a reused buffer: copy it to keep it."""
         p = self._numpy_params()
         batch = self.encoder.batch(obs)
         x = self.encoder.flat(batch)
         if len(x) > _NUMPY_MAX_BATCH or len(self.trunks):
-            return self._torch_outputs(x, self.encoder.images(batch))
+            return self._torch_outputs(x, self.encoder.images(batch), clip)
         bufs = p["bufs"].get(len(x))
         if bufs is None:
             sizes = [*self.hidden_sizes, self.out_dim]
@@ -363,12 +373,12 @@ class BCEnsemble(nn.Module):
             np.exp(h, out=h)
             np.add(h, 1.0, out=h)
             np.reciprocal(h, out=h)
-        else:
+        elif clip:
             np.minimum(h, p["high"], out=h)
             np.maximum(h, p["low"], out=h)
         return h
 
-    def _torch_outputs(self, x: np.ndarray, images: list[np.ndarray]) -> np.ndarray:
+    def _torch_outputs(self, x: np.ndarray, images: list[np.ndarray], clip: bool = True) -> np.ndarray:
         device = self.obs_mean.device
         chunks = []
         with th.inference_mode():
@@ -380,7 +390,7 @@ class BCEnsemble(nn.Module):
                     out = th.cat([th.softmax(seg, dim=2) for seg in th.split(out, self.segments, dim=2)], dim=2)
                 elif self.action_kind == "binary":
                     out = th.sigmoid(out)
-                else:
+                elif clip:
                     out = th.max(th.min(out, self.action_high), self.action_low)
                 chunks.append(out.cpu().numpy())
         return chunks[0] if len(chunks) == 1 else np.concatenate(chunks, axis=1)
@@ -407,7 +417,7 @@ class BCEnsemble(nn.Module):
     def disagreement(self, obs: Observations, actions: np.ndarray | None = None) -> np.ndarray:
         """Disagreement ``u`` for each observation, (B,) float64 (see the module docstring).
         ``actions`` are the space's own (Discrete/MultiDiscrete: with their ``start``)."""
-        out = self.member_outputs(obs)
+        out = self.member_outputs(obs, clip=self.disagreement_form != "std_unclipped")
         batch = out.shape[1]
         if self.action_kind == "categorical":
             return self._categorical_disagreement(out, actions)
@@ -417,7 +427,7 @@ class BCEnsemble(nn.Module):
         # Deviations from member 0 (a shifted variance): exactly 0 when the members agree, where
         # deviations from the float32 mean would leave rounding noise.
         dev = out[1:] - out[0]
-        if self.disagreement_form == "std":
+        if self.disagreement_form != "quadratic":
             mean_dev = np.add.reduce(dev, axis=0)
             mean_dev /= self.n_members
             var = np.add.reduce(dev * dev, axis=0)

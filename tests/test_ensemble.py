@@ -71,6 +71,28 @@ def test_disagreement_grows_away_from_the_demos(fitted, linear_demos):
     assert far > 5 * near
 
 
+NARROW = spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+@pytest.mark.parametrize("batch", [8, 100])  # numpy's path and torch's
+def test_members_past_a_bound_agree_when_clipped_and_not_unclipped(linear_demos, batch):
+    # An expert often on a bound (two thirds of these actions are): off its states, members extrapolate past it.
+    saturated = Demonstrations(linear_demos.observations, np.clip(3.0 * linear_demos.actions, -1.0, 1.0), [200, 200])
+    clipped, unclipped = (BCEnsemble(OBS, NARROW, 4, (16,), disagreement=form, seed=2).fit(saturated, n_epochs=20)
+                          for form in ("std", "std_unclipped"))
+    far = np.tile(np.array([[30.0, -30.0, 30.0]], np.float32), (batch, 1))
+    assert np.all(clipped.disagreement(far) == 0.0)  # every member on the same bound
+    raw = unclipped.member_outputs(far, clip=False).copy()
+    assert np.all(np.abs(raw) > 1.0)
+    np.testing.assert_allclose(unclipped.disagreement(far), raw.std(axis=0).mean(axis=1), rtol=1e-4)
+    assert np.all(unclipped.disagreement(far) > 0.1)
+
+
+def test_the_unclipped_form_needs_box_actions():
+    with pytest.raises(ValueError, match="disagreement='std_unclipped' needs Box actions"):
+        BCEnsemble(OBS, spaces.Discrete(3), disagreement="std_unclipped")
+
+
 def test_std_form_matches_numpy(fitted, linear_demos):
     obs = linear_demos.observations[:9]
     out = fitted.member_outputs(obs).copy()
