@@ -11,11 +11,17 @@ bootstrap ensemble) and measures the mean u
 * on the held-out expert episodes' observations (expert states the ensemble never saw),
 * along rollouts from the held-out episodes' reset seeds of: the pretrained policy sampling its
   actions (what PPO's first rollout sees), the same policy acting deterministically (the BC
-  baseline's evaluation), and the ensemble's mean action (the members' average, another BC policy),
+  baseline's evaluation), the ensemble's mean action (the members' average, another BC policy), and
+  uniformly random actions (states far from the expert's),
 
-with the true return of each rollout. The CMZ-DRIL reward can only guide the agent where u separates
-expert-like from other states: a rollout whose u stays near u's ceiling gets a reward that is
-noise around 0.
+with the true return of each rollout and the share of its steps where u is exactly 0: where every
+member's action, clipped to the action bounds, lands on the same bound in every dimension. The
+CMZ-DRIL reward can only guide the agent where u separates expert-like from other states: a rollout
+whose u stays near u's ceiling gets a reward that is noise around 0, and one where the members all
+extrapolate past a bound reads as the expert's own certainty.
+
+    python benchmarks/studies/disagreement_coverage.py --env LunarLander-v3 --trials 0,1,2 \
+        --hyperparams benchmarks/studies/outside_env.yml --demos-dir results/outside_env
 """
 from __future__ import annotations
 
@@ -35,9 +41,13 @@ from sb3_cmzdril.experiments.run.runs import (
     split_episodes,
 )
 
+#: per set of states: mean u, true return, episode length, share of steps with u exactly 0
+COLUMNS = ("u", "return", "length", "u = 0")
+
 
 def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement, seed: int) -> dict[str, float]:
-    """One episode from ``seed``: its true return, length and mean u of the observations acted on."""
+    """One episode from ``seed``: its true return, length, mean u of the observations acted on and the
+    share of them with u exactly 0."""
     obs, _ = env.reset(seed=seed)
     total, us, done = 0.0, [], False
     while not done:
@@ -45,7 +55,8 @@ def rollout(env: gym.Env, act: Callable[[np.ndarray], np.ndarray], disagreement,
         obs, reward, terminated, truncated, _ = env.step(act(obs))
         total += float(reward)
         done = terminated or truncated
-    return {"return": total, "length": float(len(us)), "u": float(np.mean(us))}
+    u = np.asarray(us)
+    return {"return": total, "length": float(len(u)), "u": float(u.mean()), "u = 0": float(np.mean(u == 0.0))}
 
 
 def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> dict[str, dict[str, float]]:
@@ -64,17 +75,20 @@ def measure(env_id: str, trial: int, hyperparams: str, demos_dir: str) -> dict[s
         "policy, sampled": lambda o: np.clip(model.predict(o, deterministic=False)[0], low, high),
         "policy, deterministic (BC)": lambda o: np.clip(model.predict(o, deterministic=True)[0], low, high),
         "ensemble mean action": lambda o: ens.predict(o[None])[0],
+        "random actions": lambda o: env.action_space.sample(),
     }
+    env.action_space.seed(trial)
+    on_train, on_held_out = ens.disagreement(train.observations), ens.disagreement(held_out.observations)
     out: dict[str, dict[str, float]] = {
-        "training demo": {"u": float(ens.disagreement(train.observations).mean())},
+        "training demo": {"u": float(on_train.mean()), "u = 0": float(np.mean(on_train == 0.0))},
         "held-out expert episodes": {
-            "u": float(ens.disagreement(held_out.observations).mean()),
+            "u": float(on_held_out.mean()), "u = 0": float(np.mean(on_held_out == 0.0)),
             "return": float(np.mean(held_out.episode_returns)) if held_out.episode_returns is not None else np.nan,
         },
     }
     for name, act in policies.items():
         episodes = [rollout(env, act, ens.disagreement, int(seed)) for seed in held_out.seeds]
-        out[name] = {k: float(np.mean([e[k] for e in episodes])) for k in ("u", "return", "length")}
+        out[name] = {k: float(np.mean([e[k] for e in episodes])) for k in COLUMNS}
     env.close()
     return out
 
@@ -92,11 +106,12 @@ def main() -> None:
             measure(env_id, int(t), args.hyperparams, args.demos_dir) for t in args.trials.split(",")
         ]
         print(f"\n{env_id} (trials {args.trials}; mean over trials of each trial's mean over its 5 held-out seeds)")
-        print(f"{'states':30s} {'mean u':>8s} {'return':>9s} {'length':>7s}")
+        print(f"{'states':30s} {'mean u':>8s} {'return':>9s} {'length':>7s} {'u = 0':>6s}")
         for name in results[0]:
-            row = {k: np.mean([r[name].get(k, np.nan) for r in results]) for k in ("u", "return", "length")}
+            row = {k: np.mean([r[name].get(k, np.nan) for r in results]) for k in COLUMNS}
             cells = [f"{row['u']:8.3f}"] + [("" if np.isnan(row[k]) else f"{row[k]:.1f}").rjust(w)
                                             for k, w in (("return", 9), ("length", 7))]
+            cells.append(f"{row['u = 0']:6.0%}")
             print(f"{name:30s} " + " ".join(cells))
 
 
