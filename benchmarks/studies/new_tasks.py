@@ -180,7 +180,6 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
       for name, variant in ((f"{prefix}-sac-64-clip98-auto", "no absorbing state"),
                             (f"{prefix}-sac-64-clip98-abs-terminal", "absorbing state at the terminal observation's u"),
                             (f"{prefix}-sac-64-clip98-abs-terminal-unclipped", "the same, u on unclipped actions"))
-      if (ROOT / "results" / "offpolicy" / name).is_dir()
       for key, what in (("rollout/disagreement_mean", "u on the agent's own states"),
                         ("rollout/ep_len_mean", "episode length"))),
 )

@@ -56,6 +56,7 @@ from stable_baselines3.common.monitor import Monitor
 from tune import parse_sets  # the sibling script's (its folder is on sys.path when this one runs)
 
 from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.experiments.report.records import relative
 from sb3_cmzdril.experiments.run.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
@@ -129,12 +130,6 @@ class Checkpoint(BaseCallback):
         return True
 
 
-def _shown(path: Path) -> str:
-    """A path as config.json keeps it: relative to the repository when inside it, so records move with it."""
-    path = path.resolve()
-    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
-
-
 def _start_afresh(folder: Path) -> None:
     """Remove what an attempt without a checkpoint left: its rows must not precede the new ones."""
     for stale in (EVAL_CSV, DISCARDED_CSV, STATE_FILE):
@@ -166,7 +161,7 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
         kwargs["policy_kwargs"] = {**kwargs.get("policy_kwargs", {}), "net_arch": net_arch}
     config = {
         "env_id": env_id, "env_name": env_name(env_id), "method": "cmz", "reward": kwargs.get("reward", "cmz"),
-        "algorithm": "CMZDRILSAC", "seed": trial, "demos": _shown(Path(run.spec.demos)),
+        "algorithm": "CMZDRILSAC", "seed": trial, "demos": relative(Path(run.spec.demos).resolve(), ROOT),
         **({"env_kwargs": env_kwargs} if env_kwargs else {}),
         "train_episodes": list(run.train_idx), "eval_episodes": list(run.eval_idx), "n_demos": len(run.train_idx),
         "cpu_minutes": cpu_minutes, "eval_every_steps": eval_every, "model_kwargs": kwargs, "select": select,
