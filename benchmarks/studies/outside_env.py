@@ -1,4 +1,5 @@
-"""BC, CMZ-DRIL and no reward on one env outside the paper's grid, with an expert nobody here wrote.
+"""BC, CMZ-DRIL, DRIL, no reward and the env's reward on one env outside the paper's grid, with an expert
+nobody here wrote.
 
 The env is gymnasium's LunarLanderContinuous (``LunarLander-v3`` with ``continuous=True``: 8
 observations, 2 continuous engine actions); the expert is gymnasium's own heuristic controller
@@ -7,7 +8,7 @@ demonstration policy), run deterministically. So neither the env nor the expert 
 by this project, and the claim "CMZ-DRIL improves on BC" is tested outside WaypointNav-v0,
 HalfCheetah-v5 and Hopper-v5.
 
-    python benchmarks/studies/outside_env.py                  # 5 trials x (bc, cmz, zero), 200k steps, 2 workers
+    python benchmarks/studies/outside_env.py                  # 5 trials x (bc, cmz, zero, dril, env), 200k steps, 2 workers
     python benchmarks/studies/outside_env.py --trials 1 --timesteps 4096 --pool-episodes 10 -o /tmp/outside_env
                                                       # a smoke test (a few minutes)
     python benchmarks/studies/outside_env.py --report-only    # rewrite results.md/results.csv from the finished runs
@@ -18,8 +19,8 @@ wheel and ``pygame-ce``, both with manylinux wheels; no swig).
 How long: the smoke test above took 3.1 min of wall time with 1 worker and 4.5 min with 2, while
 another benchmark's two trainings and test suites loaded the machine's 2 cores. One CMZ-DRIL or
 no-reward run then stepped 108-436 env steps per wall second (SB3's time/fps, one torch thread), and
-BC pretraining to convergence took 30-79 s. At that load the full run (10 PPO runs of 200k steps, 5
-BC runs, 2 workers) needs about 40 min to 2.7 hours; on an idle machine a fraction of that (the raw
+BC pretraining to convergence took 30-79 s. At that load the first three methods (10 PPO runs of 200k steps,
+5 BC runs, 2 workers) needs about 40 min to 2.7 hours; on an idle machine a fraction of that (the raw
 env stepped 4,000 steps per CPU second; HalfCheetah-v5 stepped 3,200 at the same time against 14,600
 on an idle core, where PPO on it ran ~1,660 steps/s).
 Each run's wall time is in the "Runs" table of results.md (from its done.json).
@@ -30,8 +31,8 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
    registered as the scripted expert ``lunar-heuristic``): ``--pool-episodes`` deterministic episodes,
    episode ``i`` reset with seed ``--pool-seed + i``; provenance in the NAME.json beside it. An
    existing pool is kept if it is the one asked for (same expert, episodes and seeds);
-2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``
-   and ``zero`` x trials 0..T-1 with the hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's
+2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``,
+   ``zero``, ``dril`` and ``env`` (the RL ceiling: PPO on the env's reward) x trials 0..T-1 with the hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's
    constructor defaults, PPO's defaults): trial t trains on ``--n-demos`` pool episodes drawn with
    ``default_rng(t)``, every method of a trial from the same data, seeds and BC start. Finished runs
    are skipped, interrupted ones continue from their checkpoints. Each run ends with the final
@@ -39,8 +40,8 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
 3. writes ``OUTPUT/results.md`` and ``OUTPUT/results.csv`` with the report's own tables
    (:mod:`sb3_cmzdril.experiments.report.final_eval`): per method, the mean over trials of the final
    evaluation (return, Fréchet distance, action MSE) with a 95% bootstrap confidence interval, also
-   for the reward-free lowest-disagreement policy; trial by trial, CMZ-DRIL and no reward against BC
-   and CMZ-DRIL against no reward; the share of episodes with return >= 200 (gymnasium's "solved"
+   for the reward-free lowest-disagreement policy; trial by trial, each RL method against BC and
+   against no reward; the share of episodes with return >= 200 (gymnasium's "solved"
    threshold for an episode); the paper's Table I window (the per-epoch evaluations); each run's
    numbers and wall time; and the expert's return on the same episodes and over the pool, for scale.
 """
@@ -59,7 +60,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "LunarLander-v3"
 EXPERT_NAME = "lunar-heuristic"
-METHODS = ("bc", "cmz", "zero")
+#: the grid's methods: DRIL and the env's reward (PPO, the RL ceiling at the same budget) came after the first three
+METHODS = ("bc", "cmz", "zero", "dril", "env")
 HYPERPARAMS = Path(__file__).resolve().with_name("outside_env.yml")
 DEFAULT_OUTPUT = ROOT / "results" / "outside_env"
 #: gymnasium's LunarLander documentation: "An episode is considered a solution if it scores at least 200 points."
@@ -218,7 +220,7 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
     first = records[0].config if records else {}
     steps = sorted({str(r.summary["num_timesteps"]) for r in records if r.method != "bc"})
     parts = [
-        "# BC, CMZ-DRIL and no reward outside the paper's grid: LunarLanderContinuous",
+        "# BC, CMZ-DRIL, DRIL, no reward and the env's reward outside the paper's grid: LunarLanderContinuous",
         "",
         f"Written by `{command}` at {time.strftime('%Y-%m-%d %H:%M')} from the finished runs below this folder "
         "(benchmarks/studies/outside_env.py; not edited by hand).",
@@ -236,7 +238,8 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
         f"- Each trial t trains on {first.get('n_demos', 'n/a')} pool episodes drawn with `default_rng(t)`; "
         "all methods of a trial share them, the seeds and the BC start. Hyperparameters: "
         "`benchmarks/studies/outside_env.yml` (CMZDRIL's constructor defaults and PPO's otherwise). BC is the "
-        "early-stopped NLL-pretrained policy; CMZ-DRIL and no reward (PPO + BC epochs, reward 0) fine-tune it for "
+        "early-stopped NLL-pretrained policy; CMZ-DRIL, DRIL, no reward (reward 0) and the env's reward (PPO + BC epochs, "
+        "each with its reward) fine-tune it for "
         f"{', '.join(steps) or 'n/a'} PPO steps.",
         "",
         "## Final evaluation (every held-out pool episode)",
@@ -290,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5)")
     parser.add_argument("--timesteps", type=int, default=None,
-                        help="PPO steps of cmz and zero (default: n_timesteps of benchmarks/studies/outside_env.yml)")
+                        help="PPO steps of the RL methods (default: n_timesteps of benchmarks/studies/outside_env.yml)")
     parser.add_argument("--n-demos", type=int, default=None,
                         help="training episodes per trial (default: n_demos of benchmarks/studies/outside_env.yml)")
     parser.add_argument("--workers", type=int, default=2, help="runs at a time, one CPU each (default 2)")
