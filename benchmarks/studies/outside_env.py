@@ -8,7 +8,7 @@ demonstration policy), run deterministically. So neither the env nor the expert 
 by this project, and the claim "CMZ-DRIL improves on BC" is tested outside WaypointNav-v0,
 HalfCheetah-v5 and Hopper-v5.
 
-    python benchmarks/studies/outside_env.py                  # 5 trials x (bc, cmz, zero, dril, env), 200k steps, 2 workers
+    python benchmarks/studies/outside_env.py    # 5 trials x (bc, cmz, zero, dril, env), 200k steps, 2 workers
     python benchmarks/studies/outside_env.py --trials 1 --timesteps 4096 --pool-episodes 10 -o /tmp/outside_env
                                                       # a smoke test (a few minutes)
     python benchmarks/studies/outside_env.py --report-only    # rewrite results.md/results.csv from the finished runs
@@ -32,8 +32,9 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
    episode ``i`` reset with seed ``--pool-seed + i``; provenance in the NAME.json beside it. An
    existing pool is kept if it is the one asked for (same expert, episodes and seeds);
 2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``,
-   ``zero``, ``dril`` and ``env`` (the RL ceiling: PPO on the env's reward) x trials 0..T-1 with the hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's
-   constructor defaults, PPO's defaults): trial t trains on ``--n-demos`` pool episodes drawn with
+   ``zero``, ``dril`` and ``env`` (the RL ceiling: PPO on the env's reward) x trials 0..T-1 with the
+   hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's constructor defaults, PPO's
+   defaults): trial t trains on ``--n-demos`` pool episodes drawn with
    ``default_rng(t)``, every method of a trial from the same data, seeds and BC start. Finished runs
    are skipped, interrupted ones continue from their checkpoints. Each run ends with the final
    evaluation: every pool episode it did not train on, replayed from its reset seed (final_eval.csv);
@@ -238,8 +239,8 @@ def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, st
         f"- Each trial t trains on {first.get('n_demos', 'n/a')} pool episodes drawn with `default_rng(t)`; "
         "all methods of a trial share them, the seeds and the BC start. Hyperparameters: "
         "`benchmarks/studies/outside_env.yml` (CMZDRIL's constructor defaults and PPO's otherwise). BC is the "
-        "early-stopped NLL-pretrained policy; CMZ-DRIL, DRIL, no reward (reward 0) and the env's reward (PPO + BC epochs, "
-        "each with its reward) fine-tune it for "
+        "early-stopped NLL-pretrained policy; CMZ-DRIL, DRIL, no reward (reward 0) and the env's reward "
+        "(PPO + BC epochs, each with its reward) fine-tune it for "
         f"{', '.join(steps) or 'n/a'} PPO steps.",
         "",
         "## Final evaluation (every held-out pool episode)",
