@@ -58,11 +58,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_cmzdril.experiments.run.spec import METHODS  # the grid's methods, the env's reward included
+
 ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "LunarLander-v3"
 EXPERT_NAME = "lunar-heuristic"
-#: the grid's methods: DRIL and the env's reward (PPO, the RL ceiling at the same budget) came after the first three
-METHODS = ("bc", "cmz", "zero", "dril", "env")
 HYPERPARAMS = Path(__file__).resolve().with_name("outside_env.yml")
 DEFAULT_OUTPUT = ROOT / "results" / "outside_env"
 #: gymnasium's LunarLander documentation: "An episode is considered a solution if it scores at least 200 points."
