@@ -240,6 +240,21 @@ def offpolicy_variants(envs: tuple[str, ...],
 
 
 SIX_TASKS = (*MUJOCO, "WaypointNav-v0", "LunarLander-v3")
+
+
+def grid_methods(envs: tuple[str, ...],
+                 methods: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str, tuple[Variant, ...]], ...]:
+    """A study's grid methods, ``(key, label)`` each, on ``envs``."""
+    return tuple((method, label, grid_variants(method, label, envs)) for method, label in methods)
+
+
+#: the grid's methods in the six-task studies, and the pairs compared there
+SIX_TASK_METHODS = (("cmz", "CMZ-DRIL"), ("dril", "DRIL"), ("bc", "BC"), ("zero", "No reward"),
+                    ("env", "Env. reward (PPO, at the grid's budget)"))
+SIX_TASK_PAIRS = (("sac", "bc"), ("sac", "dril"), ("sac", "cmz"), ("sac", "zero"), ("sac", "env"), ("cmz", "bc"),
+                  ("cmz", "dril"))
+BC_UNDER_90_METHODS = (("cmz", "CMZ-DRIL"), ("bc", "BC"))
+BC_UNDER_90_PAIRS = (("sac", "bc"), ("cmz", "bc"), ("sac", "cmz"))
 #: the tasks where the grid's BC stays under 90% of the expert
 BC_UNDER_90 = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "WaypointNav-v0")
 ACROSS: tuple[AcrossTasks, ...] = (
@@ -273,13 +288,9 @@ ACROSS: tuple[AcrossTasks, ...] = (
         trials=(0, 1),
         methods=(
             ("sac", "CMZDRILSAC", offpolicy_variants(SIX_TASKS)),
-            *((method, label, grid_variants(method, label, envs))
-              for method, label, envs in (("cmz", "CMZ-DRIL", SIX_TASKS), ("dril", "DRIL", SIX_TASKS),
-                                          ("bc", "BC", SIX_TASKS), ("zero", "No reward", SIX_TASKS),
-                                          ("env", "Env. reward (PPO, at the grid's budget)", SIX_TASKS))),
+            *grid_methods(SIX_TASKS, SIX_TASK_METHODS),
         ),
-        pairs=(("sac", "bc"), ("sac", "dril"), ("sac", "cmz"), ("sac", "zero"), ("sac", "env"), ("cmz", "bc"),
-               ("cmz", "dril")),
+        pairs=SIX_TASK_PAIRS,
         figure="new_tasks_across_six_offpolicy.png",
         intro=("The same learner on the six tasks of the report's aggregate (docs/results.md), on the two "
                "trials that every task's runs have, with the settings planned before the runs on the two new "
@@ -299,10 +310,9 @@ ACROSS: tuple[AcrossTasks, ...] = (
         trials=(0, 1),
         methods=(
             ("sac", "CMZDRILSAC", offpolicy_variants(BC_UNDER_90)),
-            *((method, label, grid_variants(method, label, BC_UNDER_90))
-              for method, label in (("cmz", "CMZ-DRIL"), ("bc", "BC"))),
+            *grid_methods(BC_UNDER_90, BC_UNDER_90_METHODS),
         ),
-        pairs=(("sac", "bc"), ("cmz", "bc"), ("sac", "cmz")),
+        pairs=BC_UNDER_90_PAIRS,
         figure="new_tasks_across_bc_under90_offpolicy.png",
         intro=("Issue 28 asks for a probability of improvement over BC of at least 0.8 on the tasks where BC "
                "stays under 90% of the expert: HalfCheetah-v5, Hopper-v5, Walker2d-v5 and WaypointNav-v0. The "
@@ -323,12 +333,9 @@ ACROSS_LEAD: tuple[AcrossTasks, ...] = (
         trials=(0, 1, 2, 3, 4),
         methods=(
             ("sac", "CMZDRILSAC", offpolicy_variants(SIX_TASKS, OFFPOLICY_ENDING_LEAD_RUNS)),
-            *((method, label, grid_variants(method, label, SIX_TASKS))
-              for method, label in (("cmz", "CMZ-DRIL"), ("dril", "DRIL"), ("bc", "BC"), ("zero", "No reward"),
-                                    ("env", "Env. reward (PPO, at the grid's budget)"))),
+            *grid_methods(SIX_TASKS, SIX_TASK_METHODS),
         ),
-        pairs=(("sac", "bc"), ("sac", "dril"), ("sac", "cmz"), ("sac", "zero"), ("sac", "env"), ("cmz", "bc"),
-               ("cmz", "dril")),
+        pairs=SIX_TASK_PAIRS,
         figure="new_tasks_across_six_lead_offpolicy.png",
         intro=LEAD_INTRO + "The grid's methods are the same as in the report's aggregate, on the same trials.",
     ),
@@ -337,10 +344,9 @@ ACROSS_LEAD: tuple[AcrossTasks, ...] = (
         trials=(0, 1, 2, 3, 4),
         methods=(
             ("sac", "CMZDRILSAC", offpolicy_variants(BC_UNDER_90, OFFPOLICY_ENDING_LEAD_RUNS)),
-            *((method, label, grid_variants(method, label, BC_UNDER_90))
-              for method, label in (("cmz", "CMZ-DRIL"), ("bc", "BC"))),
+            *grid_methods(BC_UNDER_90, BC_UNDER_90_METHODS),
         ),
-        pairs=(("sac", "bc"), ("cmz", "bc"), ("sac", "cmz")),
+        pairs=BC_UNDER_90_PAIRS,
         figure="new_tasks_across_bc_under90_lead_offpolicy.png",
         intro=LEAD_INTRO,
     ),
