@@ -20,6 +20,9 @@ as the off-policy imitation learners do it (SQIL, Reddy et al. 2020; DAC, Kostri
    way with PPO) lost the clone here: Adam moves every parameter by about its learning rate whatever
    the size of the gradient, so a critic that knows nothing yet walks the actor away from the demos
    between two BC steps (on Walker2d-v5 the agent soon fell at once, even with no reward at all).
+5. Optionally (``critic_warmup_steps``), the first gradient steps train the critics alone: they
+   learn the clone's values before the actor follows them, as offline-to-online methods warm up a
+   critic before they let it move a pretrained policy.
 
 Flat ``Box`` observations and ``Box`` actions (SAC's). Saving keeps the policy, the ensemble, the BC
 optimiser, the demonstrations and the reward rule's state; the replay buffer is SB3's to save
@@ -138,6 +141,10 @@ class CMZDRILSAC(SAC):
     :param bc_batch_size: minibatch size of BC.
     :param bc_learning_rate: Adam step size of BC pretraining (its own optimiser; during SAC the BC
         term is part of the actor's loss and steps with the actor's optimiser).
+    :param critic_warmup_steps: the first this many gradient steps (counted over the model's life, so
+        a resumed run does not warm up again) update the critics only: the actor and the temperature
+        stay as pretraining left them while the critics learn the clone's values from its collected
+        steps and the demos. 0 (the default): the actor learns from the first update.
     :param log_std_init: after pretraining (which fits only the actor's mean), the actor's log-std
         head outputs this constant until SAC learns it (None keeps its initialisation, about 0:
         a standard deviation of 1 before the tanh, which buries the clone in noise).
@@ -184,6 +191,7 @@ class CMZDRILSAC(SAC):
         q_weight: float = 2.5,
         bc_batch_size: int = 256,
         bc_learning_rate: float = 1e-3,
+        critic_warmup_steps: int = 0,
         log_std_init: float | None = -1.0,
         absorbing: bool | str = False,
         absorbing_score: str = "highest",
@@ -229,6 +237,9 @@ class CMZDRILSAC(SAC):
             raise UserError(f"absorbing_score must be 'highest' or 'terminal', got {absorbing_score!r}")
         if not (bc_weight >= 0 and q_weight > 0):
             raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
+        if isinstance(critic_warmup_steps, bool) or not isinstance(critic_warmup_steps, (int, np.integer)) \
+                or critic_warmup_steps < 0:
+            raise UserError(f"critic_warmup_steps must be a whole number >= 0, got {critic_warmup_steps!r}")
         if not 0.0 <= demo_fraction < 1.0:
             raise UserError(f"demo_fraction must lie in [0, 1), got {demo_fraction}")
         if optimize_memory_usage:
@@ -270,6 +281,7 @@ class CMZDRILSAC(SAC):
         self.q_weight = float(q_weight)
         self.bc_batch_size = int(bc_batch_size)
         self.bc_learning_rate = float(bc_learning_rate)
+        self.critic_warmup_steps = int(critic_warmup_steps)
         self.log_std_init = None if log_std_init is None else float(log_std_init)
         self.absorbing = absorbing
         self.absorbing_score = absorbing_score
@@ -555,7 +567,8 @@ class CMZDRILSAC(SAC):
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update (temperature, twin critics, actor, target critics), with the actor's loss
-        TD3+BC's combination of SAC's and BC's (see the module's docstring)."""
+        TD3+BC's combination of SAC's and BC's (see the module's docstring); during the critics'
+        warm-up (``critic_warmup_steps``) the twin critics and their targets only."""
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.ent_coef_optimizer is not None:
@@ -563,24 +576,23 @@ class CMZDRILSAC(SAC):
         self._update_learning_rate(optimizers)
         logs: dict[str, list[float]] = {"ent_coef": [], "actor_loss": [], "critic_loss": [], "bc_loss": []}
         for step in range(gradient_steps):
+            warming_up = self._n_updates + step < self.critic_warmup_steps
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             if self.use_sde:
                 # New exploration weights each step: the last ones hang on a graph of log_std that the
                 # previous actor step has freed (and log_std has moved since).
                 self.actor.reset_noise()
-            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
-            log_prob = log_prob.reshape(-1, 1)
-
-            # Temperature: towards the target entropy.
-            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
-                ent_coef = th.exp(self.log_ent_coef.detach())
-                target_entropy = float(self.target_entropy)  # SAC's _setup_model resolved "auto"
-                ent_coef_loss = -(self.log_ent_coef * (log_prob + target_entropy).detach()).mean()
-                self.ent_coef_optimizer.zero_grad()
-                ent_coef_loss.backward()
-                self.ent_coef_optimizer.step()
-            else:
-                ent_coef = self.ent_coef_tensor
+            ent_coef = self.ent_coef_tensor if self.log_ent_coef is None else th.exp(self.log_ent_coef.detach())
+            if not warming_up:
+                actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+                log_prob = log_prob.reshape(-1, 1)
+                # Temperature: towards the target entropy.
+                if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                    target_entropy = float(self.target_entropy)  # SAC's _setup_model resolved "auto"
+                    ent_coef_loss = -(self.log_ent_coef * (log_prob + target_entropy).detach()).mean()
+                    self.ent_coef_optimizer.zero_grad()
+                    ent_coef_loss.backward()
+                    self.ent_coef_optimizer.step()
 
             # Critics: soft Bellman targets from the target critics; no bootstrap after a termination.
             with th.no_grad():
@@ -594,26 +606,27 @@ class CMZDRILSAC(SAC):
             critic_loss.backward()
             self.critic.optimizer.step()
 
-            # Actor: SAC's loss on the critics' scale of one, plus BC on the demos.
-            q_pi = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), 1, True)[0]
-            if self.bc_weight > 0:
-                # Q on a scale of q_weight; at least 1 per unit of Q, so that a critic near zero (no
-                # reward yet) does not have its noise magnified.
-                scale = self.q_weight / q_pi.abs().mean().detach().clamp(min=1.0)
-                bc_loss = self.bc.sample_loss()
-                logs["bc_loss"].append(float(bc_loss.detach()))
-                actor_loss = (ent_coef * log_prob - scale * q_pi).mean() + self.bc_weight * bc_loss
-            else:
-                actor_loss = (ent_coef * log_prob - q_pi).mean()
-            self.actor.optimizer.zero_grad()
-            actor_loss.backward()
-            self.actor.optimizer.step()
+            if not warming_up:
+                # Actor: SAC's loss on the critics' scale of one, plus BC on the demos.
+                q_pi = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), 1, True)[0]
+                if self.bc_weight > 0:
+                    # Q on a scale of q_weight; at least 1 per unit of Q, so that a critic near zero (no
+                    # reward yet) does not have its noise magnified.
+                    scale = self.q_weight / q_pi.abs().mean().detach().clamp(min=1.0)
+                    bc_loss = self.bc.sample_loss()
+                    logs["bc_loss"].append(float(bc_loss.detach()))
+                    actor_loss = (ent_coef * log_prob - scale * q_pi).mean() + self.bc_weight * bc_loss
+                else:
+                    actor_loss = (ent_coef * log_prob - q_pi).mean()
+                self.actor.optimizer.zero_grad()
+                actor_loss.backward()
+                self.actor.optimizer.step()
+                logs["actor_loss"].append(float(actor_loss.detach()))
 
             if step % self.target_update_interval == 0:
                 polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
                 polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
             logs["ent_coef"].append(float(ent_coef))
-            logs["actor_loss"].append(float(actor_loss.detach()))
             logs["critic_loss"].append(float(critic_loss.detach()))
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")

@@ -217,6 +217,31 @@ def test_a_termination_can_be_scored_at_the_u_of_the_state_it_ended_in(pendulum_
     assert rewards[1] == pytest.approx(plain[1] + 9.0 * absorbing, rel=1e-5)
 
 
+def _parameters(module: th.nn.Module) -> list[th.Tensor]:
+    return [p.detach().clone() for p in module.parameters()]
+
+
+def _same(a: list[th.Tensor], b: list[th.Tensor]) -> bool:
+    return all(th.equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_the_critics_warm_up_alone_then_the_actor_and_temperature_learn(pendulum_demos, tmp_path):
+    model = tiny_model(pendulum_demos, learning_starts=10, critic_warmup_steps=40)
+    model.pretrain()
+    actor, critic, temperature = _parameters(model.actor), _parameters(model.critic), model.log_ent_coef.item()
+    model.learn(40)  # 30 updates, all inside the warm-up
+    assert model._n_updates == 30
+    assert _same(_parameters(model.actor), actor) and model.log_ent_coef.item() == temperature
+    assert not _same(_parameters(model.critic), critic)
+    # The count survives save/load: the next 10 updates finish the warm-up, the ones after move the actor.
+    model.save(tmp_path / "m.zip")
+    model = CMZDRILSAC.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"), device="cpu")
+    model.learn(10, reset_num_timesteps=False)
+    assert model._n_updates == 40 and _same(_parameters(model.actor), actor)
+    model.learn(5, reset_num_timesteps=False)
+    assert not _same(_parameters(model.actor), actor) and model.log_ent_coef.item() != temperature
+
+
 def test_the_clone_collects_from_the_first_step(pendulum_demos):
     # With a log-std of -20 the actor's samples are its deterministic action: no uniform warm-up.
     model = tiny_model(pendulum_demos, learning_starts=1000, log_std_init=-20.0)
@@ -373,6 +398,8 @@ def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_sav
         (dict(cmz_clip_quantile=1.5), r"cmz_clip_quantile must lie in \(0, 1\] or be None"),
         (dict(optimize_memory_usage=True), "optimize_memory_usage=True is not supported"),
         (dict(n_steps=3), "n_steps must be 1, got 3"),
+        (dict(critic_warmup_steps=-1), "critic_warmup_steps must be a whole number >= 0, got -1"),
+        (dict(critic_warmup_steps=2.5), "critic_warmup_steps must be a whole number >= 0, got 2.5"),
     ],
 )
 def test_bad_options_are_refused_naming_them(pendulum_demos, kwargs, message):
