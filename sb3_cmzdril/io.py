@@ -308,12 +308,14 @@ def command_line(argv: Sequence[str] | None = None) -> str:
     """The command line as typed (``sys.argv`` by default), shell-quoted, in portable form.
 
     The program is named as a user types it (``sb3-cmzdril``, not the interpreter's absolute path
-    to the console script or to ``__main__.py``), and absolute arguments below the current folder
-    become relative (:func:`portable_path`).
+    to the console script or to the ``__main__.py`` of ``python -m sb3_cmzdril`` or ``python -m
+    sb3_cmzdril.cli``), and absolute arguments below the current folder become relative
+    (:func:`portable_path`).
     """
     args = list(sys.argv if argv is None else argv)
     if args:
         program = Path(args[0])
-        if program.name == "sb3-cmzdril" or program.parts[-2:] == ("sb3_cmzdril", "__main__.py"):
+        if program.name == "sb3-cmzdril" or program.parts[-2:] == ("sb3_cmzdril", "__main__.py") \
+                or program.parts[-3:] == ("sb3_cmzdril", "cli", "__main__.py"):
             args[0] = "sb3-cmzdril"
     return shlex.join([portable_path(a) if os.path.isabs(a) else a for a in args])

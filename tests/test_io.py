@@ -220,3 +220,4 @@ def test_records_carry_no_absolute_paths_of_the_machine(tmp_path, monkeypatch):
     line = io.command_line(["/opt/py/bin/sb3-cmzdril", "train", "-o", str(tmp_path / "out"), "--env", "a b"])
     assert line == "sb3-cmzdril train -o out --env 'a b'"
     assert io.command_line(["/site/sb3_cmzdril/__main__.py", "report"]) == "sb3-cmzdril report"
+    assert io.command_line(["/site/sb3_cmzdril/cli/__main__.py", "report"]) == "sb3-cmzdril report"
