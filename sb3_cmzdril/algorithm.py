@@ -24,7 +24,7 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
@@ -52,7 +52,7 @@ from sb3_cmzdril.imitation import check_imitation_options, restored_state, rewar
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, expert_never_terminates
-from sb3_cmzdril.scoring import RolloutRecord, score_rollout
+from sb3_cmzdril.scoring import RolloutRecord, buffer_actions, score_rollout
 from sb3_cmzdril.spaces import check_action_space
 
 logger = logging.getLogger(__name__)
@@ -125,6 +125,12 @@ class CMZDRIL(PPO):
         for the ``"cmz"`` reward only, when every demonstration lasts the env's time limit (the
         expert never terminates). Off by default: on Walker2d-v5 ``"auto"`` doubled CMZ-DRIL's final
         return, on Hopper-v5 it lowered it in 4 of 5 trials (docs/new_tasks.md).
+    :param absorbing_score: the absorbing state's disagreement: ``"highest"``, the highest u seen so
+        far (every termination as bad as the worst state met); ``"terminal"``, the ensemble's u at the
+        observation the episode ended in (``infos["terminal_observation"]``, at the policy's
+        deterministic action there where the disagreement needs actions), so that ending as the
+        expert ends (a landing, a goal reached) is worth what the state it ends in is worth. Where the
+        expert ends its episodes, ``"highest"`` makes its own ending the worst outcome.
     :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
@@ -163,6 +169,7 @@ class CMZDRIL(PPO):
         bc_learning_rate: float = 1e-3,
         log_std_floor: float | None = -1.0,
         absorbing: bool | str = False,
+        absorbing_score: str = "highest",
         batch_scoring: bool = True,
         learning_rate: float | Schedule = 3e-4,
         n_steps: int = 2048,
@@ -198,7 +205,7 @@ class CMZDRIL(PPO):
         )
         check_imitation_options(
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
-            cmz_clip_quantile, bc_epochs_per_update=bc_epochs_per_update,
+            cmz_clip_quantile, absorbing_score, bc_epochs_per_update=bc_epochs_per_update,
         )
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
@@ -230,6 +237,7 @@ class CMZDRIL(PPO):
         self.bc_learning_rate = float(bc_learning_rate)
         self.log_std_floor = None if log_std_floor is None else float(log_std_floor)
         self.absorbing = absorbing
+        self.absorbing_score = absorbing_score
         #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
         self.absorbing_active = False
         self.batch_scoring = bool(batch_scoring)
@@ -591,17 +599,37 @@ class CMZDRIL(PPO):
         wrapper = self.reward_wrapper()
         if wrapper is not None:
             wrapper.ensemble, wrapper.rule, wrapper.absorbing_gamma = self.ensemble, self.reward_rule, absorbing_gamma
+            wrapper.terminal_disagreement = self._terminal_disagreement()
             return
         if not self._per_step_scoring():
             return
         vec_normalize = self.get_vec_normalize_env()
         below = self.env if vec_normalize is None else vec_normalize.venv
-        wrapped = DisagreementReward(below, self.ensemble, self.reward_rule, absorbing_gamma)
+        wrapped = DisagreementReward(below, self.ensemble, self.reward_rule, absorbing_gamma,
+                                     self._terminal_disagreement())
         if vec_normalize is None:
             self.env = wrapped
         else:
             vec_normalize.venv = wrapped
         self._last_obs = None  # the next learn() resets through the wrapper so it sees the first obs
+
+    def _terminal_disagreement(self) -> Callable[[Any], np.ndarray] | None:
+        """How terminations' absorbing states are scored when not at the highest u seen: the ensemble's
+        u at the raw observations the episodes ended in (see ``absorbing_score``); None otherwise."""
+        if self._absorbing_gamma() is None or self.absorbing_score != "terminal":
+            return None
+
+        def disagreement(raw_obs: Any) -> np.ndarray:
+            actions = None
+            if getattr(self.ensemble, "needs_actions", True):
+                vec_normalize = self.get_vec_normalize_env()
+                policy_obs = raw_obs if vec_normalize is None else vec_normalize.normalize_obs(raw_obs)
+                predicted, _ = self.policy.predict(policy_obs, deterministic=True)
+                predicted = np.asarray(predicted)
+                actions = buffer_actions(predicted.reshape(len(predicted), -1), self.action_space)
+            return self.ensemble.disagreement(raw_obs, actions)
+
+        return disagreement
 
     def _absorbing_gamma(self) -> float | None:
         """The discount of the absorbing state's value where terminations are scored so, else None
@@ -683,7 +711,8 @@ class CMZDRIL(PPO):
         vec_normalize = self.get_vec_normalize_env()
         # The buffer holds what the policy saw; the ensemble needs raw observations.
         raw_from = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
-        return RolloutRecord(self.rollout_buffer.buffer_size, self.rollout_buffer.n_envs, raw_from)
+        return RolloutRecord(self.rollout_buffer.buffer_size, self.rollout_buffer.n_envs, raw_from,
+                             keep_terminal=self._terminal_disagreement() is not None)
 
     def _finish_rollout(self, record: RolloutRecord | None, last_values: th.Tensor, dones: np.ndarray) -> None:
         """Score the rollout just collected into the buffer (``record`` None: the per-step wrapper
@@ -702,6 +731,7 @@ class CMZDRIL(PPO):
                 self.observation_space,
                 self.action_space,
                 self._absorbing_gamma(),
+                self._terminal_disagreement(),
             )
             if self.reward != "env":
                 # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.

@@ -33,6 +33,7 @@ def check_imitation_options(
     bc_patience: int,
     absorbing: bool | str,
     cmz_clip_quantile: float | None = None,
+    absorbing_score: str = "highest",
     **counts: int,
 ) -> None:
     """UserError naming the first imitation option out of range (``counts``: other options that must
@@ -54,6 +55,8 @@ def check_imitation_options(
         raise UserError(f"bc_patience must be >= 1, got {bc_patience}")
     if absorbing not in (True, False, "auto"):
         raise UserError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
+    if absorbing_score not in ("highest", "terminal"):
+        raise UserError(f"absorbing_score must be 'highest' or 'terminal', got {absorbing_score!r}")
 
 
 def reward_rule(

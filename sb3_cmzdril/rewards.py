@@ -16,6 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Protocol, cast
 
 import numpy as np
@@ -273,13 +274,22 @@ class DisagreementReward(VecEnvWrapper):
     :param rule: the reward rule, e.g. ``CMZReward()``.
     :param absorbing_gamma: give each terminating step the discounted value (with this discount) of
         an absorbing state at the highest u seen so far (:func:`with_absorbing_state`); None: off.
+    :param terminal_disagreement: with ``absorbing_gamma``, the absorbing state's u for an episode
+        that terminated: this function of the observations the episodes ended in (a batch, from
+        ``infos[i]["terminal_observation"]``) instead of the highest u seen (None). ``CMZDRIL``
+        passes it for ``absorbing_score="terminal"``.
 
     Put it above any Monitor/VecMonitor so they record the true return (``CMZDRIL`` does; by default
     it does not use this wrapper at all but scores whole rollouts, see :mod:`sb3_cmzdril.scoring`).
     """
 
     def __init__(
-        self, venv: VecEnv, ensemble: DisagreementModel, rule: RewardRule, absorbing_gamma: float | None = None
+        self,
+        venv: VecEnv,
+        ensemble: DisagreementModel,
+        rule: RewardRule,
+        absorbing_gamma: float | None = None,
+        terminal_disagreement: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         super().__init__(venv)
         if not hasattr(ensemble, "disagreement"):
@@ -289,6 +299,7 @@ class DisagreementReward(VecEnvWrapper):
         self.ensemble = ensemble
         self.rule = rule
         self.absorbing_gamma = absorbing_gamma
+        self.terminal_disagreement = terminal_disagreement
         self._pass_actions = bool(getattr(ensemble, "needs_actions", True))
         self._last_obs: VecEnvObs | None = None
         self._actions: np.ndarray | None = None
@@ -314,10 +325,12 @@ class DisagreementReward(VecEnvWrapper):
         rewards = self.rule(u, env_rewards)
         if self.absorbing_gamma is not None:
             self.rule.highest_u_so_far(np.reshape(u, (1, -1)))
-            u_absorbing = np.asarray(self.rule.absorbing_u)
-            rewards = with_absorbing_state(
-                self.rule, rewards, u, terminations(dones, infos), u_absorbing, self.absorbing_gamma
-            )
+            terminated = terminations(dones, infos)
+            u_absorbing = np.full(np.shape(u), self.rule.absorbing_u)
+            if self.terminal_disagreement is not None and terminated.any():
+                ended_in = np.stack([infos[i]["terminal_observation"] for i in np.flatnonzero(terminated)])
+                u_absorbing[terminated] = self.terminal_disagreement(ended_in)
+            rewards = with_absorbing_state(self.rule, rewards, u, terminated, u_absorbing, self.absorbing_gamma)
         for info, r_env, u_i in zip(infos, env_rewards.tolist(), u.tolist(), strict=True):
             info["env_reward"] = r_env
             info["disagreement"] = u_i

@@ -231,10 +231,8 @@ class CMZDRILSAC(SAC):
         )
         check_imitation_options(
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
-            cmz_clip_quantile,
+            cmz_clip_quantile, absorbing_score,
         )
-        if absorbing_score not in ("highest", "terminal"):
-            raise UserError(f"absorbing_score must be 'highest' or 'terminal', got {absorbing_score!r}")
         if not (bc_weight >= 0 and q_weight > 0):
             raise UserError(f"bc_weight must be >= 0 and q_weight > 0, got {bc_weight} and {q_weight}")
         if isinstance(critic_warmup_steps, bool) or not isinstance(critic_warmup_steps, (int, np.integer)) \

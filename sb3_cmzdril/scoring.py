@@ -21,6 +21,7 @@ env stack: a reward-normalising VecNormalize (it must see the shaped reward as i
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -40,9 +41,13 @@ class RolloutRecord:
     :param n_envs: envs of the training VecEnv.
     :param vec_normalize: the training env's VecNormalize when it normalises observations (the
         buffer then holds normalised ones, and the ensemble needs raw ones), else None.
+    :param keep_terminal: also keep the observation each terminated episode ended in, raw (for an
+        absorbing state scored there).
     """
 
-    def __init__(self, n_steps: int, n_envs: int, vec_normalize: VecNormalize | None = None) -> None:
+    def __init__(
+        self, n_steps: int, n_envs: int, vec_normalize: VecNormalize | None = None, keep_terminal: bool = False
+    ) -> None:
         self.n_steps = int(n_steps)
         #: each step's env reward, copied before collect_rollouts adds the truncation bootstrap in place
         self.env_rewards = np.zeros((n_steps, n_envs), np.float32)
@@ -52,6 +57,9 @@ class RolloutRecord:
         self._raw_obs: list[Any] | None = None
         if vec_normalize is not None:
             self._raw_obs = [_copy(vec_normalize.get_original_obs())]
+        self._keep_terminal = keep_terminal
+        #: (step, env, raw observation) of each terminated episode, in order
+        self.ended_in: list[tuple[int, int, Any]] = []
         self._t = 0
 
     def record(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict]) -> None:
@@ -59,6 +67,13 @@ class RolloutRecord:
         t = self._t
         self.env_rewards[t] = rewards
         self.terminated[t] = terminations(dones, infos)
+        if self._keep_terminal:
+            for i in np.flatnonzero(self.terminated[t]):
+                obs = infos[i]["terminal_observation"]
+                if self._vec_normalize is not None:
+                    # VecNormalize normalised it in the infos; undone, it is raw up to its clip_obs.
+                    obs = self._vec_normalize.unnormalize_obs(obs)
+                self.ended_in.append((t, int(i), _copy(obs)))
         if self._vec_normalize is not None and self._raw_obs is not None and t + 1 < self.n_steps:
             # What VecNormalize returned last is the raw form of the next observation acted on.
             self._raw_obs.append(_copy(self._vec_normalize.get_original_obs()))
@@ -91,11 +106,14 @@ def score_rollout(
     observation_space: spaces.Space,
     action_space: spaces.Space,
     absorbing_gamma: float | None = None,
+    terminal_disagreement: Callable[[Any], np.ndarray] | None = None,
 ) -> RolloutScores:
     """Score a finished rollout in one ensemble forward: ``u`` on the observation each env acted on,
     then the rule's rewards (its state advances over the rollout, step by step as the per-step wrapper
     would advance it). ``absorbing_gamma``: score terminations as entering an absorbing state at the
-    highest u seen so far, with this discount (:func:`~sb3_cmzdril.rewards.with_absorbing_state`)."""
+    highest u seen so far, with this discount (:func:`~sb3_cmzdril.rewards.with_absorbing_state`);
+    with ``terminal_disagreement``, at that function's u of the observations the episodes ended in
+    (a batch of the record's ``ended_in``, which it must keep) instead."""
     steps, n_envs = buffer.buffer_size, buffer.n_envs
     flat_obs = reshape_rows(record.observations(buffer), (steps * n_envs,), observation_space)
     actions = None
@@ -104,8 +122,11 @@ def score_rollout(
     u = ensemble.disagreement(flat_obs, actions).reshape(steps, n_envs)
     rewards = rule.sequence(u, record.env_rewards)
     if absorbing_gamma is not None:
-        seen = rule.highest_u_so_far(u)
-        rewards = with_absorbing_state(rule, rewards, u, record.terminated, seen[:, None], absorbing_gamma)
+        u_absorbing = np.repeat(rule.highest_u_so_far(u)[:, None], n_envs, axis=1)
+        if terminal_disagreement is not None and record.ended_in:
+            steps_ended, envs_ended, ended_in = zip(*record.ended_in, strict=True)
+            u_absorbing[list(steps_ended), list(envs_ended)] = terminal_disagreement(_stack(ended_in))
+        rewards = with_absorbing_state(rule, rewards, u, record.terminated, u_absorbing, absorbing_gamma)
     return RolloutScores(u, rewards)
 
 
@@ -122,6 +143,13 @@ def buffer_actions(actions: np.ndarray, space: spaces.Space) -> np.ndarray:
 
 def _copy(obs: Any) -> Any:
     return {k: np.array(v) for k, v in obs.items()} if isinstance(obs, dict) else np.array(obs)
+
+
+def _stack(observations: Any) -> Any:
+    # Single observations (arrays, or dicts of them) as one batch.
+    if isinstance(observations[0], dict):
+        return {k: np.stack([o[k] for o in observations]) for k in observations[0]}
+    return np.stack(observations)
 
 
 def _row(obs: Any) -> Any:

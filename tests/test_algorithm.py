@@ -382,15 +382,38 @@ def test_absorbing_auto_is_on_where_the_expert_never_terminates(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("reward", ["cmz", "dril"])
-def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, cartpole_demos):
+@pytest.mark.parametrize(
+    ("reward", "score", "normalize"),
+    [("cmz", "highest", False), ("dril", "highest", False), ("cmz", "terminal", False), ("cmz", "terminal", True)],
+)
+def test_absorbing_state_is_the_same_scored_per_step_or_from_the_buffer(reward, score, normalize, cartpole_demos):
+    # Under VecNormalize the buffer path gets the terminal observation normalised and undoes it; the
+    # wrapper below VecNormalize sees it raw.
     def env():
-        return DummyVecEnv([lambda: gym.make("CartPole-v1", max_episode_steps=100)] * 2)
+        venv = DummyVecEnv([lambda: gym.make("CartPole-v1", max_episode_steps=100)] * 2)
+        return VecNormalize(venv, norm_reward=False) if normalize else venv
 
-    batch = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True)
-    step = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True, batch_scoring=False)
+    batch = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True, absorbing_score=score)
+    step = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True, absorbing_score=score, batch_scoring=False)
     assert batch.absorbing_u == pytest.approx(step.reward_wrapper().absorbing_u, rel=1e-6)
     _assert_same_rollouts(batch, step)
+    if score == "terminal":
+        highest = _rollout_of(env, cartpole_demos, reward=reward, absorbing=True)
+        assert not np.allclose(highest.rollout_buffer.rewards, batch.rollout_buffer.rewards)
+
+
+def test_a_termination_can_be_scored_at_the_u_of_the_observation_it_ended_in(pendulum_demos):
+    # DRIL's quadratic disagreement needs actions: at the observation an episode ended in, the policy's own.
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, absorbing=True,
+                    absorbing_score="terminal", disagreement="quadratic", **TINY)
+    assert model._terminal_disagreement() is None  # nothing is scored before learn() resolves `absorbing`
+    model.learn(64)
+    score = model._terminal_disagreement()
+    ended_in = pendulum_demos.observations[3:7]
+    actions, _ = model.policy.predict(ended_in, deterministic=True)
+    np.testing.assert_allclose(score(ended_in), model.ensemble.disagreement(ended_in, actions), rtol=1e-6)
+    other = np.clip(actions + 1.0, -2.0, 2.0)
+    assert not np.allclose(model.ensemble.disagreement(ended_in, other), score(ended_in))  # the action counts
 
 
 def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(pendulum_demos, tmp_path):
@@ -421,10 +444,14 @@ def test_cmz_clip_at_zero_disagreement_names_the_option(pendulum_demos, monkeypa
 def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
     with pytest.raises(ValueError, match="absorbing must be True, False or 'auto'"):
         CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing="yes")
+    with pytest.raises(ValueError, match="absorbing_score must be 'highest' or 'terminal', got 'lowest'"):
+        CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing_score="lowest")
     assert CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos).absorbing is False
     env = gym.make("CartPole-v1", max_episode_steps=100)
-    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, absorbing="auto", **TINY)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, absorbing="auto", absorbing_score="terminal",
+                    **TINY)
     model.learn(64)
     model.save(tmp_path / "m.zip")
     loaded = CMZDRIL.load(tmp_path / "m.zip")
     assert loaded.absorbing == "auto" and loaded.absorbing_u == model.absorbing_u > 0
+    assert loaded.absorbing_score == "terminal"

@@ -245,3 +245,35 @@ def test_wrapper_scores_terminations_as_the_absorbing_state():
     at_absorbing = r_plain[0] - 10.0 * (absorbing.absorbing_u - info[0]["disagreement"])
     assert r_abs[0] == pytest.approx(r_plain[0] + 9.0 * at_absorbing, rel=1e-5)
     assert absorbing.absorbing_u > 0 and r_abs[0] < r_plain[0]
+
+
+def test_wrapper_can_score_a_termination_at_the_u_of_the_observation_it_ended_in():
+    # As above, with the absorbing state's u taken on the terminal observation (its first entry doubled).
+    ended_in = []
+
+    def doubled_first_entry(obs: np.ndarray) -> np.ndarray:
+        ended_in.append(obs.copy())
+        return 2.0 * obs[:, 0]
+
+    def wrapped(absorbing_gamma, terminal_disagreement=None):
+        venv = DummyVecEnv([lambda: gym.make("CartPole-v1")])
+        venv.seed(0)
+        env = DisagreementReward(venv, ObsIsU(), CMZReward(), absorbing_gamma=absorbing_gamma,
+                                 terminal_disagreement=terminal_disagreement)
+        env.reset()
+        return env
+
+    plain, terminal = wrapped(None), wrapped(0.9, doubled_first_entry)
+    for _ in range(200):
+        _, r_terminal, done, info = terminal.step(np.array([1]))
+        _, r_plain, _, _ = plain.step(np.array([1]))
+        if done[0]:
+            break
+        assert r_terminal[0] == r_plain[0] and not ended_in  # called for terminations only
+    assert done[0] and len(ended_in) == 1
+    np.testing.assert_array_equal(ended_in[0], info[0]["terminal_observation"][None])
+    # 9 steps' worth of the CMZ reward at the terminal observation's u instead of this step's u.
+    u_end = 2.0 * float(info[0]["terminal_observation"][0])
+    at_absorbing = r_plain[0] - 10.0 * (u_end - info[0]["disagreement"])
+    assert r_terminal[0] == pytest.approx(r_plain[0] + 9.0 * at_absorbing, rel=1e-5)
+    assert u_end != pytest.approx(terminal.absorbing_u)  # the highest-u rule would have scored it otherwise
