@@ -24,15 +24,21 @@ from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python benchmarks/studies/new_tasks.py --force"
-#: the BC and DRIL runs every ablation is paired with: the published grid (trials 0-4), then Walker2d-v5's
-#: trials 5-9 for the confirmation of its variants (BC by `sb3-cmzdril benchmark --env Walker2d-v5 --methods
-#: bc --trials 10 --timesteps 300000 --eval-every 5 --workers 1 --hyperparams hyperparams/cmzdril.yml -o
-#: results/runs_bc_trials10`, whose trials 0-4 repeat the grid's exactly; DRIL by `sb3-cmzdril train --env
-#: Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 --hyperparams hyperparams/cmzdril.yml
-#: -o results/runs_dril_trials5-9/Walker2d-v5/dril/trialT` for T in 5-9)
+#: the BC and DRIL runs every ablation is paired with: the published grid (trials 0-4), then trials 5-9 for
+#: the confirmation of the variants (BC on HalfCheetah-v5, Hopper-v5, Walker2d-v5 and WaypointNav-v0 by
+#: :func:`bc_trials10_command`, whose trials 0-4 repeat the grid's exactly; Walker2d-v5's DRIL by
+#: `sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 --hyperparams
+#: hyperparams/cmzdril.yml -o results/runs_dril_trials5-9/Walker2d-v5/dril/trialT` for T in 5-9)
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
-BASELINES = (GRID, "results/runs_bc_trials10", "results/runs_dril_trials5-9", OUTSIDE)
+BC_TRIALS10 = "results/runs_bc_trials10"
+BASELINES = (GRID, BC_TRIALS10, "results/runs_dril_trials5-9", OUTSIDE)
+
+
+def bc_trials10_command(env: str) -> str:
+    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10`."""
+    return (f"sb3-cmzdril benchmark --env {env} --methods bc --trials 10 --timesteps 300000 --eval-every 5 "
+            f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
 
 
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
@@ -61,6 +67,9 @@ SAC_UNCLIPPED_LABEL = ("the same, with u on the ensemble members' actions unclip
 CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
+WARMUP = "--set critic_warmup_steps=10000"
+SAC_WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
+                    "10000`), 20 CPU-minutes per run")
 SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (`--select longest`, reward-free), "
                      "20 CPU-minutes per run")
 
@@ -138,7 +147,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5", firsts=(0,)),
+    *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
@@ -151,8 +160,8 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("WN-sac-64-clip98-auto", "WaypointNav-v0", CLIP_AUTO)),
     Variant("WaypointNav-v0", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/WN-sac-64-clip98-abs-terminal",
             offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
-    Variant("WaypointNav-v0", "cmz", SAC_UNCLIPPED_LABEL, "results/offpolicy/WN-sac-64-clip98-abs-terminal-unclipped",
-            offpolicy_command("WN-sac-64-clip98-abs-terminal-unclipped", "WaypointNav-v0", CLIP_TERMINAL_UNCLIPPED)),
+    *tuning_and_confirmation(SAC_UNCLIPPED_LABEL, "WN-sac-64-clip98-abs-terminal-unclipped", CLIP_TERMINAL_UNCLIPPED,
+                             "WaypointNav-v0"),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
@@ -162,6 +171,10 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("LunarLander-v3", "cmz", SAC_UNCLIPPED_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal-unclipped",
             offpolicy_command("LL-sac-64-clip98-abs-terminal-unclipped", "LunarLander-v3",
                               f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED}")),
+    Variant("LunarLander-v3", "cmz", SAC_WARMUP_LABEL,
+            "results/offpolicy/LL-sac-64-clip98-abs-terminal-unclipped-warmup10k",
+            offpolicy_command("LL-sac-64-clip98-abs-terminal-unclipped-warmup10k", "LunarLander-v3",
+                              f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED} {WARMUP}")),
 )
 
 
@@ -180,6 +193,10 @@ ROLLOUT_TABLES: tuple[RolloutTable, ...] = (
       for name, variant in ((f"{prefix}-sac-64-clip98-auto", "no absorbing state"),
                             (f"{prefix}-sac-64-clip98-abs-terminal", "absorbing state at the terminal observation's u"),
                             (f"{prefix}-sac-64-clip98-abs-terminal-unclipped", "the same, u on unclipped actions"))
+      for key, what in (("rollout/disagreement_mean", "u on the agent's own states"),
+                        ("rollout/ep_len_mean", "episode length"))),
+    *(RolloutTable(key, f"{what}, CMZDRILSAC (the same, the critics warmed up alone)", ("LunarLander-v3",),
+                   runs="results/offpolicy/LL-sac-64-clip98-abs-terminal-unclipped-warmup10k")
       for key, what in (("rollout/disagreement_mean", "u on the agent's own states"),
                         ("rollout/ep_len_mean", "episode length"))),
 )
@@ -349,6 +366,20 @@ ACROSS_LEAD: tuple[AcrossTasks, ...] = (
         pairs=BC_UNDER_90_PAIRS,
         figure="new_tasks_across_bc_under90_lead_offpolicy.png",
         intro=LEAD_INTRO,
+    ),
+    AcrossTasks(
+        "The same, over BC on the four tasks where BC stays under 90% of the expert, trials 5-9 (the confirmation)",
+        trials=(5, 6, 7, 8, 9),
+        methods=(
+            ("sac", "CMZDRILSAC", offpolicy_variants(BC_UNDER_90, OFFPOLICY_ENDING_LEAD_RUNS)),
+            ("bc", "BC", tuple(Variant(env, "bc", "BC", BC_TRIALS10, bc_trials10_command(env)) for env in BC_UNDER_90)),
+        ),
+        pairs=(("sac", "bc"),),
+        figure="new_tasks_across_bc_under90_lead_offpolicy_trials5-9.png",
+        intro=("The same settings on trials 5-9, which no setting was chosen on: each task's settings were fixed "
+               "before these runs started. BC's runs of these trials are the grid's command with `--trials 10` "
+               "(its trials 0-4 repeat the grid's exactly). The grid's other methods have no runs of these "
+               "trials, so BC is the only comparison."),
     ),
 )
 
