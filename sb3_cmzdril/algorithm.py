@@ -52,7 +52,7 @@ from sb3_cmzdril.imitation import check_imitation_options, restored_state, rewar
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, expert_never_terminates
-from sb3_cmzdril.scoring import RolloutRecord, buffer_actions, score_rollout
+from sb3_cmzdril.scoring import RolloutRecord, disagreement_where_ended, score_rollout
 from sb3_cmzdril.spaces import check_action_space
 
 logger = logging.getLogger(__name__)
@@ -620,14 +620,9 @@ class CMZDRIL(PPO):
             return None
 
         def disagreement(raw_obs: Any) -> np.ndarray:
-            actions = None
-            if getattr(self.ensemble, "needs_actions", True):
-                vec_normalize = self.get_vec_normalize_env()
-                policy_obs = raw_obs if vec_normalize is None else vec_normalize.normalize_obs(raw_obs)
-                predicted, _ = self.policy.predict(policy_obs, deterministic=True)
-                predicted = np.asarray(predicted)
-                actions = buffer_actions(predicted.reshape(len(predicted), -1), self.action_space)
-            return self.ensemble.disagreement(raw_obs, actions)
+            return disagreement_where_ended(
+                self.ensemble, self.policy, raw_obs, self.action_space, self.get_vec_normalize_env()
+            )
 
         return disagreement
 

@@ -65,6 +65,7 @@ from sb3_cmzdril.imitation import (
 )
 from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import RewardRule, expert_never_terminates, with_absorbing_state
+from sb3_cmzdril.scoring import disagreement_where_ended
 
 logger = logging.getLogger(__name__)
 
@@ -549,19 +550,11 @@ class CMZDRILSAC(SAC):
         if self.absorbing_active:
             seen = np.full(u.shape, self.absorbing_u)
             if self.absorbing_score == "terminal" and terminated.any():
-                seen[terminated] = self._terminal_disagreement(next_obs[terminated])
+                seen[terminated] = disagreement_where_ended(
+                    self.ensemble, self.policy, next_obs[terminated], self.action_space, self._vec_normalize_env
+                )
             rewards = with_absorbing_state(self.reward_rule, rewards, u, terminated, seen, self.gamma)
         return rewards
-
-    def _terminal_disagreement(self, raw_obs: np.ndarray) -> np.ndarray:
-        """The ensemble's u at the observations episodes ended in; where it needs actions, at the
-        actor's deterministic ones there (no action was taken in them)."""
-        actions = None
-        if self.ensemble.needs_actions:
-            normalize = self._vec_normalize_env
-            policy_obs = raw_obs if normalize is None else normalize.normalize_obs(raw_obs)
-            actions, _ = self.policy.predict(policy_obs, deterministic=True)
-        return self.ensemble.disagreement(raw_obs, actions)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update (temperature, twin critics, actor, target critics), with the actor's loss

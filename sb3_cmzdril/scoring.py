@@ -125,9 +125,24 @@ def score_rollout(
         u_absorbing = np.repeat(rule.highest_u_so_far(u)[:, None], n_envs, axis=1)
         if terminal_disagreement is not None and record.ended_in:
             steps_ended, envs_ended, ended_in = zip(*record.ended_in, strict=True)
-            u_absorbing[list(steps_ended), list(envs_ended)] = terminal_disagreement(_stack(ended_in))
+            u_absorbing[list(steps_ended), list(envs_ended)] = terminal_disagreement(
+                concatenate([_row(o) for o in ended_in])
+            )
         rewards = with_absorbing_state(rule, rewards, u, record.terminated, u_absorbing, absorbing_gamma)
     return RolloutScores(u, rewards)
+
+
+def disagreement_where_ended(
+    ensemble: Any, policy: Any, raw_obs: Any, action_space: spaces.Space, vec_normalize: VecNormalize | None = None
+) -> np.ndarray:
+    """The ensemble's u at a batch of raw observations episodes ended in; where u needs actions, at
+    the policy's deterministic ones there (no action was taken in them), as the space's actions."""
+    actions = None
+    if getattr(ensemble, "needs_actions", True):
+        policy_obs = raw_obs if vec_normalize is None else vec_normalize.normalize_obs(raw_obs)
+        predicted = np.asarray(policy.predict(policy_obs, deterministic=True)[0])
+        actions = buffer_actions(predicted.reshape(len(predicted), -1), action_space)
+    return ensemble.disagreement(raw_obs, actions)
 
 
 def buffer_actions(actions: np.ndarray, space: spaces.Space) -> np.ndarray:
@@ -145,16 +160,9 @@ def _copy(obs: Any) -> Any:
     return {k: np.array(v) for k, v in obs.items()} if isinstance(obs, dict) else np.array(obs)
 
 
-def _stack(observations: Any) -> Any:
-    # Single observations (arrays, or dicts of them) as one batch.
-    if isinstance(observations[0], dict):
-        return {k: np.stack([o[k] for o in observations]) for k in observations[0]}
-    return np.stack(observations)
-
-
 def _row(obs: Any) -> Any:
     # One step of every env as a batch of one step: (1, n_envs, ...).
     return {k: v[None] for k, v in obs.items()} if isinstance(obs, dict) else obs[None]
 
 
-__all__ = ["RolloutRecord", "RolloutScores", "buffer_actions", "score_rollout"]
+__all__ = ["RolloutRecord", "RolloutScores", "buffer_actions", "disagreement_where_ended", "score_rollout"]
