@@ -289,6 +289,8 @@ class CMZDRILSAC(SAC):
         #: the policy is pretrained and the ensemble fitted: ``learn()`` goes straight to SAC
         self.pretrained = False
         self.pretrain_info: dict[str, float] = {}
+        #: the actor's NLL per pretraining epoch, on the training and the held-out demo steps
+        self.pretrain_history: dict[str, list[float]] = {}
         self._u_sum, self._u_count = 0.0, 0
         if isinstance(env, str):
             with mujoco_warnings_routed():
@@ -438,6 +440,7 @@ class CMZDRILSAC(SAC):
                 with th.no_grad():
                     head.weight.zero_()
                     head.bias.fill_(self.log_std_init)
+        self.pretrain_history = {"train_nll": stopping.train_nll, "validation_nll": stopping.validation_nll}
         info = {
             "bc_loss": self.bc.nll(),
             "bc_best_epoch": float(stopping.best_epoch),

@@ -64,6 +64,10 @@ class _KeptWeights(BaseCallback):
         """Besides the weights, what :meth:`save` writes: tensors only, so that loading needs no pickle."""
         raise NotImplementedError
 
+    def kept(self) -> dict[str, float]:
+        """Which policy is kept and why, as plain numbers (for a run's summary)."""
+        raise NotImplementedError
+
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
         """Take back what :meth:`_choice` gave; a KeyError or ValueError when the file lacks it."""
         raise NotImplementedError
@@ -127,6 +131,10 @@ class LowestDisagreementPolicy(_KeptWeights):
 
     def _choice(self) -> dict[str, th.Tensor]:
         return {"epoch": th.tensor(self.best_epoch), "u": th.tensor(self.best_u)}
+
+    def kept(self) -> dict[str, float]:
+        """The kept policy's epoch and its rollout's mean disagreement."""
+        return {"epoch": int(self.best_epoch if self.best_epoch is not None else -1), "rollout_u": self.best_u}
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
         self.best_epoch, self.best_u = int(blob["epoch"]), float(blob["u"])
@@ -221,6 +229,11 @@ class LongestEpisodesPolicy(_KeptWeights):
             "best_timesteps": th.tensor(self.best_timesteps, dtype=th.int64),
             "env_steps": th.tensor(self.env_steps, dtype=th.int64),
         }
+
+    def kept(self) -> dict[str, float]:
+        """The kept policy's training steps, its checks' mean episode length and the checks' env steps."""
+        steps = -1 if self.best_timesteps is None else self.best_timesteps
+        return {"timesteps": int(steps), "mean_length": self.best_length, "env_steps": int(self.env_steps)}
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
         # Everything is read before anything is set: a file that lacks a part changes nothing.

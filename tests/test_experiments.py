@@ -559,5 +559,5 @@ def test_a_published_run_folder_is_still_the_same_run():
 
 
 def test_grid_module_names():
-    assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz")
+    assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz", "cmz-sac")
     assert grid.parse_list("cmz, bc,cmz,,") == ["cmz", "bc"]

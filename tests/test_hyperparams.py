@@ -213,6 +213,7 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     from sb3_cmzdril.algorithm import CMZDRIL
     from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
     from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
+    from sb3_cmzdril.sac import CMZDRILSAC
 
     sac = default_hyperparams_path("sac")
     for key in read_hyperparams_file(sac):
@@ -220,6 +221,11 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     cmzdril = default_hyperparams_path("cmzdril")
     for key in read_hyperparams_file(cmzdril):
         check_constructor_kwargs(load_run_hyperparams(cmzdril, key)[0], [CMZDRIL, PPO])
+    cmzdril_sac = default_hyperparams_path("cmzdril_sac")
+    for key in read_hyperparams_file(cmzdril_sac):
+        hp, settings = load_run_hyperparams(cmzdril_sac, key, "cmz-sac")
+        check_constructor_kwargs(hp, [CMZDRILSAC, SAC])
+        assert settings["n_demos"] == load_run_hyperparams(cmzdril, key)[1]["n_demos"]  # the grid's split
     # schedules, [n, "episode"] train_freq, ent_coef as a number or "auto", an int where a float is due
     zoo = {
         "learning_rate": "lin_7.3e-4",

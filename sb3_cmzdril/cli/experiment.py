@@ -7,12 +7,19 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
     from sb3_cmzdril.io import PathLike
 
-_METHODS_HELP = "bc (pretrained policy only), zero, env, dril or cmz"
+_METHODS_HELP = (
+    "bc (pretrained policy only), zero, env, dril or cmz (CMZDRIL, PPO), or cmz-sac (CMZ-DRIL's reward with the "
+    "off-policy learner CMZDRILSAC)"
+)
 
 
 def _add_run_options(p, what: str) -> None:
     """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
-    from sb3_cmzdril.experiments.run.spec import DEFAULT_CHECKPOINT_EVERY, DEFAULT_EVAL_EPISODES
+    from sb3_cmzdril.experiments.run.spec import (
+        DEFAULT_CHECKPOINT_EVERY,
+        DEFAULT_EVAL_EPISODES,
+        OFFPOLICY_EPOCH_STEPS,
+    )
 
     p.add_argument(
         "--n-demos",
@@ -27,17 +34,26 @@ def _add_run_options(p, what: str) -> None:
         help=f"held-out expert episodes per evaluation (default {DEFAULT_EVAL_EPISODES})",
     )
     p.add_argument(
-        "--timesteps", type=int, default=None, help="total PPO steps per run (default: n_timesteps of the YAML)"
+        "--timesteps", type=int, default=None, help="total env steps per run (default: n_timesteps of the YAML)"
     )
-    p.add_argument("--eval-every", type=int, default=1, help="evaluate every k PPO updates (default 1: every epoch)")
+    p.add_argument(
+        "--eval-every",
+        type=int,
+        default=1,
+        help=f"evaluate every k epochs (default 1: every epoch; an epoch is a PPO update, or "
+        f"{OFFPOLICY_EPOCH_STEPS} steps of cmz-sac)",
+    )
     p.add_argument(
         "--checkpoint-every",
         type=int,
         default=DEFAULT_CHECKPOINT_EVERY,
-        help=f"checkpoint model.zip every k PPO updates (default {DEFAULT_CHECKPOINT_EVERY})",
+        help=f"checkpoint model.zip every k epochs (default {DEFAULT_CHECKPOINT_EVERY})",
     )
     p.add_argument(
-        "--hyperparams", default=None, help="zoo-format YAML (default: the repository's hyperparams/cmzdril.yml)"
+        "--hyperparams",
+        default=None,
+        help="zoo-format YAML (default: the shipped hyperparams/cmzdril.yml; cmzdril_sac.yml for cmz-sac"
+        + (")" if what == "progress bar" else ", whose runs read --sac-hyperparams)"),
     )
     p.add_argument("--no-progress", action="store_true", help=f"no {what}")
 
@@ -113,9 +129,13 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike) -
     sees that the lowest-disagreement policy (chosen without the env reward) may be the better one."""
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import LOWEST_U_MODEL, MODEL_FILE
+    from sb3_cmzdril.experiments.run.run_folder import LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
 
-    files = {"final": ("final policy", MODEL_FILE), "lowest_u": ("lowest-u policy", LOWEST_U_MODEL)}
+    files = {
+        "final": ("final policy", MODEL_FILE),
+        "lowest_u": ("lowest-u policy", LOWEST_U_MODEL),
+        "longest": ("longest-episodes policy", LONGEST_MODEL),
+    }
     lines = []
     for policy, ev in (final or {}).items():
         if policy not in files or not isinstance(ev, dict) or "return_mean" not in ev:
@@ -144,10 +164,17 @@ def add_benchmark(sub) -> None:
         ),
     )
     p.add_argument("--env", required=True, help="environment id(s), comma-separated")
-    from sb3_cmzdril.experiments.run.spec import METHODS
+    from sb3_cmzdril.experiments.run.spec import PAPER_METHODS
 
     p.add_argument(
-        "--methods", default=",".join(METHODS), help=f"comma-separated, from: {_METHODS_HELP} (default: all)"
+        "--methods",
+        default=",".join(PAPER_METHODS),
+        help=f"comma-separated, from: {_METHODS_HELP} (default: the paper's {','.join(PAPER_METHODS)})",
+    )
+    p.add_argument(
+        "--sac-hyperparams",
+        default=None,
+        help="zoo-format YAML of the cmz-sac runs (default: the shipped hyperparams/cmzdril_sac.yml)",
     )
     p.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5, as the paper)")
     p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
@@ -181,6 +208,7 @@ def _run_benchmark(args) -> int:
         checkpoint_every=args.checkpoint_every,
         demos_dir=args.demos_dir,
         hyperparams=args.hyperparams,
+        offpolicy_hyperparams=args.sac_hyperparams,
     )
     print(summarize_outcomes(outcomes))
     return 1 if any(o.status is RunStatus.FAILED for o in outcomes) else 0

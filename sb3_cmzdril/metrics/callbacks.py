@@ -31,7 +31,8 @@ class ExpertEvalCallback(BaseCallback):
     *Epoch* = number of completed rollout+update cycles (PPO updates). For on-policy algorithms it
     is computed from ``num_timesteps // (n_steps * n_envs)``, and for off-policy ones that train every
     ``train_freq`` steps (SAC, TD3...) from ``num_timesteps // (train_freq * n_envs)``, so it
-    continues across resumed runs (``learn(..., reset_num_timesteps=False)``). Epoch 0 (the policy
+    continues across resumed runs (``learn(..., reset_num_timesteps=False)``); with ``steps_per_epoch``
+    an epoch is that many env steps for any algorithm. Epoch 0 (the policy
     before the first update, e.g. the BC-pretrained one) is evaluated at the first rollout, then
     every ``eval_every`` epochs, and the last epoch at the end of training if it was not already.
 
@@ -47,6 +48,9 @@ class ExpertEvalCallback(BaseCallback):
     :param eval_every: evaluate every this many PPO updates.
     :param csv_path: where to append the evaluation rows; None for no file.
     :param trajectory_fn: see :func:`evaluate_against_expert`.
+    :param steps_per_epoch: env steps per epoch (None: the algorithm's update cycle, above). An
+        off-policy learner that updates every step evaluates every ``eval_every * steps_per_epoch``
+        steps with it, not every ``eval_every`` steps.
     """
 
     CSV_COLUMNS: tuple[str, ...] = (
@@ -70,10 +74,14 @@ class ExpertEvalCallback(BaseCallback):
         trajectory_fn: TrajectoryFn | None = None,
         env_kwargs: Mapping[str, Any] | None = None,
         verbose: int = 0,
+        steps_per_epoch: int | None = None,
     ) -> None:
         super().__init__(verbose)
-        if isinstance(eval_every, bool) or not isinstance(eval_every, (int, np.integer)) or eval_every < 1:
-            raise UserError(f"eval_every must be a positive integer, got {eval_every!r}")
+        counts = {"eval_every": eval_every, "steps_per_epoch": 1 if steps_per_epoch is None else steps_per_epoch}
+        for name, value in counts.items():
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise UserError(f"{name} must be a positive integer, got {value!r}")
+        self.steps_per_epoch = None if steps_per_epoch is None else int(steps_per_epoch)
         self.demos = as_demonstrations(demos)
         _require_seeds(self.demos)  # fail at construction, not after the first rollout
         self.eval_every = int(eval_every)
@@ -136,6 +144,8 @@ class ExpertEvalCallback(BaseCallback):
 
     # -- hooks ----------------------------------------------------------------------------------
     def _epoch(self) -> int:
+        if self.steps_per_epoch is not None:
+            return int(self.model.num_timesteps // self.steps_per_epoch)
         n_steps = getattr(self.model, "n_steps", None)
         if isinstance(n_steps, (int, np.integer)) and n_steps > 0:
             # A rollout is exactly n_steps * n_envs steps and each completed one is followed by an update.
@@ -148,7 +158,8 @@ class ExpertEvalCallback(BaseCallback):
 
     def _on_rollout_start(self) -> None:
         epoch = self._epoch()
-        if epoch % self.eval_every == 0:
+        # An epoch of steps_per_epoch spans many rollouts of an off-policy learner: its first one evaluates.
+        if epoch % self.eval_every == 0 and all(epoch != done for done, _ in self._done):
             self._evaluate(epoch, dump=False)
 
     def _on_rollout_end(self) -> None:
@@ -158,7 +169,12 @@ class ExpertEvalCallback(BaseCallback):
         return True
 
     def _on_training_end(self) -> None:
-        self._evaluate(self._epoch(), dump=True)
+        epoch = self._epoch()
+        if self.steps_per_epoch is not None and self.model.num_timesteps % self.steps_per_epoch:
+            # Training ended inside an epoch: its row is that epoch's end, not a second row of the last
+            # one begun (whose evaluation at its first step is already there).
+            epoch += 1
+        self._evaluate(epoch, dump=True)
 
     # -- work -----------------------------------------------------------------------------------
     def _evaluate(self, epoch: int, dump: bool) -> None:

@@ -37,7 +37,8 @@ FIGURES: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 FINAL_FIGURE = "fig3_final_eval.png"
 FINAL_FIGURE_REFERENCE = "fig3_final_eval_reference.png"
 SMOOTHING_SIGMA = 2.0
-COLORS = {"bc": "tab:gray", "dril": "tab:orange", "cmz": "tab:blue", "zero": "tab:red", "env": "tab:green"}
+COLORS = {"bc": "tab:gray", "dril": "tab:orange", "cmz": "tab:blue", "zero": "tab:red", "env": "tab:green",
+          "cmz-sac": "tab:purple"}
 
 
 def new_figure(width: float, height: float):
@@ -121,14 +122,16 @@ def plot_figure(
     return save_png(fig, path)
 
 
-#: Horizontal offset of the final policy's and the lowest-u policy's points around a method's tick.
-_POLICY_OFFSET = {"final": -0.17, "lowest_u": 0.17}
+#: Horizontal offset of the final policy's and the reward-free choice's points around a method's tick
+#: (a method has one kind of choice: lowest u for CMZDRIL, longest episodes for CMZDRILSAC).
+_POLICY_OFFSET = {"final": -0.17, "lowest_u": 0.17, "longest": 0.17}
 
 
 def _tick_label(rows: Sequence[FinalRow], env: str, method: str) -> str:
-    """The method's name and, for RL methods, in how many trials each policy (final | lowest u) beat BC."""
+    """The method's name and, for RL methods, in how many trials each policy (final | its reward-free
+    choice) beat BC."""
     wins = []
-    for policy in ("final", "lowest_u"):
+    for policy in _POLICY_OFFSET:
         row = find(rows, env, method, policy)
         comparison = paired(row, baselines(rows, row)[0]) if row is not None else None
         if comparison is not None and comparison.trials:
@@ -137,7 +140,7 @@ def _tick_label(rows: Sequence[FinalRow], env: str, method: str) -> str:
 
 
 def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
-    methods = [m for m in METHOD_ORDER if find(rows, env, m) is not None or find(rows, env, m, "lowest_u") is not None]
+    methods = [m for m in METHOD_ORDER if any(find(rows, env, m, policy) is not None for policy in _POLICY_OFFSET)]
     for x, method in enumerate(methods):
         for policy, offset in _POLICY_OFFSET.items():
             row = find(rows, env, method, policy)

@@ -251,10 +251,12 @@ def method_text(confidence: float = CONFIDENCE) -> str:
         f"the mean over trials [{100 * confidence:g}% bootstrap confidence interval over trials: "
         f"scipy.stats.bootstrap, {BOOTSTRAP_METHOD}, {BOOTSTRAP_RESAMPLES} resamples, seed {BOOTSTRAP_SEED}; "
         f"n/a with fewer than {MIN_TRIALS_FOR_CI} trials]. \"(lowest u)\" is the policy whose own training "
-        "rollout had the lowest ensemble disagreement: chosen without the env reward. \"Episodes at expert "
-        f"level\": the share of a run's held-out episodes whose return is at least {EXPERT_LEVEL:g} times the "
-        "expert's on the same episode. \"% of expert\": 100 times a run's mean return over its mean expert "
-        "return on the same episodes. Both are n/a where the expert's returns are not all positive."
+        "rollout had the lowest ensemble disagreement, \"(longest episodes)\" the off-policy learner's policy "
+        "whose deterministic episodes from fixed starts lasted longest: both chosen without the env reward. "
+        f"\"Episodes at expert level\": the share of a run's held-out episodes whose return is at least "
+        f"{EXPERT_LEVEL:g} times the expert's on the same episode. \"% of expert\": 100 times a run's mean "
+        "return over its mean expert return on the same episodes. Both are n/a where the expert's returns are "
+        "not all positive."
     )
 
 

@@ -44,14 +44,18 @@ METHOD_LABELS: dict[str, str] = {
     "cmz": "CMZ-DRIL",
     "zero": "No reward",
     "env": "Env. reward",
+    "cmz-sac": "CMZ-DRIL (SAC)",
 }
-#: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods.
-METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env")
+#: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods, then the off-policy learner.
+METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env", "cmz-sac")
 #: Column order of envs: the paper's (PyUXV, Half Cheetah, Hopper); others follow alphabetically.
 ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
-#: The policies of a final evaluation: the one at the end of training, and the one whose own training
-#: rollout had the lowest ensemble disagreement (reward-free selection; RL methods only).
-POLICIES: tuple[str, ...] = ("final", "lowest_u")
+#: The policies of a final evaluation: the one at the end of training, and the reward-free choice of
+#: the RL methods: CMZDRIL's policy whose own training rollout had the lowest ensemble disagreement,
+#: CMZDRILSAC's whose deterministic episodes from fixed starts lasted longest.
+POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest")
+#: How a table names a policy, after its method's label.
+POLICY_SUFFIXES: dict[str, str] = {"final": "", "lowest_u": " (lowest u)", "longest": " (longest episodes)"}
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
 FINAL_VALUES: tuple[str, ...] = ("return", "length", "frechet", "action_mse", "expert_return")
 
@@ -88,7 +92,7 @@ class Skipped:
 
 def label(method: str, policy: str = "final") -> str:
     """``CMZ-DRIL`` for the final policy, ``CMZ-DRIL (lowest u)`` for the lowest-disagreement one."""
-    return METHOD_LABELS[method] + ("" if policy == "final" else " (lowest u)")
+    return METHOD_LABELS[method] + POLICY_SUFFIXES[policy]
 
 
 def relative(path: Path, root: Path) -> str:

@@ -33,6 +33,7 @@ from sb3_cmzdril.experiments.report.records import (
     Grid,
     RunRecord,
     env_key,
+    label,
     relative,
     setting_differences,
 )
@@ -112,7 +113,7 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
             if reference is not None:
                 paper = reference.values.get(env, {}).get(method) if policy == "final" else None
                 cells.append(fmt_mean_std(*paper) if paper else "—")
-            body.append([env, METHOD_LABELS[method] + ("" if policy == "final" else " (lowest u)"), *cells])
+            body.append([env, label(method, policy), *cells])
         cells = []
         for rep in reports:
             if rep.final:
@@ -146,7 +147,7 @@ def readme_markdown(rep: GridReport) -> str:
                 cells.append("—" if table_row is None
                              else fmt_mean_std(table_row.mean("return"), table_row.std("return")))
         body.append([env, *cells])
-    header = [METHOD_LABELS[m] + ("" if p == "final" else " (lowest u)") for m, p in columns]
+    header = [label(m, p) for m, p in columns]
     return md_table(["Env", *header], body)
 
 

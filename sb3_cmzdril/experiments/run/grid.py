@@ -52,11 +52,12 @@ from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, check_finished
 from sb3_cmzdril.experiments.run.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
-    METHODS,
+    PAPER_METHODS,
     RunSpec,
     check_method,
     default_demos_path,
     default_output_dir,
+    is_off_policy,
     missing_pool_error,
     plan_run,
 )
@@ -77,7 +78,7 @@ def parse_list(text: str | Sequence[str]) -> list[str]:
 
 def plan_grid(
     env_ids: str | Sequence[str],
-    methods: str | Sequence[str] = METHODS,
+    methods: str | Sequence[str] = PAPER_METHODS,
     trials: int | Sequence[int] = 5,
     runs_dir: PathLike = "runs",
     *,
@@ -88,6 +89,7 @@ def plan_grid(
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     demos_dir: PathLike = "experts",
     hyperparams: PathLike | None = None,
+    offpolicy_hyperparams: PathLike | None = None,
     command: str | None = None,
 ) -> list[RunSpec]:
     """Every run of the grid, validated before anything starts (unknown env or method, missing or
@@ -97,6 +99,9 @@ def plan_grid(
     :param n_demos: training episodes per trial (default: the YAML's per-env ``n_demos``: 1 for the
         MuJoCo envs, 5 for WaypointNav, as in the paper).
     :param demos_dir: demo pools are ``<demos_dir>/<EnvName>/demos.npz``.
+    :param hyperparams: the PPO methods' YAML (default: the shipped cmzdril.yml).
+    :param offpolicy_hyperparams: the off-policy methods' (``cmz-sac``) YAML (default: the shipped
+        cmzdril_sac.yml), as the zoo keeps one file per algorithm.
     Order: trial, then env, then method, so that whole trials finish first.
     """
     envs = parse_list(env_ids)
@@ -127,7 +132,7 @@ def plan_grid(
             n_eval_episodes=n_eval_episodes,
             timesteps=timesteps,
             output_dir=default_output_dir(env_id, method, trial, runs_dir),
-            hyperparams=hyperparams,
+            hyperparams=offpolicy_hyperparams if is_off_policy(method) else hyperparams,
             eval_every=eval_every,
             checkpoint_every=checkpoint_every,
             command=command,
@@ -393,7 +398,7 @@ def run_grid(
 
 def benchmark(
     env_ids: str | Sequence[str],
-    methods: str | Sequence[str] = METHODS,
+    methods: str | Sequence[str] = PAPER_METHODS,
     trials: int | Sequence[int] = 5,
     runs_dir: PathLike = "runs",
     *,

@@ -14,10 +14,14 @@
     DIR/state.json         step count, wall time and the segments (start, resumes) of the run
     DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
     DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
-                           (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint
+                           (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint;
+                           an off-policy run (cmz-sac) keeps longest.pt instead, the policy whose
+                           deterministic episodes from fixed starts lasted longest
+    DIR/replay_buffer.pkl  an off-policy run's replay buffer, with each checkpoint; removed when the
+                           run is done
     DIR/final_eval.csv     the final evaluation: every pool episode not used for training, replayed by
-                           the final policy ("final") and by the lowest-u one ("lowest_u"), one row
-                           per (policy, episode)
+                           the final policy ("final") and by the kept one ("lowest_u" or "longest"),
+                           one row per (policy, episode)
     DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
     DIR/done.json          written last: the final summary; its presence means "finished"
 
@@ -79,6 +83,13 @@ FINAL_EVAL_COLUMNS = ("policy", "episode", "seed", "return", "length", "frechet"
 PRETRAIN_CSV = "pretrain.csv"
 LOWEST_U_FILE = "lowest_u.pt"
 LOWEST_U_MODEL = "model_lowest_u.zip"
+LONGEST_FILE = "longest.pt"
+LONGEST_MODEL = "model_longest.zip"
+REPLAY_BUFFER_FILE = "replay_buffer.pkl"
+#: final_eval.csv's name of a run's reward-free choice: "lowest_u" for CMZDRIL, "longest" for CMZDRILSAC
+#: (:mod:`sb3_cmzdril.selection`), with the files of its choice and of its model
+SELECTIONS: dict[str, tuple[str, str]] = {"lowest_u": (LOWEST_U_FILE, LOWEST_U_MODEL),
+                                          "longest": (LONGEST_FILE, LONGEST_MODEL)}
 DISCARDED_CSV = "eval.discarded.csv"
 ERROR_FILE = "error.txt"
 LOG_FILE = "log.txt"
@@ -454,7 +465,11 @@ class RunFolder:
         self.model = self.path / MODEL_FILE
         self.vecnormalize = self.path / VECNORMALIZE_FILE
         self.eval_csv = self.path / EVAL_CSV
-        self.lowest_u = self.path / LOWEST_U_FILE
+        #: final_eval.csv's name of the run's reward-free choice, and the files that keep it
+        self.selection_name = "longest" if run.spec.off_policy else "lowest_u"
+        choice, choice_model = SELECTIONS[self.selection_name]
+        self.selection, self.selection_model = self.path / choice, self.path / choice_model
+        self.replay_buffer = self.path / REPLAY_BUFFER_FILE
         self.config: dict[str, Any] = {}  #: config.json's content, once :meth:`open` has written or read it
 
     def finished(self) -> dict[str, Any] | None:
@@ -476,6 +491,15 @@ class RunFolder:
         """Whether the run continues from a checkpoint (BC has none to continue from: it is retrained)."""
         return self.run.spec.method != "bc" and self.model.is_file()
 
+    def check_resumable(self) -> None:
+        """UserError when the checkpoint lacks a file the run needs to go on: an off-policy learner's
+        replay buffer (without it the run would go on as another run, silently)."""
+        if self.run.spec.off_policy and self.resumable and not self.replay_buffer.is_file():
+            raise UserError(
+                f"{self.path} holds {MODEL_FILE} but not {REPLAY_BUFFER_FILE}, which an off-policy run needs to "
+                "resume; delete the folder to start the run again"
+            )
+
     def segment_logger(self, start: int, verbose: int):
         """SB3 logger writing the progress CSV of the segment that starts at step ``start`` (a resumed
         run must not overwrite the last one's)."""
@@ -490,7 +514,8 @@ class RunFolder:
         return Logger(folder=None, output_formats=formats)
 
     def checkpoint(self, model: Any, selector: Any, state: RunState) -> None:
-        """model.zip, the VecNormalize statistics beside it, the lowest-u search and state.json."""
+        """model.zip, the VecNormalize statistics beside it, an off-policy learner's replay buffer, the
+        reward-free choice so far and state.json."""
         # The checkpoint's files belong together: Ctrl-C or SIGTERM waits until all are written.
         with deferred_signals():
             vec_normalize = model.get_vec_normalize_env()
@@ -499,7 +524,10 @@ class RunFolder:
                     vec_normalize.save(str(tmp))
             with atomic_path(self.model, suffix=".zip") as tmp:
                 model.save(tmp)
-            selector.save(self.lowest_u)  # with the checkpoint, so a resume continues the same search
+            if self.run.spec.off_policy:
+                with atomic_path(self.replay_buffer, suffix=".pkl") as tmp:
+                    model.save_replay_buffer(tmp)
+            selector.save(self.selection)  # with the checkpoint, so a resume continues the same search
             state.write(model.num_timesteps)
 
     def has_pretrain(self) -> bool:
@@ -513,13 +541,15 @@ class RunFolder:
         with atomic_path(self.path / FINAL_EVAL_CSV) as tmp:
             tmp.write_text("\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
 
-    def save_lowest_u_model(self, model: Any) -> None:
-        with atomic_path(self.path / LOWEST_U_MODEL, suffix=".zip") as tmp:
+    def save_selected_model(self, model: Any) -> None:
+        with atomic_path(self.selection_model, suffix=".zip") as tmp:
             model.save(tmp)
 
     def finish(self, summary: dict[str, Any]) -> dict[str, Any]:
-        """done.json, written last: from now on the folder holds a finished run."""
+        """done.json, written last: from now on the folder holds a finished run (whose replay buffer,
+        hundreds of MB and of no use once nothing resumes, is removed)."""
         write_json(self.path / DONE_FILE, summary)
+        self.replay_buffer.unlink(missing_ok=True)
         error = self.path / ERROR_FILE
         if _is_ours_before_config(error):  # an earlier attempt's failure is history once the run is done
             with contextlib.suppress(FileNotFoundError):
@@ -562,11 +592,15 @@ __all__ = [
     "FINAL_EVAL_COLUMNS",
     "FINAL_EVAL_CSV",
     "LOG_FILE",
+    "LONGEST_FILE",
+    "LONGEST_MODEL",
     "LOWEST_U_FILE",
     "LOWEST_U_MODEL",
     "MODEL_FILE",
     "PRETRAIN_CSV",
+    "REPLAY_BUFFER_FILE",
     "RESUME_NOTE",
+    "SELECTIONS",
     "STATE_FILE",
     "TABLE_WINDOW",
     "VECNORMALIZE_FILE",

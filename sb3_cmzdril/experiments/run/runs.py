@@ -13,9 +13,11 @@ written after the checkpoint (by the interrupted process, for a policy that no l
 moved to ``eval.discarded.csv`` so that ``eval.csv`` describes one training trajectory; nothing is
 deleted.
 
-Methods (``METHODS``): ``bc`` (the NLL-pretrained policy, evaluated once at epoch 0) and the four
-CMZDRIL reward modes ``zero``, ``env``, ``dril``, ``cmz``. Every method of a trial shares the network
-seed, the env seed and the demonstration split, so their epoch-0 policies are identical.
+Methods (``METHODS``): ``bc`` (the NLL-pretrained policy, evaluated once at epoch 0), the four
+CMZDRIL reward modes ``zero``, ``env``, ``dril``, ``cmz``, and ``cmz-sac``: CMZ-DRIL's reward with the
+off-policy learner CMZDRILSAC, whose epoch is ``OFFPOLICY_EPOCH_STEPS`` env steps and whose checkpoint
+holds its replay buffer too. Every method of a trial shares the env seed and the demonstration split;
+the PPO methods share the network seed's initial weights too, so their epoch-0 policies are identical.
 
 This module stays the public path of the planning and run-folder names that users import from it
 (``plan_run``, ``RunSpec``, ``read_eval_csv``, ``window_means``, ``METHODS``, the file names, ...).
@@ -61,11 +63,14 @@ from sb3_cmzdril.experiments.run.spec import (
     FALLBACK_N_DEMOS,
     HYPERPARAMS_NAME,
     METHODS,
+    OFFPOLICY_EPOCH_STEPS,
     ResolvedRun,
     RunSpec,
     check_method,
     default_demos_path,
     default_output_dir,
+    epoch_steps,
+    learner_classes,
     load_run_hyperparams,
     make_training_env,
     missing_pool_error,
@@ -102,8 +107,9 @@ def run_experiment(
     done = folder.finished()  # refuses a folder that holds someone's files or another run
     if done is not None:
         return {**done, "status": "skipped"}
+    folder.check_resumable()
     # Read before folder.open() writes config.json: a damaged lowest_u.pt refuses with the folder untouched.
-    selector = _selector(folder, folder.resumable)
+    selector = _selector(run, folder, folder.resumable)
     with folder.open():  # created and locked; config.json written, or matched with the run there
         resume = folder.resumable
         model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
@@ -120,6 +126,8 @@ def run_experiment(
             final = _final_evaluation(run, folder, model, selector) if finished else None
         finally:
             eval_cb.close()
+            if hasattr(selector, "close"):  # the longest-episodes checks' own env
+                selector.close()
             venv.close()
         if not finished:
             return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(folder.path)}
@@ -129,10 +137,9 @@ def run_experiment(
 
 def _new_model(run: ResolvedRun, verbose: int) -> tuple[Any, Any, int]:
     """(model, its training env, 0): a fresh model on the run's training episodes."""
-    from sb3_cmzdril.algorithm import CMZDRIL
-
+    learner, _ = learner_classes(run.spec.method)
     venv = make_training_env(run.spec, run.hp, run.spec.seed, None)
-    model = CMZDRIL(
+    model = learner(
         run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
         seed=run.spec.seed, verbose=verbose, **run.model_kwargs(),
     )
@@ -141,14 +148,17 @@ def _new_model(run: ResolvedRun, verbose: int) -> tuple[Any, Any, int]:
 
 def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
     """(model, its training env, its step count): the run's checkpoint, to train on from where it stopped."""
-    from sb3_cmzdril.algorithm import CMZDRIL
-
+    learner, _ = learner_classes(run.spec.method)
     venv = make_training_env(run.spec, run.hp, run.spec.seed, folder.vecnormalize)
+    source = folder.model
     try:
-        model = CMZDRIL.load(folder.model, env=venv, device=run.model_kwargs()["device"])
-    except Exception as e:  # a zip is written atomically, so this is a foreign or damaged file
+        model = learner.load(source, env=venv, device=run.model_kwargs()["device"])
+        if run.spec.off_policy:
+            source = folder.replay_buffer
+            model.load_replay_buffer(source)
+    except Exception as e:  # files are written atomically, so this is a foreign or damaged one
         venv.close()
-        raise UserError(f"cannot resume from {folder.model}: {type(e).__name__}: {e}") from e
+        raise UserError(f"cannot resume from {source}: {type(e).__name__}: {e}") from e
     start = int(model.num_timesteps)
     # Seeds of a resumed segment (networks' sampling and the env, which set_random_seed also
     # seeds) are offset by its start, so it does not replay the first segment's noise.
@@ -156,23 +166,39 @@ def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
     return model, venv, start
 
 
-def _selector(folder: RunFolder, resume: bool) -> Any:
-    """The reward-free search for the lowest-disagreement policy, continued from the checkpoint's."""
-    from sb3_cmzdril.selection import LowestDisagreementPolicy
+#: The longest-episodes checks of an off-policy run: episodes per check, and the first reset seed of
+#: trial 0's (trial t: + 100 t); no pool episode of the shipped pools starts from these seeds.
+LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED = 5, 100_000
 
-    selector = LowestDisagreementPolicy()
+
+def _selector(run: ResolvedRun, folder: RunFolder, resume: bool) -> Any:
+    """The run's reward-free choice of a policy, continued from the checkpoint's: the lowest-disagreement
+    rollout's policy for CMZDRIL, the policy with the longest episodes for CMZDRILSAC (checked every
+    ``eval_every`` epochs), whose rollouts are single steps."""
+    from sb3_cmzdril.selection import LongestEpisodesPolicy, LowestDisagreementPolicy
+
+    selector: Any
+    if run.spec.off_policy:
+        selector = LongestEpisodesPolicy(
+            run.spec.env_id, check_every=run.spec.eval_every * OFFPOLICY_EPOCH_STEPS,
+            n_episodes=LONGEST_CHECK_EPISODES, seed=LONGEST_CHECK_SEED + 100 * run.spec.seed,
+            env_kwargs=run.hp.env_kwargs,
+        )
+    else:
+        selector = LowestDisagreementPolicy()
     if resume:
-        selector.load(folder.lowest_u)
+        selector.load(folder.selection)
     return selector
 
 
 def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:
-    """eval.csv's rows: the policy against the held-out expert episodes every ``eval_every`` updates."""
+    """eval.csv's rows: the policy against the held-out expert episodes every ``eval_every`` epochs."""
     from sb3_cmzdril.metrics import ExpertEvalCallback
 
     return ExpertEvalCallback(
         run.spec.env_id, run.pool.select(run.eval_idx), eval_every=run.spec.eval_every, csv_path=folder.eval_csv,
         env_kwargs=run.hp.env_kwargs, verbose=verbose,
+        steps_per_epoch=OFFPOLICY_EPOCH_STEPS if run.spec.off_policy else None,
     )
 
 
@@ -180,7 +206,7 @@ def _train(
     run: ResolvedRun, folder: RunFolder, model: Any, state: RunState, eval_cb: Any, selector: Any,
     callbacks: list[Any], *, start: int, resume: bool, progress_bar: bool,
 ) -> None:
-    """Pretrain (BC to convergence, the ensemble fit), then PPO from step ``start`` to the run's
+    """Pretrain (BC to convergence, the ensemble fit), then PPO or SAC from step ``start`` to the run's
     ``timesteps``, checkpointing into the folder; BC stops after pretraining."""
     spec = run.spec
     # Pretraining takes seconds to minutes: show it.
@@ -195,7 +221,7 @@ def _train(
         folder.checkpoint(model, selector, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
         return
     checkpoint_cb = _checkpoint_callback_class()(
-        lambda m: folder.checkpoint(m, selector, state), spec.checkpoint_every, model.n_steps * model.n_envs
+        lambda m: folder.checkpoint(m, selector, state), spec.checkpoint_every, epoch_steps(model)
     )
     progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
     model.learn(
@@ -207,8 +233,8 @@ def _train(
 
 def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector: Any) -> dict[str, Any]:
     """Replay every pool episode not used for training with the final policy and, for the RL
-    methods, the lowest-u one; write final_eval.csv (one row per policy and episode) and
-    model_lowest_u.zip; return the summaries for done.json.
+    methods, the reward-free choice (lowest u, or longest episodes); write final_eval.csv (one row per
+    policy and episode) and the chosen policy's model zip; return the summaries for done.json.
 
     Five episodes per evaluation cannot tell methods apart on HalfCheetah (one BC policy scored 188
     on one machine and 242 on another); the whole rest of the pool can.
@@ -219,7 +245,7 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector:
     held_out = run.pool.select(episodes)
     policies = {"final": None}
     if run.spec.method != "bc" and selector.best_state is not None:
-        policies["lowest_u"] = selector
+        policies[folder.selection_name] = selector
     results: dict[str, Any] = {"episodes": episodes}
     rows = []
     final_state = {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
@@ -227,13 +253,15 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector:
         for name, source in policies.items():
             if source is not None:
                 source.apply(model)
-                folder.save_lowest_u_model(model)
+                folder.save_selected_model(model)
             ev = evaluate_against_expert(
                 model, run.spec.env_id, held_out, env_kwargs=run.hp.env_kwargs, start_mismatch="ignore"
             )
             summary = ev.summary()
             if source is not None:
-                summary.update(epoch=int(source.best_epoch), rollout_u=float(source.best_u))
+                summary.update(source.kept())
+                if "timesteps" in summary:  # a choice by steps gets the epoch the tables show too
+                    summary["epoch"] = summary["timesteps"] // epoch_steps(model)
             results[name] = summary
             rows += final_eval_rows(name, episodes, ev)
     finally:
@@ -281,7 +309,7 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "eval_episodes": folder.config["eval_episodes"],
         "num_timesteps": int(model.num_timesteps),
         "requested_timesteps": spec.timesteps,
-        "epochs": int(model.num_timesteps // (model.n_steps * model.n_envs)),
+        "epochs": int(model.num_timesteps // epoch_steps(model)),
         "n_evaluations": int(columns["epoch"].size),
         "last_evaluation": last,
         # What Table I takes from this run (the report recomputes it from eval.csv).
@@ -304,18 +332,23 @@ def load_evaluation_model(
 ) -> tuple[Any, Any | None]:
     """``(model, observation transform or None)`` for :func:`~sb3_cmzdril.metrics.evaluate_against_expert`.
 
-    A CMZDRIL zip, else any SB3 model (an expert, a plain PPO). With ``vecnormalize`` (statistics
-    saved beside a run's model.zip) the transform normalises observations as the policy saw them.
+    A CMZDRIL or CMZDRILSAC zip, else any SB3 model (an expert, a plain PPO). With ``vecnormalize``
+    (statistics saved beside a run's model.zip) the transform normalises observations as the policy saw them.
     """
-    from sb3_cmzdril.algorithm import CMZDRIL
     from sb3_cmzdril.experts import load_expert_model
 
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"model file not found: {path}")
-    try:
-        model = CMZDRIL.load(path, device="cpu")
-    except Exception:  # not a CMZDRIL zip: some other SB3 algorithm's, which load_expert_model identifies
+    model = None
+    for method in ("cmz", "cmz-sac"):
+        learner, _ = learner_classes(method)
+        try:
+            model = learner.load(path, device="cpu")
+            break
+        except Exception:  # not this learner's zip: the next one's, or some other SB3 algorithm's
+            continue
+    if model is None:  # load_expert_model identifies the SB3 algorithm
         model = load_expert_model(path)
     _check_model_fits_env(model, path, env_id, env_kwargs)
     if vecnormalize is None:
@@ -381,7 +414,8 @@ def _checkpoint_callback_class():
         """model.zip (and VecNormalize stats) every ``every`` PPO updates and at the end, then state.json.
 
         It saves at the start of a rollout, after the ExpertEvalCallback listed before it has
-        evaluated the same policy, so an eval row and the checkpoint at that step always agree.
+        evaluated the same policy, so an eval row and the checkpoint at that step always agree. An
+        off-policy epoch spans many rollouts: the first of it saves.
         """
 
         def __init__(self, save: Any, every: int, steps_per_update: int) -> None:
@@ -390,10 +424,16 @@ def _checkpoint_callback_class():
             self.every = int(every)
             self.steps_per_update = int(steps_per_update)
             self._last = -1
+            self._last_epoch = -1
+
+        def _on_training_start(self) -> None:
+            # A resumed run starts at its checkpoint's epoch: that one is saved already.
+            self._last_epoch = self.model.num_timesteps // self.steps_per_update
 
         def _on_rollout_start(self) -> None:
             epoch = self.model.num_timesteps // self.steps_per_update
-            if epoch > 0 and epoch % self.every == 0:
+            if epoch > 0 and epoch % self.every == 0 and epoch != self._last_epoch:
+                self._last_epoch = epoch
                 self._save()
 
         def _on_step(self) -> bool:

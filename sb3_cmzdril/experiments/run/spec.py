@@ -27,13 +27,27 @@ from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonst
 from sb3_cmzdril.io import PathLike, portable_path
 
 if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
     from sb3_cmzdril.demos import Demonstrations
     from sb3_cmzdril.hyperparams import Hyperparams
 
-#: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL.
-METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz")
+#: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL (PPO), then
+#: CMZ-DRIL's reward with the off-policy learner CMZDRILSAC (:data:`OFFPOLICY_METHODS`).
+METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz", "cmz-sac")
+#: Methods trained by CMZDRILSAC, each with the reward mode it names before ``-sac``.
+OFFPOLICY_METHODS: tuple[str, ...] = ("cmz-sac",)
+#: The paper's comparison: what a grid runs when no method is named.
+PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m not in OFFPOLICY_METHODS)
 #: Hyperparameter file of the repository used when none is given (hyperparams/cmzdril.yml).
 HYPERPARAMS_NAME = "cmzdril"
+#: The same for the off-policy methods (hyperparams/cmzdril_sac.yml).
+OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
+#: An off-policy run's epoch, in env steps: what ``eval_every``, ``checkpoint_every`` and Table I's
+#: window count for it. SAC updates after every step, so its epoch is a length chosen to match a PPO
+#: rollout of the shipped settings (``n_steps: 2048``, one env): both learners then evaluate, keep
+#: checkpoints and average Table I over the same stretches of steps.
+OFFPOLICY_EPOCH_STEPS = 2048
 #: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs).
 EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos",)
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
@@ -67,6 +81,48 @@ class RunSpec:
     def label(self) -> str:
         """``EnvName/method/trial<seed>``: how progress displays and reports name the run."""
         return f"{env_name(self.env_id)}/{self.method}/trial{self.seed}"
+
+    @property
+    def off_policy(self) -> bool:
+        """Whether the run trains CMZDRILSAC (the off-policy learner) rather than CMZDRIL (PPO)."""
+        return is_off_policy(self.method)
+
+
+def is_off_policy(method: str) -> bool:
+    """Whether ``method`` is trained by CMZDRILSAC (:data:`OFFPOLICY_METHODS`)."""
+    return method in OFFPOLICY_METHODS
+
+
+def learner_classes(method: str) -> tuple[Any, type[BaseAlgorithm]]:
+    """(the package's class, the SB3 class it extends) that train ``method``: their constructors
+    take the YAML entry's keys. The first is CMZDRIL or CMZDRILSAC, whose constructors and methods
+    differ beyond what a common type would say (hence Any)."""
+    if is_off_policy(method):
+        from stable_baselines3 import SAC
+
+        from sb3_cmzdril.sac import CMZDRILSAC
+
+        return CMZDRILSAC, SAC
+    from stable_baselines3 import PPO
+
+    from sb3_cmzdril.algorithm import CMZDRIL
+
+    return CMZDRIL, PPO
+
+
+def default_hyperparams_name(method: str) -> str:
+    """The shipped hyperparameter file a method reads when none is given: cmzdril.yml (PPO), cmzdril_sac.yml."""
+    return OFFPOLICY_HYPERPARAMS_NAME if is_off_policy(method) else HYPERPARAMS_NAME
+
+
+def epoch_steps(model: Any) -> int:
+    """Env steps per epoch of a built model: a PPO rollout (``n_steps * n_envs``), else
+    :data:`OFFPOLICY_EPOCH_STEPS`."""
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+    if isinstance(model, OnPolicyAlgorithm):
+        return int(model.n_steps * model.n_envs)
+    return OFFPOLICY_EPOCH_STEPS
 
 
 def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> tuple[list[int], list[int]]:
@@ -106,11 +162,13 @@ def default_output_dir(env_id: str, method: str, seed: int, runs_dir: PathLike =
     return Path(runs_dir) / env_name(env_id) / method / f"trial{int(seed)}"
 
 
-def load_run_hyperparams(path: PathLike, env_id: str) -> tuple[Hyperparams, dict[str, Any]]:
-    """The env's entry of a cmzdril.yml as ``(Hyperparams, experiment settings)``.
+def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tuple[Hyperparams, dict[str, Any]]:
+    """The env's entry of a cmzdril.yml (cmzdril_sac.yml for an off-policy ``method``) as
+    ``(Hyperparams, experiment settings)``.
 
     Experiment keys (:data:`EXPERIMENT_KEYS`) are removed from the constructor kwargs; keys this
-    code does not implement (env/vec-env wrappers, callbacks, frame stacking) are refused.
+    code does not implement (env/vec-env wrappers, callbacks, frame stacking) are refused, and so are
+    keys the method's learner (:func:`learner_classes`) does not take.
     """
     from sb3_cmzdril.hyperparams import load_hyperparams
 
@@ -119,22 +177,20 @@ def load_run_hyperparams(path: PathLike, env_id: str) -> tuple[Hyperparams, dict
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
     settings = {k: hp.algo_kwargs.pop(k) for k in EXPERIMENT_KEYS if k in hp.algo_kwargs}
-    unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs())
+    classes = learner_classes(method)
+    unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs(classes))
     if unknown:
         # Caught here, a typo fails the whole grid at once instead of every run in its worker.
-        raise UserError(f"hyperparameters {hp.key!r} in {path}: {unknown} are not CMZDRIL/PPO arguments")
+        names = "/".join(c.__name__ for c in classes)
+        raise UserError(f"hyperparameters {hp.key!r} in {path}: {unknown} are not {names} arguments")
     return hp, settings
 
 
-@functools.lru_cache(maxsize=1)
-def _constructor_kwargs() -> frozenset:
+@functools.lru_cache(maxsize=2)
+def _constructor_kwargs(classes: tuple[type, ...]) -> frozenset:
     import inspect
 
-    from stable_baselines3 import PPO
-
-    from sb3_cmzdril.algorithm import CMZDRIL
-
-    names = set(inspect.signature(CMZDRIL.__init__).parameters) | set(inspect.signature(PPO.__init__).parameters)
+    names = set().union(*(inspect.signature(c).parameters for c in classes))
     return frozenset(names - {"self", "policy", "env", "_init_setup_model", "ppo_kwargs"})
 
 
@@ -190,7 +246,8 @@ def plan_run(
     :param n_demos: training episodes (default: ``n_demos`` of the YAML entry, else 1).
     :param timesteps: total PPO steps (default: ``n_timesteps`` of the YAML entry); unused by ``bc``.
     :param output_dir: default ``runs/<EnvName>/<method>/trial<seed>``.
-    :param hyperparams: zoo-format YAML (default: the repository's ``hyperparams/cmzdril.yml``).
+    :param hyperparams: zoo-format YAML (default: the repository's ``hyperparams/cmzdril.yml``,
+        ``hyperparams/cmzdril_sac.yml`` for an off-policy method).
     :raises ValueError: unknown method or env, bad counts, a pool too small for the split, anything
         :func:`resolve_run` refuses.
     :raises FileNotFoundError: no demo pool or hyperparameter file.
@@ -200,8 +257,10 @@ def plan_run(
     check_method(method)
     check_env_id(env_id)
     seed = check_seed(seed)
-    hp_path = Path(hyperparams) if hyperparams is not None else default_hyperparams_path(HYPERPARAMS_NAME)
-    hp, settings = load_run_hyperparams(hp_path, env_id)
+    if hyperparams is None:
+        hyperparams = default_hyperparams_path(default_hyperparams_name(method))
+    hp_path = Path(hyperparams)
+    hp, settings = load_run_hyperparams(hp_path, env_id, method)
     n_demos = _positive_int("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
     n_eval_episodes = _positive_int("n_eval_episodes", n_eval_episodes)
     if method == "bc":
@@ -254,8 +313,11 @@ class ResolvedRun:
 
     @property
     def reward(self) -> str:
-        """CMZDRIL's reward mode: BC is CMZDRIL's pretrained policy, trained with no reward at all."""
-        return "zero" if self.spec.method == "bc" else self.spec.method
+        """The learner's reward mode: BC is CMZDRIL's pretrained policy, trained with no reward at all;
+        an off-policy method's is the name before ``-sac``."""
+        if self.spec.method == "bc":
+            return "zero"
+        return self.spec.method.removesuffix("-sac")
 
     def model_kwargs(self) -> dict[str, Any]:
         """The model's constructor kwargs: the YAML's, on the CPU unless it says otherwise."""
@@ -278,7 +340,7 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
 
     :raises ValueError: naming the file and the value at fault.
     """
-    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id)
+    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id, spec.method)
     pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
     try:
         train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
@@ -286,12 +348,9 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
         raise UserError(f"{spec.demos}: {e}") from None
     run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx))
     if check:
-        from stable_baselines3 import PPO
-
-        from sb3_cmzdril.algorithm import CMZDRIL
         from sb3_cmzdril.hyperparams import check_constructor_kwargs
 
-        check_constructor_kwargs(hp, [CMZDRIL, PPO])
+        check_constructor_kwargs(hp, list(learner_classes(spec.method)))
         _check_reset_seeds(run)
         _preflight(run)
     return run
@@ -321,9 +380,8 @@ def _preflight(run: ResolvedRun) -> None:
     (``n_steps * n_envs > 1``), env_kwargs the env does not take, a pool recorded on another env,
     values only training would trip over (:func:`_check_values`).
     """
-    from sb3_cmzdril.algorithm import CMZDRIL
-
     spec = run.spec
+    learner, _ = learner_classes(spec.method)
     key = (
         spec.env_id,
         spec.method,
@@ -352,7 +410,7 @@ def _preflight(run: ResolvedRun) -> None:
             raise UserError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
         _check_starts(run)
         try:
-            model = CMZDRIL(
+            model = learner(
                 run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool, reward=run.reward, seed=spec.seed,
                 **run.model_kwargs(),
             )
@@ -439,7 +497,7 @@ def _check_values(model: Any, where: str) -> None:
     """ValueError naming the first hyperparameter of ``model`` that training cannot use."""
     for name, ok, rule in _VALUE_CHECKS:
         value = getattr(model, name, None)
-        if value is None:
+        if value is None or isinstance(value, str):  # SAC's ent_coef "auto...": checked by SAC itself
             continue
         start = float(value(1.0)) if callable(value) else float(value)
         if not ok(start):
@@ -512,12 +570,20 @@ __all__ = [
     "FALLBACK_N_DEMOS",
     "HYPERPARAMS_NAME",
     "METHODS",
+    "OFFPOLICY_EPOCH_STEPS",
+    "OFFPOLICY_HYPERPARAMS_NAME",
+    "OFFPOLICY_METHODS",
+    "PAPER_METHODS",
     "ResolvedRun",
     "RunSpec",
     "check_method",
     "default_demos_path",
+    "default_hyperparams_name",
     "default_output_dir",
+    "epoch_steps",
     "file_mtime_ns",
+    "is_off_policy",
+    "learner_classes",
     "load_pool",
     "load_run_hyperparams",
     "make_training_env",

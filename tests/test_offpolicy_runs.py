@@ -1,0 +1,172 @@
+"""The off-policy method ``cmz-sac`` (CMZ-DRIL's reward, CMZDRILSAC) in the run layer: train,
+benchmark and report, with the grid's folder layout, its resume and its reward-free choice.
+
+An off-policy epoch is ``OFFPOLICY_EPOCH_STEPS`` (2,048) env steps; here it is cut to 64, so that a
+run of a few epochs on Pendulum-v1's 50-step episodes takes a few seconds.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from helpers import ENV, POOL_EPISODES, SHORT_EPISODES, TINY_SAC, Interrupt, zoo_yaml
+from sb3_cmzdril.cli import main
+from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.experiments.run import spec as spec_module
+from sb3_cmzdril.experiments.run.grid import plan_grid
+from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.experiments.run.spec import PAPER_METHODS, train_command
+from sb3_cmzdril.sac import CMZDRILSAC
+
+EPOCH = 64
+#: CMZDRILSAC's imitation options at the tests' size, and the shipped file's settings that matter here
+TINY_CMZ_SAC = dict(
+    TINY_SAC,
+    ensemble_hidden=(16, 16),
+    ensemble_epochs=5,
+    bc_pretrain_epochs=5,
+    cmz_clip_quantile=0.98,
+    absorbing=True,
+)
+
+
+@pytest.fixture(autouse=True)
+def short_epochs(monkeypatch):
+    """An off-policy epoch of 64 steps (the runs execute in this process, so the patch reaches them)."""
+    monkeypatch.setattr(spec_module, "OFFPOLICY_EPOCH_STEPS", EPOCH)
+    from sb3_cmzdril.experiments.run import runs
+
+    monkeypatch.setattr(runs, "OFFPOLICY_EPOCH_STEPS", EPOCH)
+
+
+@pytest.fixture(scope="module")
+def sac_yaml(tiny_experiment) -> Path:
+    path = tiny_experiment["root"] / "cmzdril_sac.yml"
+    path.write_text(zoo_yaml("default", TINY_CMZ_SAC, n_timesteps=256, env_kwargs=SHORT_EPISODES, n_demos=1))
+    return path
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _train_args(tiny_experiment, sac_yaml, out: Path, *extra: str) -> list[str]:
+    return ["train", "--env", ENV, "--reward", "cmz-sac", "--demos", str(tiny_experiment["pool"]),
+            "--eval-episodes", "2", "--checkpoint-every", "2", "--hyperparams", str(sac_yaml), "-o", str(out),
+            "--no-progress", *extra]
+
+
+def test_train_cmz_sac_writes_the_grid_layout_with_the_longest_episodes_choice(tiny_experiment, sac_yaml,
+                                                                               tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(_train_args(tiny_experiment, sac_yaml, out)) == 0
+    printed = capsys.readouterr().out
+    assert "final policy: return" in printed and "longest-episodes policy (epoch" in printed
+    config = json.loads((out / "config.json").read_text())
+    assert config["method"] == "cmz-sac" and config["timesteps"] == 256
+    assert config["model_kwargs"]["cmz_clip_quantile"] == 0.98 and config["model_kwargs"]["absorbing"] is True
+    assert "train --env Pendulum-v1 --reward cmz-sac --timesteps 256" in config["train_command"]
+    assert (config["train_episodes"], config["eval_episodes"]) == split_episodes(POOL_EPISODES, 1, 2, 0)
+    # One evaluation per 64-step epoch, epoch 0 being the clone before any SAC step.
+    rows = _rows(out / "eval.csv")
+    assert [(int(r["epoch"]), int(r["timesteps"])) for r in rows] == [(e, EPOCH * e) for e in range(5)]
+    done = json.loads((out / "done.json").read_text())
+    assert done["method"] == "cmz-sac" and done["num_timesteps"] == 256 and done["epochs"] == 4
+    assert done["final_window"]["last_epoch"] == 4 and done["cpu_time_s"] > 0
+    # Every held-out episode, replayed by the last weights and by the longest-episodes choice.
+    held_out = [i for i in range(POOL_EPISODES) if i not in config["train_episodes"]]
+    final_rows = _rows(out / "final_eval.csv")
+    assert [(r["policy"], int(r["episode"])) for r in final_rows] == [
+        (p, i) for p in ("final", "longest") for i in held_out]
+    longest = done["final_evaluation"]["longest"]
+    assert longest["timesteps"] % EPOCH == 0 and longest["epoch"] == longest["timesteps"] // EPOCH
+    assert longest["return_mean"] == pytest.approx(
+        np.mean([float(r["return"]) for r in final_rows if r["policy"] == "longest"]), rel=1e-5)
+    assert {"model.zip", "model_longest.zip", "longest.pt", "pretrain.csv"} <= {p.name for p in out.iterdir()}
+    assert not (out / "replay_buffer.pkl").exists()  # a finished run has no use for it
+    model = CMZDRILSAC.load(out / "model.zip", device="cpu")
+    assert model.num_timesteps == 256 and model.cmz_clip_quantile == 0.98
+
+
+def test_a_run_ending_inside_an_epoch_evaluates_that_epoch_once(tiny_experiment, sac_yaml, tmp_path):
+    out = tmp_path / "run"
+    assert main(_train_args(tiny_experiment, sac_yaml, out, "--timesteps", "200")) == 0
+    rows = _rows(out / "eval.csv")
+    # Epochs 0-3 at their first step; the end, 8 steps into epoch 4, is epoch 4's row, not a second epoch 3.
+    assert [(int(r["epoch"]), int(r["timesteps"])) for r in rows] == [(0, 0), (1, 64), (2, 128), (3, 192), (4, 200)]
+
+
+def _interrupted_run(tiny_experiment, sac_yaml, out: Path, trial: int):
+    """A cmz-sac run of 256 steps interrupted at step 192, after its checkpoint at epoch 2 (128 steps)."""
+    spec = plan_run(ENV, "cmz-sac", trial, demos=tiny_experiment["pool"], n_eval_episodes=2, timesteps=256,
+                    output_dir=out, hyperparams=sac_yaml, checkpoint_every=2)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(spec, callbacks=[Interrupt(at=192)])
+    return spec
+
+
+@pytest.mark.slow
+def test_cmz_sac_resumes_from_its_checkpoint_with_the_replay_buffer(tiny_experiment, sac_yaml, tmp_path):
+    out = tmp_path / "run"
+    spec = _interrupted_run(tiny_experiment, sac_yaml, out, trial=1)
+    # The checkpoint at epoch 2: the model, its buffer of 128 transitions and the choice so far.
+    with open(out / "replay_buffer.pkl", "rb") as f:
+        assert pickle.load(f).pos == 2 * EPOCH
+    assert (out / "longest.pt").is_file() and not (out / "done.json").exists()
+    summary = run_experiment(spec)
+    assert summary["status"] == "done" and summary["num_timesteps"] == 256 and summary["segments"] == 2
+    state = json.loads((out / "state.json").read_text())
+    assert [s["from_timesteps"] for s in state["segments"]] == [0, 2 * EPOCH]
+    assert [int(r["epoch"]) for r in _rows(out / "eval.csv")] == [0, 1, 2, 3, 4]
+    assert not (out / "replay_buffer.pkl").exists()
+
+
+def test_a_checkpoint_without_its_replay_buffer_is_refused(tiny_experiment, sac_yaml, tmp_path):
+    out = tmp_path / "run"
+    spec = _interrupted_run(tiny_experiment, sac_yaml, out, trial=0)
+    (out / "replay_buffer.pkl").unlink()
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(UserError, match="holds model.zip but not replay_buffer.pkl"):
+        run_experiment(spec)
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_cmz_sac_reads_its_own_hyperparameter_file(tiny_experiment, sac_yaml, tmp_path):
+    spec = plan_run("Walker2d-v5", "cmz-sac", 0)  # the shipped pool and file
+    assert Path(spec.hyperparams).name == "cmzdril_sac.yml" and spec.timesteps == 70_000
+    assert "--reward cmz-sac" in train_command(spec)
+    # A PPO key is not a CMZDRILSAC argument: refused before any file is written.
+    ppo_keys = tmp_path / "ppo_keys.yml"
+    ppo_keys.write_text(sac_yaml.read_text().replace("n_demos: 1", "n_demos: 1\n  n_epochs: 3"))
+    with pytest.raises(UserError, match=r"\['n_epochs'\] are not CMZDRILSAC/SAC arguments"):
+        plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=ppo_keys, output_dir=tmp_path / "x")
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_grid_runs_the_papers_methods_unless_told_and_gives_cmz_sac_its_file(tiny_experiment, sac_yaml, tmp_path):
+    specs = plan_grid(ENV, trials=1, runs_dir=tmp_path, demos_dir=tiny_experiment["demos_dir"],
+                      hyperparams=tiny_experiment["hp"])
+    assert tuple(s.method for s in specs) == PAPER_METHODS and "cmz-sac" not in PAPER_METHODS
+    specs = plan_grid(ENV, "cmz,cmz-sac", 1, tmp_path, demos_dir=tiny_experiment["demos_dir"],
+                      hyperparams=tiny_experiment["hp"], offpolicy_hyperparams=sac_yaml)
+    assert [(s.method, Path(s.hyperparams)) for s in specs] == [
+        ("cmz", tiny_experiment["hp"]), ("cmz-sac", sac_yaml)]
+    assert Path(specs[1].output_dir) == tmp_path / ENV / "cmz-sac" / "trial0"
+
+
+@pytest.mark.slow
+def test_the_report_names_the_off_policy_learner_and_its_choice(tiny_experiment, sac_yaml, tmp_path):
+    runs_dir = tmp_path / "runs"
+    assert main(["benchmark", "--env", ENV, "--methods", "bc,cmz-sac", "--trials", "1", "--eval-episodes", "2",
+                 "--demos-dir", str(tiny_experiment["demos_dir"]), "--hyperparams", str(tiny_experiment["hp"]),
+                 "--sac-hyperparams", str(sac_yaml), "-o", str(runs_dir), "--no-progress"]) == 0
+    assert (runs_dir / ENV / "cmz-sac" / "trial0" / "done.json").is_file()
+    assert main(["report", str(runs_dir), "-o", str(tmp_path / "report")]) == 0
+    page = (tmp_path / "report" / "results.md").read_text()
+    assert "CMZ-DRIL (SAC)" in page and "CMZ-DRIL (SAC) (longest episodes)" in page
