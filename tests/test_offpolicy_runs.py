@@ -92,6 +92,10 @@ def test_train_cmz_sac_writes_the_grid_layout_with_the_longest_episodes_choice(t
     assert not (out / "replay_buffer.pkl").exists()  # a finished run has no use for it
     model = CMZDRILSAC.load(out / "model.zip", device="cpu")
     assert model.num_timesteps == 256 and model.cmz_clip_quantile == 0.98
+    # `evaluate` loads the run's CMZDRILSAC zip and replays its held-out episodes as the run did.
+    assert main(["evaluate", "--model", str(out / "model.zip"), "--env", ENV, "--demos", str(tiny_experiment["pool"]),
+                 "--episodes", ",".join(map(str, config["eval_episodes"]))]) == 0
+    assert f"{float(rows[-1]['return_mean']):.2f}" in capsys.readouterr().out
 
 
 def test_a_run_ending_inside_an_epoch_evaluates_that_epoch_once(tiny_experiment, sac_yaml, tmp_path):

@@ -10,9 +10,9 @@ def add_evaluate(sub) -> None:
         "evaluate",
         help="replay expert episodes' starts with a model: return, Fréchet distance and action MSE per episode",
         description=(
-            "Evaluate a model zip (a CMZDRIL run's model.zip, or any SB3 model such as an expert) against "
-            "expert episodes: each episode's reset seed is replayed with the model's deterministic actions "
-            "and compared with the expert's path (discrete Fréchet distance) and actions (MSE). "
+            "Evaluate a model zip (a run's model.zip, CMZDRIL's or CMZDRILSAC's, or any SB3 model such as an "
+            "expert) against expert episodes: each episode's reset seed is replayed with the model's "
+            "deterministic actions and compared with the expert's path (discrete Fréchet distance) and actions (MSE). "
             "The demo pool, env_kwargs and VecNormalize statistics are taken from the model's run folder "
             "(config.json, vecnormalize.pkl) when it has them."
         ),
