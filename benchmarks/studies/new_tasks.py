@@ -75,6 +75,11 @@ SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (
 
 
 GRID_MADE_BY = "the published grid (CONTRIBUTING.md)"
+#: the same learner as the package's method `cmz-sac` of train/benchmark: a step budget, not a CPU one, and
+#: its final policy is the last weights (the longest-episodes choice is its second policy)
+CMZ_SAC_LABEL = ("`cmz-sac`, the package's method (hyperparams/cmzdril_sac.yml: the clipped CMZ reward and the "
+                 "absorbing state, 70k steps; last weights, the longest-episodes choice beside them)")
+CMZ_SAC_TRIALS5_9 = "results/runs_sac_trials5-9"
 
 
 def offpolicy_command(name: str, env: str, sets: str) -> str:
@@ -131,6 +136,12 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
+    Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABEL}: trials 0-4", GRID,
+            "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz-sac --trials 5 --eval-every 5 --workers 2 "
+            "-o results/runs", trials=(0, 1, 2, 3, 4)),
+    Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9,
+            f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
+            f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)", trials=(5, 6, 7, 8, 9)),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -153,7 +164,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
-                             "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5", firsts=(0,)),
+                             "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",

@@ -36,6 +36,7 @@ from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
 from sb3_cmzdril.experiments.report.records import (
     METHOD_LABELS,
     METHOD_ORDER,
+    POLICIES,
     RunRecord,
     Skipped,
     load_runs,
@@ -167,18 +168,19 @@ def rollout_markdown(root: Path, skipped: list[Skipped], tables: tuple[RolloutTa
 
 def variant_rows(variant: Variant, root: Path, skipped: list[Skipped],
                  loaded: dict[Path, list[FinalRow]] | None = None) -> dict[str, FinalRow | None]:
-    """The variant's final and lowest-u rows (None where its folder has no such finished runs);
-    ``loaded`` keeps each folder's rows for the next variant of the same folder."""
+    """The variant's final row and its reward-free choice's, lowest u or longest episodes (None where
+    its folder has no such finished runs); ``loaded`` keeps each folder's rows for the next variant of
+    the same folder."""
     folder = root / variant.runs
     if not folder.is_dir():
         skipped.append(Skipped(folder, "no such runs folder"))
-        return {"final": None, "lowest_u": None}
+        return dict.fromkeys(POLICIES)
     rows = None if loaded is None else loaded.get(folder)
     if rows is None:
         rows = final_table(load_runs(folder, skipped))
         if loaded is not None:
             loaded[folder] = rows
-    found = {policy: find(rows, variant.env, variant.method, policy) for policy in ("final", "lowest_u")}
+    found = {policy: find(rows, variant.env, variant.method, policy) for policy in POLICIES}
     if variant.trials is None:
         return found
     kept = {policy: None if row is None else dataclasses.replace(
@@ -251,7 +253,7 @@ def ablation_markdown(
         baselines = {m: baseline_row(env, m, grid, root) for m in ("bc", "dril")}
         body = []
         for variant, row in zip(variants, rows, strict=True):
-            final, lowest = row["final"], row["lowest_u"]
+            final, lowest = row["final"], row["lowest_u"] or row["longest"]
             if final is None:
                 body.append([variant.label, "0", "no finished runs"] + [""] * 7)
                 continue
@@ -271,7 +273,8 @@ def ablation_markdown(
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
             ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
-             "Lowest-u policy: % of expert", "Table I window return", "CPU minutes per run (median)",
+             "Lowest-u (or longest-episodes) policy: % of expert", "Table I window return",
+             "CPU minutes per run (median)",
              "Final above the reference (trials)",
              f"Final above BC of {where} (trials)", f"Final above DRIL of {where} (trials)"],
             body,
@@ -647,10 +650,12 @@ def render(
         "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
         "start state. % of expert: 100 x the run's mean return / the expert's mean return on the same "
         "episodes; a cell is the mean over trials [95% bootstrap CI over trials, n/a under 3 trials]. "
-        "Lowest-u policy: the policy whose own training rollout had the lowest ensemble disagreement (no "
-        "env reward used). Table I window: the per-epoch evaluation (5 held-out episodes) averaged over the "
-        "last 100 epochs. Trials: a trial is a seed, demo split and set of held-out episodes, the same "
-        "in every variant; the paired count is over the trials both variants have.",
+        "Lowest-u policy: the policy whose own training rollout had the lowest ensemble disagreement; for "
+        "the method `cmz-sac`, the longest-episodes policy: the one whose deterministic episodes from fixed "
+        "starts lasted longest (neither reads the env reward). Table I window: the per-epoch evaluation (5 "
+        "held-out episodes) averaged over the last 100 epochs. Trials: a trial is a seed, demo split and set "
+        "of held-out episodes, the same in every variant; the paired count is over the trials both variants "
+        "have.",
         "## How many demonstrations, how many steps\n\nThe package defaults with more training "
         "demonstrations (the first N of the trial's permutation of the pool, so a trial's 1 demo is among "
         "its 3 and its 3 among its 10; the rest of the 30-episode pool is held out) and with a longer "
