@@ -69,7 +69,7 @@ from sb3_cmzdril.experiments.run.run_folder import (
     RunState,
     discard_rows_after,
 )
-from sb3_cmzdril.experiments.run.runs import final_eval_rows
+from sb3_cmzdril.experiments.run.runs import LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED, final_eval_rows
 from sb3_cmzdril.experiments.run.spec import plan_run, resolve_run
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import atomic_path, atomic_write_text, deferred_signals, read_json, write_json
@@ -80,8 +80,6 @@ from sb3_cmzdril.selection import LongestEpisodesPolicy
 ROOT = Path(__file__).resolve().parents[2]
 #: SB3's log_interval: a row of logs/progress_0.csv every this many episodes
 LOG_EVERY_EPISODES = 10
-#: episodes of each check of ``--select longest``, and the first reset seed of trial 0's checks
-SELECT_EPISODES, SELECT_SEED = 5, 100_000
 #: the run's checkpoint (every ``--eval-every`` steps), removed when the run is done: the model, its
 #: replay buffer and the longest-episodes choice so far
 CHECKPOINT_DIR, REPLAY_FILE, SELECTION_FILE = "checkpoint", "replay_buffer.pkl", "selection.pt"
@@ -200,9 +198,9 @@ def run_trial(name: str, env_id: str, trial: int, cpu_minutes: float, eval_every
     model.set_logger(Logger(None, [CSVOutputFormat(str(folder / "logs" / f"progress_{start}.csv"))]))
     callbacks: list[BaseCallback] = [eval_cb]
     selector = None
-    if select == "longest":
-        selector = LongestEpisodesPolicy(env_id, check_every=eval_every, n_episodes=SELECT_EPISODES,
-                                         seed=SELECT_SEED + 100 * trial, env_kwargs=env_kwargs)
+    if select == "longest":  # the starts the package's cmz-sac runs check too: their choices pair trial by trial
+        selector = LongestEpisodesPolicy(env_id, check_every=eval_every, n_episodes=LONGEST_CHECK_EPISODES,
+                                         seed=LONGEST_CHECK_SEED + 100 * trial, env_kwargs=env_kwargs)
         if resuming and not selector.load(checkpoint / SELECTION_FILE):
             raise UserError(f"{checkpoint} has no {SELECTION_FILE}: it is not a --select longest run's checkpoint")
         callbacks.append(selector)
