@@ -276,7 +276,7 @@ def test_evaluate_defaults_to_the_runs_held_out_episodes(normalized_run, capsys)
     capsys.readouterr()
     held_out = json.loads((normalized_run / "config.json").read_text())["eval_episodes"]
     assert main(["evaluate", "--model", str(normalized_run / "model.zip"), "--env", ENV]) == 0
-    out = capsys.readouterr().out
+    out = " ".join(capsys.readouterr().out.split())  # the console wraps lines where tmp_path is long
     assert f"episodes {','.join(map(str, held_out))} of " in out and "the run's held-out episodes" in out
     assert "2 episodes of" in out  # the table's title: the held-out pair, not the pool's 6
     assert f"normalised with {normalized_run / 'vecnormalize.pkl'}, found beside the model" in out

@@ -254,6 +254,19 @@ def test_hub_experts_in_process_and_their_one_line_errors(sac, tmp_path, offline
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_offline_a_hub_expert_comes_from_the_cache_alone(sac, tmp_path, offline_hub, monkeypatch):
+    # Some huggingface_hub releases list the repository online unless told to stay local, and then
+    # fail offline on a cached commit: offline, nothing may ask the Hub.
+    hub = pytest.importorskip("huggingface_hub")
+    _hub_cache(tmp_path, sac[0])
+    calls = []
+    download = hub.snapshot_download
+    monkeypatch.setattr(hub, "snapshot_download", lambda *a, **kw: calls.append(kw) or download(*a, **kw))
+    with pytest.warns(UserWarning, match="trained on Pendulum-v0"):
+        resolve_expert(f"hf://test-org/sac-Pendulum-v0@{COMMIT}", gym.make(ENV))
+    assert [kw.get("local_files_only") for kw in calls] == [True]
+
+
 def test_hub_expert_names_the_hub_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # as if the hub extra were not installed
     with pytest.raises(MissingExtraError, match=r"needs the 'hub' extra: pip install 'sb3-cmzdril\[hub\]'"):

@@ -131,6 +131,7 @@ def test_a_killed_benchmark_leaves_no_ray_process():
 
     from sb3_cmzdril.experiments.run._ray_watchdog import descendants
 
+    pytest.importorskip("ray", reason="the Ray backend is in the 'ray' and 'test' extras")
     if not Path("/proc/self/stat").is_file():
         pytest.skip("the watchdog reads /proc (Linux)")
     script = (

@@ -237,7 +237,8 @@ def test_dict_observations_standardise_their_box_entries_only():
     mean, std = observation_statistics(demos.observations["pos"])
     np.testing.assert_allclose(ext.obs_mean_0.cpu().numpy(), mean, rtol=1e-6)
     # the one-hot of "mode" reaches the CombinedExtractor unchanged
-    obs = {"pos": th.as_tensor(mean[None]), "mode": th.tensor([[0.0, 1.0, 0.0]])}
+    obs = {"pos": th.as_tensor(mean[None], device=model.device),
+           "mode": th.tensor([[0.0, 1.0, 0.0]], device=model.device)}
     np.testing.assert_allclose(ext(obs).cpu().numpy(), [[0.0, 1.0, 0.0, 0.0, 0.0]], atol=1e-6)  # keys sorted
 
 

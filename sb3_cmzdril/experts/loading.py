@@ -29,6 +29,7 @@ expert too: its policy is PPO's, and a run on normalised observations has ``vecn
 from __future__ import annotations
 
 import base64
+import importlib
 import json
 import os
 import pickle
@@ -472,8 +473,12 @@ def hub_model_files(spec: str) -> tuple[Path, str]:
 
     hub = require_extra("huggingface_hub", "hub", feature=f"expert {spec}")
     repo, revision = match["repo"], match["revision"]
+    # Offline, the cache is all there is: some huggingface_hub releases (1.x) still list the
+    # repository online unless told to stay local, and fail on a cached commit.
+    offline = bool(getattr(importlib.import_module("huggingface_hub.constants"), "HF_HUB_OFFLINE", False))
     try:
-        folder = Path(hub.snapshot_download(repo, revision=revision, allow_patterns=list(_HUB_FILES)))
+        folder = Path(hub.snapshot_download(repo, revision=revision, allow_patterns=list(_HUB_FILES),
+                                            local_files_only=offline))
     except (OSError, ValueError) as e:  # the Hub's errors: no such repo or revision, offline and not cached
         reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise MissingFileError(
