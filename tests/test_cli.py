@@ -244,6 +244,16 @@ def test_a_folder_the_run_did_not_create_is_refused_untouched(setup, tmp_path, c
     assert snapshot(tmp_path) == before
 
 
+def test_benchmark_runs_the_trials_it_names(setup, tmp_path):
+    runs = tmp_path / "runs"
+    assert main(["benchmark", "--env", ENV, "--methods", "bc", "--trials", "1,3", "--eval-episodes", "1",
+                 "--no-progress", "--demos-dir", str(setup["pool"].parent.parent), "--hyperparams",
+                 str(setup["ppo"]), "-o", str(runs)]) == 0
+    assert sorted(p.name for p in (runs / ENV / "bc").iterdir()) == ["trial1", "trial3"]
+    record = json.loads((runs / "benchmark.jsonl").read_text().splitlines()[-1])
+    assert record["trials"] == [1, 3]
+
+
 def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun(setup, tmp_path):
     from sb3_cmzdril.experiments.run import runs
 

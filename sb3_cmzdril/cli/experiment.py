@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from sb3_cmzdril.errors import UserError
+
 if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
     from sb3_cmzdril.io import PathLike
 
@@ -176,7 +178,11 @@ def add_benchmark(sub) -> None:
         default=None,
         help="zoo-format YAML of the cmz-sac runs (default: the shipped hyperparams/cmzdril_sac.yml)",
     )
-    p.add_argument("--trials", type=int, default=5, help="trials 0..T-1 (default 5, as the paper)")
+    p.add_argument(
+        "--trials",
+        default="5",
+        help="a count T (trials 0..T-1; default 5, as the paper), or trial indices and ranges: 5-9, 0,3,7",
+    )
     p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
     _add_run_options(p, "progress display")
     p.add_argument("--demos-dir", default="experts", help="folder holding <EnvName>/demos.npz (default: experts)")
@@ -184,6 +190,26 @@ def add_benchmark(sub) -> None:
     p.add_argument("--ray-address", default=None, help="Ray cluster address for ray.init (default: start a local Ray)")
     p.add_argument("-o", "--output", default="runs", help="runs folder (default: runs)")
     p.set_defaults(func=_run_benchmark)
+
+
+def trial_indices(text: str) -> int | list[int]:
+    """``--trials``: a count T (trials 0..T-1), or indices and ranges (``5-9``, ``0,3,7``, ``0-2,7``),
+    so that a study's confirmation trials run apart from its tuning trials."""
+    text = text.strip()
+    if text.isdigit():
+        return int(text)
+    indices: list[int] = []
+    for part in text.split(","):
+        first, dash, last = (s.strip() for s in part.partition("-"))
+        if not first.isdigit() or (dash and not last.isdigit()):
+            raise UserError(f"--trials {text!r}: write a count (5), a range (5-9) or trial indices (0,3,7)")
+        start, stop = int(first), int(last if dash else first)
+        if stop < start:
+            raise UserError(f"--trials {text!r}: the range {part.strip()} runs backwards")
+        indices.extend(range(start, stop + 1))
+    if len(set(indices)) != len(indices):
+        raise UserError(f"--trials {text!r} names a trial twice")
+    return indices
 
 
 def _run_benchmark(args) -> int:
@@ -194,7 +220,7 @@ def _run_benchmark(args) -> int:
     outcomes = benchmark(
         args.env,
         args.methods,
-        args.trials,
+        trial_indices(args.trials),
         args.output,
         workers=args.workers,
         backend=args.backend,
@@ -214,4 +240,4 @@ def _run_benchmark(args) -> int:
     return 1 if any(o.status is RunStatus.FAILED for o in outcomes) else 0
 
 
-__all__ = ["add_benchmark", "add_train"]
+__all__ = ["add_benchmark", "add_train", "trial_indices"]
