@@ -323,6 +323,7 @@ def test_setting_differences_name_missing_settings(tmp_path):
     write_run(a, "bc", 0, [1.0], hyperparams={"standardize_observations": True, "n_steps": 2048})
     write_run(b, "bc", 0, [1.0], hyperparams={"n_steps": 2048})
     write_run(b, "bc", 0, [1.0], env="Hopper-v5", hyperparams={"n_steps": 1})  # only in b: not compared
+    write_run(a, "cmz-sac", 0, [1.0], hyperparams={"buffer_size": 10})  # a method only a has: not compared
     assert setting_differences(load_runs(a), load_runs(b)) == {ENV: [("standardize_observations", "true", NOT_SET)]}
 
 

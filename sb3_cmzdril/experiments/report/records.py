@@ -306,11 +306,14 @@ def _settings(records: Sequence[RunRecord], env: str) -> dict[str, set]:
 def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> dict[str, list[tuple[str, str, str]]]:
     """env -> [(setting, a's value(s), b's value(s))] for the settings whose values differ between the
     two grids' runs of that env (config.json: :data:`COMPARED_SETTINGS` and hyperparams_values).
-    Only envs both grids ran are compared."""
+    Only the methods both grids ran on an env are compared: a method one grid alone has (another
+    learner, with its own settings) is no difference between the grids."""
     result: dict[str, list[tuple[str, str, str]]] = {}
     envs_b = {r.env for r in b}
     for env in sorted({r.env for r in a} & envs_b, key=env_key):
-        sa, sb = _settings(a, env), _settings(b, env)
+        shared = {r.method for r in a if r.env == env} & {r.method for r in b if r.env == env}
+        sa = _settings([r for r in a if r.method in shared], env)
+        sb = _settings([r for r in b if r.method in shared], env)
         diffs = []
         for key in dict.fromkeys([*sa, *sb]):
             va, vb = sa.get(key, {NOT_SET}), sb.get(key, {NOT_SET})
