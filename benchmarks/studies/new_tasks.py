@@ -95,6 +95,17 @@ def tuning_and_confirmation(label: str, name: str, sets: str, env: str = "Walker
                  for first in firsts)
 
 
+#: Hopper-v5's and HalfCheetah-v5's `cmz-sac` runs came from one benchmark command
+HOPPER_CHEETAH = "Hopper-v5,HalfCheetah-v5"
+
+
+def package_cmz_sac(env: str, envs: str) -> Variant:
+    """The package's `cmz-sac` on the grid's trials 0-4, made by ``benchmark --env ENVS``."""
+    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 0-4", GRID,
+                   f"sb3-cmzdril benchmark --env {envs} --methods cmz-sac --trials 5 --eval-every 5 --workers 2 "
+                   "-o results/runs", trials=(0, 1, 2, 3, 4))
+
+
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
@@ -136,9 +147,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
-    Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABEL}: trials 0-4", GRID,
-            "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz-sac --trials 5 --eval-every 5 --workers 2 "
-            "-o results/runs", trials=(0, 1, 2, 3, 4)),
+    package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
     Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9,
             f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
             f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)", trials=(5, 6, 7, 8, 9)),
@@ -154,12 +163,14 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
+    package_cmz_sac("Hopper-v5", HOPPER_CHEETAH),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
+    package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
