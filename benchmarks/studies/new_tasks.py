@@ -26,13 +26,19 @@ ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: the BC and DRIL runs every ablation is paired with: the published grid (trials 0-4), then trials 5-9 for
 #: the confirmation of the variants (BC on HalfCheetah-v5, Hopper-v5, Walker2d-v5 and WaypointNav-v0 by
-#: :func:`bc_trials10_command`, whose trials 0-4 repeat the grid's exactly; Walker2d-v5's DRIL by
-#: `sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 --hyperparams
-#: hyperparams/cmzdril.yml -o results/runs_dril_trials5-9/Walker2d-v5/dril/trialT` for T in 5-9)
+#: :func:`bc_trials10_command`, whose trials 0-4 repeat the grid's exactly; DRIL on Walker2d-v5 and Hopper-v5 by
+#: :data:`DRIL_TRIALS5_9_COMMANDS`)
+DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
+DRIL_TRIALS5_9_COMMANDS = {
+    "Walker2d-v5": ("sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
+                    f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9)"),
+    "Hopper-v5": ("sb3-cmzdril benchmark --env Hopper-v5 --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
+                  f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}"),
+}
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 BC_TRIALS10 = "results/runs_bc_trials10"
-BASELINES = (GRID, BC_TRIALS10, "results/runs_dril_trials5-9", OUTSIDE)
+BASELINES = (GRID, BC_TRIALS10, DRIL_TRIALS5_9, OUTSIDE)
 
 
 def bc_trials10_command(env: str) -> str:
@@ -67,6 +73,10 @@ SAC_UNCLIPPED_LABEL = ("the same, with u on the ensemble members' actions unclip
 CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
+#: PPO's CMZ-DRIL with the absorbing state charged at the u of the observation the episode ended in
+PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
+PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
+                      "`absorbing_score: terminal`)")
 WARMUP = "--set critic_warmup_steps=10000"
 SAC_WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
                     "10000`), 20 CPU-minutes per run")
@@ -104,6 +114,24 @@ def package_cmz_sac(env: str, envs: str) -> Variant:
     return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 0-4", GRID,
                    f"sb3-cmzdril benchmark --env {envs} --methods cmz-sac --trials 5 --eval-every 5 --workers 2 "
                    "-o results/runs", trials=(0, 1, 2, 3, 4))
+
+
+#: the confirmation trials 5-9 of Hopper-v5 and HalfCheetah-v5, one benchmark command after Hopper-v5's
+#: first two trials (which it skipped as finished)
+HOPPER_CHEETAH_TRIALS5_9 = (
+    f"sb3-cmzdril benchmark --env {HOPPER_CHEETAH} --methods cmz-sac --trials 5-9 --eval-every 5 --workers 2 "
+    f"--no-progress -o {CMZ_SAC_TRIALS5_9} (Hopper-v5's trials 5-6 first, by the same command with --env "
+    "Hopper-v5 --trials 5-6)")
+
+
+WALKER_TRIALS5_9 = (f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
+                    f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)")
+
+
+def package_cmz_sac_confirmation(env: str, command: str = HOPPER_CHEETAH_TRIALS5_9) -> Variant:
+    """The package's `cmz-sac` on the confirmation trials 5-9, in :data:`CMZ_SAC_TRIALS5_9`."""
+    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9, command,
+                   trials=(5, 6, 7, 8, 9))
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -148,9 +176,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
-    Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9,
-            f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
-            f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)", trials=(5, 6, 7, 8, 9)),
+    package_cmz_sac_confirmation("Walker2d-v5", WALKER_TRIALS5_9),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -164,6 +190,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
     package_cmz_sac("Hopper-v5", HOPPER_CHEETAH),
+    package_cmz_sac_confirmation("Hopper-v5"),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
@@ -171,6 +198,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
+    package_cmz_sac_confirmation("HalfCheetah-v5"),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
@@ -178,6 +206,8 @@ ABLATIONS: tuple[Variant, ...] = (
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
+    Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
+            tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
             offpolicy_command("WN-sac-64-clip98-auto", "WaypointNav-v0", CLIP_AUTO)),
     Variant("WaypointNav-v0", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/WN-sac-64-clip98-abs-terminal",
@@ -186,6 +216,10 @@ ABLATIONS: tuple[Variant, ...] = (
                              "WaypointNav-v0"),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
+    Variant("LunarLander-v3", "cmz", f"{PPO_TERMINAL_LABEL}, 3 demonstrations", "results/tuning/LL-abs-terminal",
+            f"python benchmarks/studies/tune.py LL-abs-terminal --base benchmarks/studies/outside_env.yml "
+            f"{PPO_TERMINAL} -- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 5 "
+            "--eval-every 5 --workers 2 --no-progress"),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
             offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
     Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
@@ -405,6 +439,29 @@ ACROSS_LEAD: tuple[AcrossTasks, ...] = (
     ),
 )
 
+#: the tasks the package's `cmz-sac` ran through `benchmark` on trials 0-9
+PACKAGE_SAC_TASKS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+ACROSS_PACKAGE_SAC = AcrossTasks(
+    "The package's `cmz-sac` over BC and DRIL on its three tasks, trials 5-9 (the confirmation)",
+    trials=(5, 6, 7, 8, 9),
+    methods=(
+        ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(
+            package_cmz_sac_confirmation(env, WALKER_TRIALS5_9) if env == "Walker2d-v5"
+            else package_cmz_sac_confirmation(env) for env in PACKAGE_SAC_TASKS)),
+        ("bc", "BC", tuple(Variant(env, "bc", "BC", BC_TRIALS10, bc_trials10_command(env))
+                           for env in PACKAGE_SAC_TASKS)),
+        ("dril", "DRIL", tuple(Variant(env, "dril", "DRIL", DRIL_TRIALS5_9, command)
+                               for env, command in DRIL_TRIALS5_9_COMMANDS.items())),
+    ),
+    pairs=(("sac", "bc"), ("sac", "dril")),
+    figure="new_tasks_across_package_sac_trials5-9.png",
+    intro=("The package's method `cmz-sac` (hyperparams/cmzdril_sac.yml, 70k steps, last weights) on the "
+           "confirmation trials 5-9 of the three tasks it ran on through `sb3-cmzdril benchmark`; its settings "
+           "were fixed before these runs. The report's aggregate ([results](results.md)) counts its trials 0-4. "
+           "BC is the grid's command with `--trials 10`; DRIL ran on these trials of Walker2d-v5 and Hopper-v5 "
+           "(the grid's settings), so it counts on those two. The grid's CMZ-DRIL has no runs of them."),
+)
+
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
           ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
@@ -436,7 +493,8 @@ def main(argv: list[str] | None = None, root: Path = ROOT) -> int:
         return 2
     out.parent.mkdir(parents=True, exist_ok=True)
     page = render(root, ABLATIONS, ROLLOUT_TABLES, SWEEPS, figures=out.parent / "figures", command=COMMAND,
-                  grid=BASELINES, cost_curves=COST_CURVES, selections=SELECTIONS, across=(*ACROSS, *ACROSS_LEAD))
+                  grid=BASELINES, cost_curves=COST_CURVES, selections=SELECTIONS,
+                  across=(*ACROSS, *ACROSS_LEAD, ACROSS_PACKAGE_SAC))
     atomic_write_text(out, page)
     print(out)
     return 0
