@@ -124,13 +124,19 @@ HOPPER_CHEETAH_TRIALS5_9 = (
     "Hopper-v5 --trials 5-6)")
 
 
-WALKER_TRIALS5_9 = (f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
-                    f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)")
+#: the command behind each task's `cmz-sac` runs of trials 5-9
+CMZ_SAC_TRIALS5_9_COMMANDS = {
+    "Walker2d-v5": (f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
+                    f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
+    "Hopper-v5": HOPPER_CHEETAH_TRIALS5_9,
+    "HalfCheetah-v5": HOPPER_CHEETAH_TRIALS5_9,
+}
 
 
-def package_cmz_sac_confirmation(env: str, command: str = HOPPER_CHEETAH_TRIALS5_9) -> Variant:
+def package_cmz_sac_confirmation(env: str) -> Variant:
     """The package's `cmz-sac` on the confirmation trials 5-9, in :data:`CMZ_SAC_TRIALS5_9`."""
-    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9, command,
+    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9,
+                   CMZ_SAC_TRIALS5_9_COMMANDS[env],
                    trials=(5, 6, 7, 8, 9))
 
 
@@ -176,7 +182,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
-    package_cmz_sac_confirmation("Walker2d-v5", WALKER_TRIALS5_9),
+    package_cmz_sac_confirmation("Walker2d-v5"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -445,9 +451,8 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
     "The package's `cmz-sac` over BC and DRIL on its three tasks, trials 5-9 (the confirmation)",
     trials=(5, 6, 7, 8, 9),
     methods=(
-        ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(
-            package_cmz_sac_confirmation(env, WALKER_TRIALS5_9) if env == "Walker2d-v5"
-            else package_cmz_sac_confirmation(env) for env in PACKAGE_SAC_TASKS)),
+        ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(package_cmz_sac_confirmation(env)
+                                                    for env in PACKAGE_SAC_TASKS)),
         ("bc", "BC", tuple(Variant(env, "bc", "BC", BC_TRIALS10, bc_trials10_command(env))
                            for env in PACKAGE_SAC_TASKS)),
         ("dril", "DRIL", tuple(Variant(env, "dril", "DRIL", DRIL_TRIALS5_9, command)
