@@ -14,8 +14,10 @@ signals are:
   :class:`~sb3_cmzdril.sac.CMZDRILSAC`): on a task that ends an episode when the agent fails (a
   fall), an expert's episodes run to the time limit. Every ``check_every`` steps it plays the policy
   deterministically from a fixed set of starts and keeps the policy whose episodes lasted longest,
-  the latest on a tie. It reads termination, never reward; on a task without failure terminations
-  every check ties and it keeps the last policy.
+  the latest on a tie (``tie_break="latest"``), or on a tie the one whose episodes' states the
+  ensemble disagrees on least (``tie_break="lowest_u"``, for a model with an ensemble). It reads
+  termination and the ensemble, never reward; on a task without failure terminations every check
+  ties, and ``"latest"`` keeps the last policy.
 """
 from __future__ import annotations
 
@@ -34,6 +36,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
+
+#: How :class:`LongestEpisodesPolicy` chooses between checks whose episodes lasted equally long.
+TIE_BREAKS: tuple[str, ...] = ("latest", "lowest_u")
 
 
 class _KeptWeights(BaseCallback):
@@ -141,13 +146,21 @@ class LowestDisagreementPolicy(_KeptWeights):
 
 
 class LongestEpisodesPolicy(_KeptWeights):
-    """Keep the policy whose deterministic episodes from fixed starts last longest (latest on a tie).
+    """Keep the policy whose deterministic episodes from fixed starts last longest (on a tie, the
+    latest or the one with the lowest disagreement).
 
     The policy is checked when training starts (the behaviour-cloned start), every ``check_every``
     steps and when training ends. Each check plays ``n_episodes`` episodes with
     ``predict(deterministic=True)`` on its own env, reset with ``seed`` before each check so that every
     check starts from the same states: the comparison between checks is paired. The episodes are not
     training data; they cost CPU time and env steps (:attr:`env_steps`) beside the training's.
+
+    When the model has an ensemble (``model.ensemble.disagreement(obs, actions)``, as
+    :class:`~sb3_cmzdril.sac.CMZDRILSAC`), each check also records the mean disagreement ``u`` over
+    its episodes' states and the actions played there. Where every episode reaches the time limit
+    (HalfCheetah's always do) length cannot tell a policy that runs from one that has stalled;
+    ``tie_break="lowest_u"`` then prefers the policy whose states the ensemble knows best, the
+    signal :class:`LowestDisagreementPolicy` uses. An exact tie in ``u`` too keeps the later policy.
 
     After ``learn()``, :meth:`apply` loads the kept weights into a model. :meth:`save`/:meth:`load`
     persist the choice with the checks so far, so that a resumed run (``learn(...,
@@ -158,6 +171,7 @@ class LongestEpisodesPolicy(_KeptWeights):
     :param check_every: training steps between checks.
     :param n_episodes: episodes per check.
     :param seed: the reset seed of each check's first episode.
+    :param tie_break: ``"latest"`` or ``"lowest_u"`` (:data:`TIE_BREAKS`).
     """
 
     _file_kind = "longest-episodes policy"
@@ -169,6 +183,7 @@ class LongestEpisodesPolicy(_KeptWeights):
         n_episodes: int = 5,
         seed: int = 0,
         env_kwargs: Mapping[str, Any] | None = None,
+        tie_break: str = "latest",
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
@@ -177,23 +192,36 @@ class LongestEpisodesPolicy(_KeptWeights):
                 raise UserError(f"{name} must be a positive integer, got {value!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise UserError(f"seed must be an integer, got {seed!r}")
+        if tie_break not in TIE_BREAKS:
+            raise UserError(f"tie_break must be one of {list(TIE_BREAKS)}, got {tie_break!r}")
         if isinstance(eval_env, str):
             eval_env = gym.make(eval_env, **dict(env_kwargs or {}))
         elif env_kwargs:
             raise UserError("env_kwargs applies only to an env id; the env given is made already")
         self.check_every, self.n_episodes, self.seed = int(check_every), int(n_episodes), int(seed)
+        self.tie_break = tie_break
         self.eval_env = DummyVecEnv([lambda: Monitor(eval_env)])
         self.best_length = -float("inf")
         self.best_timesteps: int | None = None
-        #: (training steps, mean episode length) of every check
-        self.history: list[tuple[int, float]] = []
+        #: the kept check's mean disagreement (NaN without an ensemble)
+        self.best_u = float("nan")
+        #: (training steps, mean episode length, mean disagreement or NaN) of every check
+        self.history: list[tuple[int, float, float]] = []
         #: env steps the checks' episodes took
         self.env_steps = 0
         self._next_check = 0
 
     def _on_training_start(self) -> None:
+        if self.tie_break == "lowest_u" and self._ensemble() is None:
+            raise UserError(
+                f"tie_break='lowest_u' needs a model with an ensemble; {type(self.model).__name__} has none"
+            )
         self._next_check = int(self.model.num_timesteps)
         self._check()
+
+    def _ensemble(self) -> Any:
+        ensemble = getattr(self.model, "ensemble", None)
+        return ensemble if callable(getattr(ensemble, "disagreement", None)) else None
 
     def _on_step(self) -> bool:
         if self.model.num_timesteps >= self._next_check:
@@ -210,40 +238,64 @@ class LongestEpisodesPolicy(_KeptWeights):
         if self.history and self.history[-1][0] == timesteps:
             return
         self.eval_env.seed(self.seed)
+        ensemble = self._ensemble()
+        played: tuple[list[Any], list[np.ndarray]] = ([], [])
+
+        def record(local_vars: dict[str, Any], _globals: dict[str, Any]) -> None:
+            # Called once per step of the single env, with the observation acted on and the action played.
+            played[0].append(local_vars["observations"])
+            played[1].append(np.asarray(local_vars["actions"]))
+
         _, lengths = evaluate_policy(self.model, self.eval_env, n_eval_episodes=self.n_episodes, deterministic=True,
-                                     return_episode_rewards=True)
+                                     return_episode_rewards=True, callback=record if ensemble is not None else None)
         length = float(np.mean(lengths))
         self.env_steps += int(np.sum(lengths))
-        self.history.append((timesteps, length))
-        if length >= self.best_length:
-            self.best_length, self.best_timesteps = length, timesteps
+        u = float(np.mean(ensemble.disagreement(_stacked(played[0]), np.concatenate(played[1])))) \
+            if ensemble is not None and played[0] else float("nan")
+        self.history.append((timesteps, length, u))
+        tied_and_better = length == self.best_length and (self.tie_break == "latest" or not u > self.best_u)
+        if length > self.best_length or tied_and_better:
+            self.best_length, self.best_timesteps, self.best_u = length, timesteps, u
             self._keep()
         if self.verbose >= 1:
-            print(f"[longest episodes] {timesteps} steps: mean episode length {length:.1f} "
+            print(f"[longest episodes] {timesteps} steps: mean episode length {length:.1f}, u {u:.4g} "
                   f"(kept: {self.best_timesteps} steps, {self.best_length:.1f})")
 
     def _choice(self) -> dict[str, th.Tensor]:
         return {
-            "history": th.tensor(self.history, dtype=th.float64).reshape(-1, 2),
+            "history": th.tensor(self.history, dtype=th.float64).reshape(-1, 3),
             "best_length": th.tensor(self.best_length, dtype=th.float64),
+            "best_u": th.tensor(self.best_u, dtype=th.float64),
             "best_timesteps": th.tensor(self.best_timesteps, dtype=th.int64),
             "env_steps": th.tensor(self.env_steps, dtype=th.int64),
         }
 
     def kept(self) -> dict[str, float]:
-        """The kept policy's training steps, its checks' mean episode length and the checks' env steps."""
+        """The kept policy's training steps, its checks' mean episode length and disagreement (NaN
+        without an ensemble), and the checks' env steps."""
         steps = -1 if self.best_timesteps is None else self.best_timesteps
-        return {"timesteps": int(steps), "mean_length": self.best_length, "env_steps": int(self.env_steps)}
+        return {"timesteps": int(steps), "mean_length": self.best_length, "mean_u": self.best_u,
+                "env_steps": int(self.env_steps)}
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
-        # Everything is read before anything is set: a file that lacks a part changes nothing.
-        restored = ([(int(steps), float(length)) for steps, length in blob["history"].tolist()],
-                    float(blob["best_length"]), int(blob["best_timesteps"]), int(blob["env_steps"]))
-        self.history, self.best_length, self.best_timesteps, self.env_steps = restored
+        # Everything is read before anything is set: a file that lacks a part changes nothing. Files
+        # written before u was recorded have two columns of history and no best_u: u is NaN there.
+        rows = [[*row, float("nan")][:3] for row in blob["history"].tolist()]
+        restored = ([(int(steps), float(length), float(u)) for steps, length, u in rows],
+                    float(blob["best_length"]), int(blob["best_timesteps"]), int(blob["env_steps"]),
+                    float(blob["best_u"]) if "best_u" in blob else float("nan"))
+        self.history, self.best_length, self.best_timesteps, self.env_steps, self.best_u = restored
 
     def close(self) -> None:
         """Close the checks' env."""
         self.eval_env.close()
 
 
-__all__ = ["LongestEpisodesPolicy", "LowestDisagreementPolicy"]
+def _stacked(observations: list[Any]) -> Any:
+    """One batch of per-step VecEnv observations (arrays, or dicts of arrays for a Dict space)."""
+    if isinstance(observations[0], dict):
+        return {k: np.concatenate([o[k] for o in observations]) for k in observations[0]}
+    return np.concatenate(observations)
+
+
+__all__ = ["TIE_BREAKS", "LongestEpisodesPolicy", "LowestDisagreementPolicy"]

@@ -153,6 +153,40 @@ def test_cmz_sac_reads_its_own_hyperparameter_file(tiny_experiment, sac_yaml, tm
     assert not (tmp_path / "x").exists()
 
 
+def test_longest_tie_break_in_the_yaml_reaches_the_runs_choice_and_is_refused_where_it_cannot_apply(
+    tiny_experiment, sac_yaml, tmp_path
+):
+    from sb3_cmzdril.experiments.run.runs import resolve_run
+
+    tie_yaml = tmp_path / "tie.yml"
+    tie_yaml.write_text(sac_yaml.read_text().replace("n_demos: 1", "n_demos: 1\n  longest_tie_break: lowest_u"))
+    out = tmp_path / "run"
+    spec = plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=tie_yaml, output_dir=out)
+    run = resolve_run(spec)
+    assert run.settings == {"n_demos": 1, "longest_tie_break": "lowest_u"}
+    assert "longest_tie_break" not in run.model_kwargs()  # an experiment key, not a constructor argument
+    run_experiment(spec)
+    done = json.loads((out / "done.json").read_text())
+    # Every check of the run records u; Pendulum never ends an episode early, so all tie in length and
+    # the kept policy is the one with the lowest u.
+    import torch as th
+
+    history = th.load(out / "longest.pt", weights_only=True)["history"].numpy()
+    assert len(history) == 5 and (history[:, 1] == history[0, 1]).all() and np.isfinite(history[:, 2]).all()
+    assert done["final_evaluation"]["longest"]["mean_u"] == pytest.approx(history[:, 2].min())
+    assert done["final_evaluation"]["longest"]["timesteps"] == int(history[history[:, 2].argmin(), 0])
+
+    bad = tmp_path / "bad.yml"
+    bad.write_text(tie_yaml.read_text().replace("lowest_u", "earliest"))
+    with pytest.raises(UserError, match=r"longest_tie_break must be one of \['latest', 'lowest_u'\], got 'earliest'"):
+        plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=bad, output_dir=tmp_path / "x")
+    ppo = tmp_path / "ppo.yml"
+    ppo.write_text(tiny_experiment["hp"].read_text() + "  longest_tie_break: lowest_u\n")
+    with pytest.raises(UserError, match="longest_tie_break applies only to the off-policy methods \\['cmz-sac'\\]"):
+        plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], hyperparams=ppo, output_dir=tmp_path / "y")
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
 def test_a_grid_runs_the_papers_methods_unless_told_and_gives_cmz_sac_its_file(tiny_experiment, sac_yaml, tmp_path):
     specs = plan_grid(ENV, trials=1, runs_dir=tmp_path, demos_dir=tiny_experiment["demos_dir"],
                       hyperparams=tiny_experiment["hp"])

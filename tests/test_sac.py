@@ -481,7 +481,9 @@ def test_longest_episodes_keeps_the_longest_latest_on_a_tie_from_the_same_starts
             model.policy.w.fill_(w)
             model.policy.tag.fill_(tag)
         selector.on_step()
-    assert selector.history == [(0, 3.0), (10, 7.0), (20, 20.0), (30, 5.0), (40, 20.0), (50, 2.0)]
+    assert [(s, length) for s, length, _ in selector.history] == [
+        (0, 3.0), (10, 7.0), (20, 20.0), (30, 5.0), (40, 20.0), (50, 2.0)]
+    assert all(np.isnan(u) for *_, u in selector.history)  # a model without an ensemble: no u
     assert selector.best_timesteps == 40 and selector.best_length == 20.0
     assert selector.env_steps == 3 * (3 + 7 + 20 + 5 + 20 + 2)
     # Every check starts its three episodes from the same three states: the comparison is paired. (The
@@ -500,13 +502,67 @@ def test_longest_episodes_checks_the_clone_every_k_steps_and_the_end_and_keeps_t
                                      env_kwargs={"max_episode_steps": 30})
     model.learn(250, callback=selector)
     # The clone before any SAC step, every 100 steps, and the last policy; Pendulum never terminates.
-    assert [steps for steps, _ in selector.history] == [0, 100, 200, 250]
-    assert {length for _, length in selector.history} == {30.0} and selector.env_steps == 4 * 30
+    assert [steps for steps, *_ in selector.history] == [0, 100, 200, 250]
+    assert {length for _, length, _ in selector.history} == {30.0} and selector.env_steps == 4 * 30
+    # CMZDRILSAC has an ensemble: each check records the mean u of its states, a positive number.
+    assert all(np.isfinite(u) and u > 0 for *_, u in selector.history)
     assert selector.best_timesteps == 250
     final = {k: v.clone() for k, v in model.policy.state_dict().items()}
     selector.apply(model)
     assert all(th.equal(final[k], v) for k, v in model.policy.state_dict().items())
     selector.close()
+
+
+class _DisagreementOnAction:
+    """An ensemble whose u at a state is |action - 22|: ties in length are told apart by the action."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def disagreement(self, obs, actions):
+        self.calls.append((np.asarray(obs), np.asarray(actions)))
+        return np.abs(np.asarray(actions, np.float64)[:, 0] - 22.0)
+
+
+@pytest.mark.parametrize(("tie_break", "kept_w"), [("latest", 30.0), ("lowest_u", 20.0)])
+def test_longest_episodes_breaks_a_tie_in_length_by_the_lowest_disagreement_when_asked(tie_break, kept_w):
+    selector = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7, tie_break=tie_break)
+    model = _ConstantModel()
+    model.ensemble = _DisagreementOnAction()
+    selector.init_callback(model)
+    # Lengths 3, then the time limit (20) three times with u = |w - 22| = 3, 2 and 8.
+    for steps, w in [(0, 3), (10, 25), (20, 20), (30, 30)]:
+        model.num_timesteps = steps
+        with th.no_grad():
+            model.policy.w.fill_(w)
+        selector.on_step()
+    assert [(s, length, u) for s, length, u in selector.history] == [
+        (0, 3.0, 19.0), (10, 20.0, 3.0), (20, 20.0, 2.0), (30, 20.0, 8.0)]
+    # The ensemble scored every state of both episodes, with the action played there.
+    obs, actions = model.ensemble.calls[0]
+    assert obs.shape == (2 * 3, 1) and actions.shape == (2 * 3, 1) and set(actions[:, 0]) == {3.0}
+    assert selector.best_length == 20.0 and selector.kept()["mean_u"] == abs(kept_w - 22)
+    selector.apply(model)
+    assert model.policy.w.item() == kept_w
+
+
+def test_the_lowest_u_tie_break_refuses_a_model_without_an_ensemble():
+    selector = LongestEpisodesPolicy(_FallsAfterW(), tie_break="lowest_u")
+    selector.init_callback(_ConstantModel())
+    with pytest.raises(UserError, match="tie_break='lowest_u' needs a model with an ensemble; _ConstantModel has none"):
+        selector.on_training_start({}, {})
+
+
+def test_a_longest_episodes_file_written_before_u_was_recorded_resumes_with_u_unknown(tmp_path):
+    path = tmp_path / "selection.pt"
+    th.save({"state_dict": {"w": th.zeros(())}, "history": th.tensor([[0.0, 3.0], [10.0, 20.0]], dtype=th.float64),
+             "best_length": th.tensor(20.0, dtype=th.float64), "best_timesteps": th.tensor(10),
+             "env_steps": th.tensor(46)}, path)
+    selector = LongestEpisodesPolicy(_FallsAfterW(), tie_break="lowest_u")
+    assert selector.load(path)
+    assert [(s, length) for s, length, _ in selector.history] == [(0, 3.0), (10, 20.0)]
+    assert all(np.isnan(u) for *_, u in selector.history) and np.isnan(selector.best_u)
+    assert (selector.best_timesteps, selector.env_steps) == (10, 46)
 
 
 def test_a_saved_longest_episodes_choice_resumes_without_repeating_or_forgetting_a_check(tmp_path):
@@ -525,13 +581,14 @@ def test_a_saved_longest_episodes_choice_resumes_without_repeating_or_forgetting
     # A resumed run: the model comes back at step 20 with its last weights (w = 5).
     second = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7)
     assert second.load(path)
-    assert second.history == [(0, 3.0), (10, 20.0), (20, 5.0)] and second.env_steps == 2 * (3 + 20 + 5)
+    assert [(s, length) for s, length, _ in second.history] == [(0, 3.0), (10, 20.0), (20, 5.0)]
+    assert second.env_steps == 2 * (3 + 20 + 5)
     assert (second.best_timesteps, second.best_length) == (10, 20.0)
     second.init_callback(model)
     second.on_training_start({}, {})  # the check at step 20 was made before the checkpoint
     model.num_timesteps = 30
     second.on_step()
-    assert [steps for steps, _ in second.history] == [0, 10, 20, 30]
+    assert [steps for steps, *_ in second.history] == [0, 10, 20, 30]
     second.apply(model)
     assert model.policy.w.item() == 25.0
 
@@ -549,6 +606,7 @@ def test_a_damaged_longest_episodes_file_is_named_and_a_missing_one_is_no_choice
     [({"check_every": 0}, "check_every must be a positive integer, got 0"),
      ({"n_episodes": 2.5}, "n_episodes must be a positive integer, got 2.5"),
      ({"seed": "a"}, "seed must be an integer, got 'a'"),
+     ({"tie_break": "earliest"}, r"tie_break must be one of \['latest', 'lowest_u'\], got 'earliest'"),
      ({"env_kwargs": {"g": 9.81}, "eval_env": None}, "env_kwargs applies only to an env id")],
 )
 def test_longest_episodes_refuses_bad_options_naming_them(kwargs, message):
@@ -568,10 +626,10 @@ def test_longest_episodes_serves_cmzdril_and_the_kept_policy_replays_its_check(c
                     **{**TINY, "learning_rate": 0.03, "bc_pretrain_epochs": 1})
     selector = LongestEpisodesPolicy("CartPole-v1", check_every=64, n_episodes=2, seed=5)
     model.learn(320, callback=selector)
-    steps = [s for s, _ in selector.history]
-    lengths = [length for _, length in selector.history]
+    steps = [s for s, *_ in selector.history]
+    lengths = [length for _, length, _ in selector.history]
     assert steps == [0, 64, 128, 192, 256, 320] and selector.best_length == max(lengths) > lengths[-1]
-    assert selector.best_timesteps == max(s for s, length in selector.history if length == max(lengths))
+    assert selector.best_timesteps == max(s for s, length, _ in selector.history if length == max(lengths))
     selector.apply(model)
     # From the same starts, the kept weights last as long as at their check (the last ones would not).
     env = DummyVecEnv([lambda: Monitor(gym.make("CartPole-v1"))])

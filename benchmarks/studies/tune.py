@@ -3,11 +3,12 @@
     python benchmarks/studies/tune.py NAME --set target_kl=0.02 [--set learning_rate=1e-4 ...] \
         -- --env HalfCheetah-v5 --methods cmz --trials 2 --timesteps 100000 --eval-every 5
 
-writes results/tuning/NAME/hyperparams.yml (the repository's hyperparams/cmzdril.yml with every env
+writes results/tuning/NAME/hyperparams.yml (the repository's hyperparams/cmzdril.yml, or --base, with every env
 entry updated by the --set values; values are parsed as YAML, so 1e-4, 0.02, null and [64, 64]
 work) and runs ``sb3-cmzdril benchmark --hyperparams results/tuning/NAME/hyperparams.yml -o
-results/tuning/NAME`` with the arguments after ``--``. Rerunning resumes, like the benchmark. Compare
-variants with ``sb3-cmzdril report results/tuning/NAME -o results/tuning/NAME``.
+results/tuning/NAME`` with the arguments after ``--`` (``--sac-hyperparams`` when they name only
+off-policy methods, ``--methods cmz-sac``, with ``--base hyperparams/cmzdril_sac.yml``). Rerunning
+resumes, like the benchmark. Compare variants with ``sb3-cmzdril report results/tuning/NAME -o results/tuning/NAME``.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from sb3_cmzdril.experiments.run.spec import is_off_policy
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,7 +69,11 @@ def main() -> None:
     # No anchors/aliases in the output: every env entry reads on its own.
     dumper = type("NoAliases", (yaml.SafeDumper,), {"ignore_aliases": lambda self, data: True})
     atomic_write_text(out / "hyperparams.yml", header + yaml.dump(base, Dumper=dumper, sort_keys=False))
-    cmd = ["sb3-cmzdril", "benchmark", "--hyperparams", str(out / "hyperparams.yml"), "-o", str(out), *rest]
+    # The benchmark reads an off-policy method's YAML from --sac-hyperparams: a study of cmz-sac alone
+    # (--methods cmz-sac) gives the variant there.
+    methods = rest[rest.index("--methods") + 1].split(",") if "--methods" in rest[:-1] else []
+    flag = "--sac-hyperparams" if methods and all(is_off_policy(m) for m in methods) else "--hyperparams"
+    cmd = ["sb3-cmzdril", "benchmark", flag, str(out / "hyperparams.yml"), "-o", str(out), *rest]
     print(" ".join(cmd), flush=True)
     raise SystemExit(subprocess.call(cmd, cwd=ROOT))
 

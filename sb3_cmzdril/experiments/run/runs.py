@@ -182,7 +182,7 @@ def _selector(run: ResolvedRun, folder: RunFolder, resume: bool) -> Any:
         selector = LongestEpisodesPolicy(
             run.spec.env_id, check_every=run.spec.eval_every * OFFPOLICY_EPOCH_STEPS,
             n_episodes=LONGEST_CHECK_EPISODES, seed=LONGEST_CHECK_SEED + 100 * run.spec.seed,
-            env_kwargs=run.hp.env_kwargs,
+            env_kwargs=run.hp.env_kwargs, tie_break=run.settings.get("longest_tie_break", "latest"),
         )
     else:
         selector = LowestDisagreementPolicy()

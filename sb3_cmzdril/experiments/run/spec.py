@@ -16,7 +16,7 @@ import dataclasses
 import functools
 import math
 import shlex
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -48,8 +48,9 @@ OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
 #: rollout of the shipped settings (``n_steps: 2048``, one env): both learners then evaluate, keep
 #: checkpoints and average Table I over the same stretches of steps.
 OFFPOLICY_EPOCH_STEPS = 2048
-#: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs).
-EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos",)
+#: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs):
+#: the training episodes, and (cmz-sac only) how the longest-episodes choice breaks a tie in length.
+EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break")
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -177,6 +178,16 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
     settings = {k: hp.algo_kwargs.pop(k) for k in EXPERIMENT_KEYS if k in hp.algo_kwargs}
+    if "longest_tie_break" in settings:
+        from sb3_cmzdril.selection import TIE_BREAKS
+
+        tie_break = settings["longest_tie_break"]
+        if not is_off_policy(method):
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break applies only to the off-policy "
+                            f"methods {list(OFFPOLICY_METHODS)} (their longest-episodes choice), not to {method!r}")
+        if tie_break not in TIE_BREAKS:
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break must be one of "
+                            f"{list(TIE_BREAKS)}, got {tie_break!r}")
     classes = learner_classes(method)
     unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs(classes))
     if unknown:
@@ -305,6 +316,8 @@ class ResolvedRun:
     pool: Demonstrations  #: the whole demo pool; the run trains on ``train_idx`` and evaluates on the rest
     train_idx: tuple[int, ...]
     eval_idx: tuple[int, ...]  #: the episodes of the evaluation every ``eval_every`` PPO updates
+    #: the YAML entry's experiment keys (:data:`EXPERIMENT_KEYS`) that it sets
+    settings: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     @property
     def held_out(self) -> list[int]:
@@ -340,13 +353,13 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
 
     :raises ValueError: naming the file and the value at fault.
     """
-    hp, _ = load_run_hyperparams(spec.hyperparams, spec.env_id, spec.method)
+    hp, settings = load_run_hyperparams(spec.hyperparams, spec.env_id, spec.method)
     pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
     try:
         train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
     except ValueError as e:
         raise UserError(f"{spec.demos}: {e}") from None
-    run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx))
+    run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx), settings)
     if check:
         from sb3_cmzdril.hyperparams import check_constructor_kwargs
 
