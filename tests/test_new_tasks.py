@@ -260,15 +260,37 @@ def test_selection_table_puts_the_kept_policy_beside_the_last_weights_by_hand(tm
     assert [r.trial for r in kept_row.runs] == [0, 1, 2] and last_row.policy == "last"
     text = studies.render(tmp_path, selections=(variant,))
     assert "## Keeping the policy that lasts longest" in text
-    assert "| 1 | 3 (15) | 10240 of 20480 | 901 | 100 | 50.0 |" in text
+    assert "| 1 | 3 (15) | 10240 of 20480 | 901 | n/a | 100 | 50.0 |" in text  # the study recorded no u
     # Trial 2 kept its last policy (step 20480 of 20480); of trials 0 and 1 the kept one is above in trial 0.
     assert ("is the last one in 1 of 3 trials; where it is an earlier one, it is above the last weights in 1 of 2"
             in text)
     assert "`python make_it.py`" in text
-    assert "| mean [95% CI] |  |  |  | 50.0 [0, 100] | 83.3 [50.0, 100] |" in text
+    assert "| mean [95% CI] |  |  |  |  | 50.0 [0, 100] | 83.3 [50.0, 100] |" in text
     empty = studies.Variant(ENV, "cmz", "none", "absent", "")
     assert "No finished runs yet." in studies.selection_markdown(tmp_path, [], (empty,))
     assert "## Keeping the policy" not in studies.render(tmp_path)
+
+
+def test_selection_table_reads_the_package_cmz_sac_runs_kept_check_and_its_u(tmp_path):
+    # The package's runs: final_eval.csv's "longest" is the kept policy and "final" the last weights; where
+    # it was found (and its u) is done.json's final_evaluation.longest. Expert mean 1000.5 + 10 t.
+    kept, last = [100.0, 80.0], [50.0, 80.0]
+    for t in range(2):
+        expert = 1000.5 + 10 * t
+        run = write_run(tmp_path / "v", "cmz-sac", t, [1.0], env=ENV,
+                        final={"final": [last[t] * expert / 100] * 2, "longest": [kept[t] * expert / 100] * 2})
+        done = json.loads((run / "done.json").read_text())
+        done.update(num_timesteps=70000, final_evaluation={"longest": {
+            "timesteps": (61440, 70000)[t], "mean_length": 1000.0, "mean_u": (0.0427, 0.05)[t], "env_steps": 40000}})
+        (run / "done.json").write_text(json.dumps(done))
+    variant = studies.Variant(ENV, "cmz-sac", "tie", "v", "python make_it.py")
+    kept_row, last_row = studies.kept_and_last(variant, tmp_path, [])
+    assert (kept_row.policy, last_row.policy) == ("longest", "final") and [r.trial for r in kept_row.runs] == [0, 1]
+    text = studies.selection_markdown(tmp_path, [], (variant,))
+    assert "| 0 | (40000) | 61440 of 70000 | 1000 | 0.0427 | 50.0 | 100 |" in text
+    assert "| 1 | (40000) | 70000 of 70000 | 1000 | 0.05 | 80.0 | 80.0 |" in text
+    assert ("is the last one in 1 of 2 trials; where it is an earlier one, it is above the last weights in 1 of 1"
+            in text)
 
 
 def test_across_tasks_scores_each_method_on_its_own_folders_by_hand(tmp_path):

@@ -55,7 +55,7 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(offpolicy, tmp_path
     assert done is not None and done["num_timesteps"] == 300 and done["segments"] == [0, 200]
     timesteps = [int(line.split(",")[1]) for line in (folder / "eval.csv").read_text().splitlines()[1:]]
     assert timesteps == [0, 100, 200, 300]  # each once: the resumed run evaluates from after its checkpoint
-    assert [steps for steps, _ in done["selection"]["checks"]] == [0, 100, 200, 300]
+    assert [steps for steps, *_ in done["selection"]["checks"]] == [0, 100, 200, 300]
     assert sorted(p.name for p in (folder / "logs").iterdir()) == ["progress_0.csv", "progress_200.csv"]
     assert not (folder / "checkpoint").exists()
     assert run(offpolicy, tmp_path) is None  # finished: skipped

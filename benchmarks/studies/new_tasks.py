@@ -140,6 +140,22 @@ def package_cmz_sac_confirmation(env: str) -> Variant:
                    trials=(5, 6, 7, 8, 9))
 
 
+#: `cmz-sac` with the longest-episodes choice breaking a tie in length by the lowest mean u at the check
+TIE_U = "HC-sac-tie-u"
+TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest mean u on the check's states "
+               "(`longest_tie_break: lowest_u`)")
+TIE_U_COMMAND = (f"python benchmarks/studies/tune.py {TIE_U} --base hyperparams/cmzdril_sac.yml --set "
+                 "longest_tie_break=lowest_u -- --env HalfCheetah-v5 --methods cmz-sac --trials 0-9 --eval-every 5 "
+                 "--workers 2 --no-progress (trials 0-1 first by the same command with --trials 0-4)")
+
+
+def tie_u(trials: tuple[int, ...]) -> Variant:
+    """HalfCheetah-v5's `cmz-sac` runs with the lowest-u tie break on ``trials`` (the same training as the
+    package's runs of those trials: only the kept policy can differ)."""
+    return Variant("HalfCheetah-v5", "cmz-sac", f"{TIE_U_LABEL}: trials {trials[0]}-{trials[-1]}",
+                   f"results/tuning/{TIE_U}", TIE_U_COMMAND, trials=trials)
+
+
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
@@ -205,6 +221,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
     package_cmz_sac_confirmation("HalfCheetah-v5"),
+    tie_u((0, 1, 2, 3, 4)),
+    tie_u((5, 6, 7, 8, 9)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
@@ -275,8 +293,9 @@ COST_CURVES: tuple[CostCurves, ...] = (
     )),
 )
 
-#: The variants whose runs chose their final policy reward-free (``--select longest``)
-SELECTIONS: tuple[Variant, ...] = tuple(v for v in ABLATIONS if v.runs.endswith("-longest"))
+#: The variants whose runs chose their final policy reward-free (``--select longest``, or the package's
+#: `cmz-sac` with the lowest-u tie break)
+SELECTIONS: tuple[Variant, ...] = tuple(v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U)))
 
 MUJOCO = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5")
 #: the off-policy learner's runs per task: clipped CMZ reward, absorbing state, the longest-episodes choice

@@ -20,6 +20,7 @@ import dataclasses
 import math
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -511,15 +512,34 @@ def cost_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
 
 
 def kept_and_last(variant: Variant, root: Path, skipped: list[Skipped]) -> tuple[FinalRow, FinalRow] | None:
-    """The variant's runs that kept a policy by a reward-free choice (done.json ``selection``, and
-    final_eval.csv rows of the kept policy, "final", and of the last weights, "last"), as the kept
-    row and the last row over the same runs; None when it has none."""
-    row = variant_rows(variant, root, skipped)["final"]
-    runs = [r for r in ([] if row is None else row.runs)
-            if "last" in r.final and isinstance(r.summary.get("selection"), dict)]
-    if not runs:
+    """The variant's runs that kept a policy by a reward-free choice, as the kept row and the last
+    weights' row over the same runs; None when it has none. Two layouts: the off-policy study's (done.json
+    ``selection``; final_eval.csv's kept policy is "final", the last weights "last") and the package's
+    ``cmz-sac`` runs (final_eval.csv's kept policy is "longest", the last weights "final")."""
+    rows = variant_rows(variant, root, skipped)
+    final = rows["final"]
+    study = [r for r in ([] if final is None else final.runs)
+             if "last" in r.final and isinstance(r.summary.get("selection"), dict)]
+    if study:
+        return (FinalRow(variant.env, variant.method, "final", study),
+                FinalRow(variant.env, variant.method, "last", study))
+    longest = rows["longest"]
+    if longest is None:
         return None
-    return (FinalRow(variant.env, variant.method, "final", runs), FinalRow(variant.env, variant.method, "last", runs))
+    return longest, dataclasses.replace(longest, policy="final")
+
+
+def _kept_check(run: RunRecord) -> dict[str, Any]:
+    """Where a run's kept policy was found: its check's steps, mean episode length and mean u (NaN
+    where not recorded), and the checks' count and env steps (None where not recorded)."""
+    selection = run.summary.get("selection")
+    if isinstance(selection, dict):  # the off-policy study's runs
+        return {"checks": len(selection.get("checks", [])), "env_steps": selection.get("env_steps"),
+                "timesteps": selection.get("kept_timesteps"), "length": selection.get("kept_mean_length", math.nan),
+                "u": math.nan}
+    kept = run.summary.get("final_evaluation", {}).get("longest", {})
+    return {"checks": None, "env_steps": kept.get("env_steps"), "timesteps": kept.get("timesteps"),
+            "length": kept.get("mean_length", math.nan), "u": kept.get("mean_u", math.nan)}
 
 
 def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Variant, ...] = ()) -> str:
@@ -535,21 +555,23 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
         kept, last = found
         kept_pct, last_pct = kept.per_trial("pct_of_expert"), last.per_trial("pct_of_expert")
         body = []
+        checks = {run.trial: _kept_check(run) for run in kept.runs}
         for run in kept.runs:
-            selection = run.summary["selection"]
+            check = checks[run.trial]
+            count = "" if check["checks"] is None else f"{check['checks']} "
             body.append([
-                str(run.trial), f"{len(selection.get('checks', []))} ({selection.get('env_steps')})",
-                f"{selection.get('kept_timesteps')} of {run.summary.get('num_timesteps')}",
-                fmt(float(selection.get("kept_mean_length", math.nan))),
+                str(run.trial), f"{count}({check['env_steps']})",
+                f"{check['timesteps']} of {run.summary.get('num_timesteps')}",
+                fmt(float(check["length"])), fmt(float(check["u"])),
                 fmt(last_pct[run.trial]), fmt(kept_pct[run.trial]),
             ])
-        body.append(["mean [95% CI]", "", "", "", fmt_ci(*last.stat("pct_of_expert")),
+        body.append(["mean [95% CI]", "", "", "", "", fmt_ci(*last.stat("pct_of_expert")),
                      fmt_ci(*kept.stat("pct_of_expert"))])
         text.append(md_table(
             ["Trial", "Checks (their env steps)", "Kept: at step (of the run's)",
-             "Kept: mean episode length at its check", "Last weights: % of expert", "Kept policy: % of expert"], body))
-        earlier = [r.trial for r in kept.runs if r.summary["selection"].get("kept_timesteps") != r.summary.get(
-            "num_timesteps")]
+             "Kept: mean episode length at its check", "Kept: mean u at its check", "Last weights: % of expert",
+             "Kept policy: % of expert"], body))
+        earlier = [r.trial for r in kept.runs if checks[r.trial]["timesteps"] != r.summary.get("num_timesteps")]
         above = sum(kept_pct[t] > last_pct[t] for t in earlier)
         text.append(f"The kept policy is the last one in {len(kept.runs) - len(earlier)} of {len(kept.runs)} trials; "
                     f"where it is an earlier one, it is above the last weights in {above} of {len(earlier)}. "
@@ -670,8 +692,10 @@ def render(
            "loses it again. These runs check the policy at the start, every evaluation interval and at the end, "
            "playing it deterministically for 5 episodes from fixed starts (no pool episode's), and keep the one "
            "whose episodes lasted longest, the latest on a tie: a choice that reads termination, never reward. "
-           "The kept policy is the run's final policy in the ablation tables; here it is beside the last "
-           "weights of the same runs, both on every held-out episode.", kept] if selections else []),
+           "The kept policy is the run's final policy in the ablation tables (for the package's `cmz-sac` runs, "
+           "its second policy; with `longest_tie_break: lowest_u` a tie goes to the check whose states the "
+           "ensemble disagrees on least, its mean u); here it is beside the last weights of the same runs, both "
+           "on every held-out episode.", kept] if selections else []),
         *(["## Across tasks", across_tables] if across else []),
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
