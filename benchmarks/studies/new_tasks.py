@@ -140,20 +140,24 @@ def package_cmz_sac_confirmation(env: str) -> Variant:
                    trials=(5, 6, 7, 8, 9))
 
 
-#: `cmz-sac` with the longest-episodes choice breaking a tie in length by the lowest mean u at the check
-TIE_U = "HC-sac-tie-u"
+#: `cmz-sac` with the longest-episodes choice breaking a tie in length by the lowest mean u at the check:
+#: the runs folder under results/tuning/ per task, and the trials its command names
+TIE_U = "-sac-tie-u"
+TIE_U_RUNS = {"HalfCheetah-v5": ("HC" + TIE_U, "0-9", " (trials 0-1 first by the same command with --trials 0-4)"),
+              "Hopper-v5": ("H" + TIE_U, "0,5", "")}
 TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest mean u on the check's states "
                "(`longest_tie_break: lowest_u`)")
-TIE_U_COMMAND = (f"python benchmarks/studies/tune.py {TIE_U} --base hyperparams/cmzdril_sac.yml --set "
-                 "longest_tie_break=lowest_u -- --env HalfCheetah-v5 --methods cmz-sac --trials 0-9 --eval-every 5 "
-                 "--workers 2 --no-progress (trials 0-1 first by the same command with --trials 0-4)")
 
 
-def tie_u(trials: tuple[int, ...]) -> Variant:
-    """HalfCheetah-v5's `cmz-sac` runs with the lowest-u tie break on ``trials`` (the same training as the
+def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
+    """``env``'s `cmz-sac` runs with the lowest-u tie break on ``trials`` (the same training as the
     package's runs of those trials: only the kept policy can differ)."""
-    return Variant("HalfCheetah-v5", "cmz-sac", f"{TIE_U_LABEL}: trials {trials[0]}-{trials[-1]}",
-                   f"results/tuning/{TIE_U}", TIE_U_COMMAND, trials=trials)
+    name, named_trials, note = TIE_U_RUNS[env]
+    command = (f"python benchmarks/studies/tune.py {name} --base hyperparams/cmzdril_sac.yml --set "
+               f"longest_tie_break=lowest_u -- --env {env} --methods cmz-sac --trials {named_trials} --eval-every 5 "
+               f"--workers 2 --no-progress{note}")
+    which = f"{trials[0]}-{trials[-1]}" if len(trials) > 1 else str(trials[0])
+    return Variant(env, "cmz-sac", f"{TIE_U_LABEL}: trials {which}", f"results/tuning/{name}", command, trials=trials)
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -213,6 +217,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
     package_cmz_sac("Hopper-v5", HOPPER_CHEETAH),
     package_cmz_sac_confirmation("Hopper-v5"),
+    tie_u("Hopper-v5", (0,)),
+    tie_u("Hopper-v5", (5,)),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
@@ -221,8 +227,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
     package_cmz_sac_confirmation("HalfCheetah-v5"),
-    tie_u((0, 1, 2, 3, 4)),
-    tie_u((5, 6, 7, 8, 9)),
+    tie_u("HalfCheetah-v5", (0, 1, 2, 3, 4)),
+    tie_u("HalfCheetah-v5", (5, 6, 7, 8, 9)),
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
