@@ -10,7 +10,11 @@ SAC, TD3 or DDPG) that
   (:meth:`DemoReplayBuffer.set_demonstrations`), and
 * relabels every sampled reward with a function of the raw transitions (``relabel``), so that a
   reward that changes while training (an EMA, a refitted ensemble) applies to old transitions as
-  it applies to new ones.
+  it applies to new ones, and
+* keeps the disagreement u that the learner gave each step when it stored it (``infos[i]
+  ["disagreement"]``, the key :class:`~sb3_cmzdril.rewards.DisagreementReward` reports u under),
+  so that a learner whose ensemble stays fixed does not score the same transition again at every
+  sampling.
 
 Transitions come from consecutive demo steps of one episode; an episode's last step, whose next
 observation the pool does not keep, is left out. Flat ``Box`` observations only.
@@ -28,9 +32,9 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 
-#: (raw observations, buffer actions (scaled to [-1, 1]), env rewards, terminated, raw next observations)
-#: -> rewards, all (batch,)
-Relabel = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+#: (raw observations, buffer actions (scaled to [-1, 1]), env rewards, terminated, raw next observations,
+#: the disagreements recorded with the transitions (NaN where none was)) -> rewards, all (batch,)
+Relabel = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 class DemoTransitions:
@@ -59,6 +63,8 @@ class DemoTransitions:
         self.rewards = np.asarray(rewards, dtype=np.float32)[rows]
         #: whether the demos recorded the env's rewards (the true-reward rule needs them)
         self.has_rewards = demos.rewards is not None
+        #: each transition's disagreement, where a learner has scored them once (NaN: not scored)
+        self.disagreements = np.full(len(rows), np.nan)
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -81,6 +87,21 @@ class DemoReplayBuffer(ReplayBuffer):
         if self.optimize_memory_usage:
             raise UserError("DemoReplayBuffer does not support optimize_memory_usage=True")
         self.demos, self.demo_fraction, self.relabel = demos, float(demo_fraction), relabel
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        pos = self.pos
+        super().add(obs, next_obs, action, reward, done, infos)
+        if not hasattr(self, "disagreements"):  # a buffer pickled before it kept them
+            self.disagreements = np.full((self.buffer_size, self.n_envs), np.nan)
+        self.disagreements[pos] = [info.get("disagreement", np.nan) for info in infos]
 
     def __getstate__(self) -> dict[str, Any]:
         # A saved buffer (SB3's save_replay_buffer pickles it) holds the agent's transitions only.
@@ -107,6 +128,11 @@ class DemoReplayBuffer(ReplayBuffer):
         env_rewards = self.rewards[batch_inds, env_indices]
         # A time-limit truncation is no termination: the critic bootstraps through it.
         terminated = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
+        stored = getattr(self, "disagreements", None)
+        if stored is None:
+            scored = np.full(len(batch_inds), np.nan)
+        else:
+            scored = stored[batch_inds, env_indices]
         if n_demo:
             assert self.demos is not None
             rows = np.random.randint(0, len(self.demos), size=n_demo)
@@ -115,8 +141,11 @@ class DemoReplayBuffer(ReplayBuffer):
             actions = np.concatenate([actions, self.demos.actions[rows]])
             env_rewards = np.concatenate([env_rewards, self.demos.rewards[rows]])
             terminated = np.concatenate([terminated, np.zeros(n_demo, terminated.dtype)])
+            scored = np.concatenate([scored, self.demos.disagreements[rows]])
         if self.relabel is not None:
-            rewards = np.asarray(self.relabel(obs, actions, env_rewards, terminated.astype(bool), next_obs), np.float32)
+            rewards = np.asarray(
+                self.relabel(obs, actions, env_rewards, terminated.astype(bool), next_obs, scored), np.float32
+            )
         else:
             rewards = self._normalize_reward(env_rewards, env)
         # Flat Box observations only (set_demonstrations' DemoTransitions refuse dicts): arrays.

@@ -506,7 +506,10 @@ class CMZDRILSAC(SAC):
         buffer = self.replay_buffer
         if not isinstance(buffer, DemoReplayBuffer):  # e.g. load_replay_buffer() of a plain SB3 buffer
             raise UserError(f"CMZDRILSAC needs a DemoReplayBuffer, got a {type(buffer).__name__}")
-        demos = DemoTransitions(self.demonstrations, self.policy.scale_action) if self.demo_fraction > 0 else None
+        demos = None
+        if self.demo_fraction > 0:
+            demos = DemoTransitions(self.demonstrations, self.policy.scale_action)
+            demos.disagreements = self._disagreement(demos.observations, demos.actions)
         buffer.set_demonstrations(demos, self.demo_fraction, self._replay_rewards)
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
@@ -534,6 +537,10 @@ class CMZDRILSAC(SAC):
         self.reward_rule.highest_u_so_far(u[None])
         self._u_sum += float(u.sum())
         self._u_count += len(u)
+        for info, u_i in zip(infos, u, strict=True):
+            # The buffer keeps it with the step, so that sampling does not score the step again while
+            # the ensemble stays as it is.
+            info["disagreement"] = float(u_i)
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
 
     def _disagreement(self, obs: np.ndarray, buffer_actions: np.ndarray) -> np.ndarray:
@@ -542,13 +549,18 @@ class CMZDRILSAC(SAC):
 
     def _replay_rewards(
         self, obs: np.ndarray, buffer_actions: np.ndarray, env_rewards: np.ndarray, terminated: np.ndarray,
-        next_obs: np.ndarray,
+        next_obs: np.ndarray, scored: np.ndarray | None = None,
     ) -> np.ndarray:
-        """The reward of each sampled transition (the agent's and the expert's), from the rule now."""
+        """The reward of each sampled transition (the agent's and the expert's), from the rule now.
+        ``scored`` holds the u each was given when it was stored (NaN or None: none); the ensemble
+        does not change after pretraining, so that u is the one it would give now."""
         assert self.reward_rule is not None
         if self.reward == "env":
             return env_rewards
-        u = self._disagreement(obs, buffer_actions)
+        u = np.full(len(obs), np.nan) if scored is None else np.array(scored, dtype=np.float64)
+        missing = np.isnan(u)
+        if missing.any():  # steps of a buffer saved before steps kept their u
+            u[missing] = self._disagreement(obs[missing], buffer_actions[missing])
         rewards = self.reward_rule.replayed(u, env_rewards)
         if self.absorbing_active:
             seen = np.full(u.shape, self.absorbing_u)

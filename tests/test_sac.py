@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
@@ -101,7 +102,7 @@ def test_buffer_mixes_the_demo_share_into_each_batch_and_relabels_raw_transition
     buffer = _buffer()
     seen = {}
 
-    def relabel(obs, actions, env_rewards, terminated, next_obs):
+    def relabel(obs, actions, env_rewards, terminated, next_obs, scored):
         seen.update(obs=obs, terminated=terminated, env_rewards=env_rewards, next_obs=next_obs)
         return obs[:, 0] * 10.0
 
@@ -120,6 +121,29 @@ def test_buffer_mixes_the_demo_share_into_each_batch_and_relabels_raw_transition
     np.testing.assert_array_equal(seen["terminated"][:6], agent == 3)
     assert not seen["terminated"][6:].any()
     np.testing.assert_array_equal(batch.dones[:, 0].numpy(), (seen["obs"][:, 0] == 3) & (np.arange(8) < 6))
+
+
+def test_buffer_hands_relabel_the_disagreement_each_step_was_stored_with():
+    buffer = _buffer(3)  # three steps stored without one
+    for i in range(3, 6):
+        buffer.add(np.full((1, 2), i, np.float32), np.full((1, 2), i + 1, np.float32), np.array([[0.5]]),
+                   np.array([0.0]), np.array([False]), [{"disagreement": i / 10}])
+    demos = DemoTransitions(_two_episodes(), lambda a: a / 2.0)
+    demos.disagreements = np.array([7.0, 8.0, 9.0])  # as a learner sets them, one per transition
+    seen = {}
+
+    def relabel(obs, actions, env_rewards, terminated, next_obs, scored):
+        seen.update(obs=obs, scored=scored)
+        return np.zeros(len(obs))
+
+    buffer.set_demonstrations(demos, 0.25, relabel)
+    np.random.seed(1)
+    buffer.sample(40)
+    step, scored = seen["obs"][:30, 0], seen["scored"][:30]
+    assert np.isnan(scored[step < 3]).all() and (step < 3).any()
+    np.testing.assert_allclose(scored[step >= 3], step[step >= 3] / 10)
+    rows = [demos.observations.tolist().index(row) for row in seen["obs"][30:].tolist()]
+    np.testing.assert_array_equal(seen["scored"][30:], demos.disagreements[rows])
 
 
 def test_buffer_without_demos_or_relabel_samples_the_stored_rewards():
@@ -349,6 +373,40 @@ def test_a_saved_replay_buffer_holds_the_agents_transitions_and_resumes_with_the
     np.testing.assert_array_equal(buffer.observations[:120], model.replay_buffer.observations[:120])
     loaded.learn(30, reset_num_timesteps=False)
     assert buffer.demos is not None and buffer.relabel is not None and buffer.pos == 150
+
+
+def test_replayed_rewards_use_the_u_stored_at_collection_and_equal_a_fresh_scoring(pendulum_demos):
+    model = tiny_model(pendulum_demos, cmz_clip_quantile=0.98, absorbing=True)
+    seen = []
+    model.learn(150, callback=_InfoSpy(seen))
+    # Each step's info dict carries its u once the step is stored (after the callbacks' on_step).
+    assert len(seen) == 150 and all("disagreement" in info for infos in seen for info in infos)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, DemoReplayBuffer) and buffer.demos is not None
+    obs, actions = buffer.observations[:150, 0], buffer.actions[:150, 0]
+    fresh = model.ensemble.disagreement(obs, model.policy.unscale_action(actions))
+    np.testing.assert_allclose(buffer.disagreements[:150, 0], fresh, rtol=1e-5, atol=1e-7)
+    demo_fresh = model.ensemble.disagreement(buffer.demos.observations, None)
+    np.testing.assert_allclose(buffer.demos.disagreements, demo_fresh, rtol=1e-5, atol=1e-7)
+    # The rewards of a batch from stored u are those of u scored now, and a step without a stored u
+    # (a buffer saved before steps kept theirs) is scored when sampled.
+    env_rewards, terminated = np.zeros(150), buffer.dones[:150, 0].astype(bool)
+    from_stored = model._replay_rewards(obs, actions, env_rewards, terminated, obs, buffer.disagreements[:150, 0])
+    rescored = model._replay_rewards(obs, actions, env_rewards, terminated, obs, np.full(150, np.nan))
+    np.testing.assert_allclose(from_stored, rescored, rtol=1e-5, atol=1e-6)
+    del buffer.disagreements
+    batch = buffer.sample(16)
+    assert np.isfinite(batch.rewards.numpy()).all()
+
+
+class _InfoSpy(BaseCallback):
+    def __init__(self, seen: list) -> None:
+        super().__init__()
+        self.seen = seen
+
+    def _on_step(self) -> bool:
+        self.seen.append(self.locals["infos"])
+        return True
 
 
 def test_expert_evaluation_epochs_go_on_across_a_resumed_sac_run(pendulum_demos, tmp_path):
