@@ -1,6 +1,8 @@
-"""What a 1M- or 3M-step CMZ-DRIL run costs on one core: steps per CPU second, 1 env against 8.
+"""What a 1M- or 3M-step CMZ-DRIL run costs on one core: steps per CPU second, 1 env against 8;
+and what the off-policy learner ``cmz-sac`` reaches in 20 CPU-minutes.
 
     python benchmarks/speed/budget.py [--env Walker2d-v5] [--steps 40960] [--n-envs 1 8] [-o FILE]
+    python benchmarks/speed/budget.py --method cmz-sac [--env Walker2d-v5] [--steps 4000] [-o FILE]
 
 For each number of envs, CMZDRIL (reward "cmz", the package defaults, one demonstration of the
 env's shipped pool) trains ``--steps`` steps in this process with one torch thread; the envs share
@@ -13,6 +15,10 @@ inflate as it does wall time; wall seconds are printed beside them. Load still s
 626 with one other process, so run it on an otherwise idle machine. The one-time pretraining (BC to
 convergence, ensemble fit) is timed apart. The projection to 1M and 3M steps is loop time per step
 times the steps plus the pretraining: arithmetic on the measurement, labelled as such.
+
+``--method cmz-sac`` times CMZDRILSAC instead, with the env's entry of the shipped
+hyperparams/cmzdril_sac.yml (one env: SAC takes one gradient step per env step), and projects the
+steps that fit in 20 CPU-minutes of the loop after its pretraining.
 
 Writes a markdown table to ``-o`` (default: print only).
 """
@@ -27,7 +33,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_cmzdril import CMZDRIL, Demonstrations
+from sb3_cmzdril.experiments.run.spec import load_run_hyperparams
 from sb3_cmzdril.io import atomic_write_text, command_line
+from sb3_cmzdril.sac import CMZDRILSAC
 
 ROOT = Path(__file__).resolve().parents[2]
 UPDATE_SIZE = 2048
@@ -61,6 +69,39 @@ def measure(env_id: str, n_envs: int, steps: int, demos: Demonstrations, seed: i
             "setup_cpu_s": total_cpu - clock.cpu}
 
 
+def measure_sac(env_id: str, steps: int, demos: Demonstrations, seed: int = 0) -> dict[str, float]:
+    """CMZDRILSAC with the shipped settings for ``env_id``: ``steps`` timed after 1,000 untimed
+    ones (the first updates start at ``learning_starts``)."""
+    hp, _ = load_run_hyperparams(ROOT / "hyperparams" / "cmzdril_sac.yml", env_id, method="cmz-sac")
+    env = make_vec_env(env_id, n_envs=1, seed=seed)
+    cpu0 = time.process_time()
+    model = CMZDRILSAC(hp.policy or "MlpPolicy", env, demonstrations=demos, seed=seed, device="cpu",
+                       **hp.model_kwargs())
+    model.learn(1000)
+    clock = LoopClock()
+    model.learn(steps, callback=clock, reset_num_timesteps=False)
+    total_cpu = time.process_time() - cpu0
+    env.close()
+    return {"n_envs": 1, "steps": clock.steps, "loop_cpu_s": clock.cpu, "loop_wall_s": clock.wall,
+            "setup_cpu_s": total_cpu - clock.cpu, "shipped_steps": float(hp.n_timesteps or 0)}
+
+
+def sac_table(env_id: str, rows: list[dict[str, float]]) -> str:
+    lines = [
+        f"| {env_id}, `cmz-sac` | steps per CPU second (loop) | CPU ms per step | pretraining and first 1,000 "
+        "steps, CPU s | CPU minutes for the shipped budget | steps in 20 CPU-minutes |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per_step = r["loop_cpu_s"] / r["steps"]
+        lines.append(
+            f"| {r['shipped_steps']:.0f} steps shipped | {1 / per_step:.0f} | {1000 * per_step:.1f} "
+            f"| {r['setup_cpu_s']:.0f} | {(r['shipped_steps'] * per_step + r['setup_cpu_s']) / 60:.1f} "
+            f"| {(1200 - r['setup_cpu_s']) / per_step:,.0f} |"
+        )
+    return "\n".join(lines)
+
+
 def table(env_id: str, rows: list[dict[str, float]]) -> str:
     lines = [
         f"| {env_id}: envs per process | steps per CPU second (loop) | wall steps/s (loop) | pretraining, CPU s "
@@ -80,23 +121,34 @@ def table(env_id: str, rows: list[dict[str, float]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="Walker2d-v5")
-    parser.add_argument("--steps", type=int, default=40960, help="training steps per measurement (default 20 updates)")
-    parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("--method", choices=("cmz", "cmz-sac"), default="cmz")
+    parser.add_argument("--steps", type=int, help="timed training steps per measurement (default: 40960, "
+                        "20 PPO updates; 4000 for cmz-sac)")
+    parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 8], help="envs per process (cmz only)")
     parser.add_argument("-o", "--output", type=Path, help="markdown file for the table")
     args = parser.parse_args()
     if any(UPDATE_SIZE % n for n in args.n_envs):
         parser.error(f"every --n-envs must divide {UPDATE_SIZE}")
     torch.set_num_threads(1)
     demos = Demonstrations.load(ROOT / "experts" / args.env / "demos.npz").select([0])
-    rows = []
-    for n in args.n_envs:
-        rows.append(measure(args.env, n, args.steps, demos))
-        print(table(args.env, rows[-1:]).splitlines()[-1], flush=True)
-    text = (
-        f"Measured by `{command_line()}` on {time.strftime('%Y-%m-%d')} (1 torch thread, CPU time of this "
-        f"process; CMZDRIL defaults, reward cmz, {args.steps} steps, n_steps = {UPDATE_SIZE} / envs).\n\n"
-        + table(args.env, rows) + "\n"
-    )
+    if args.method == "cmz-sac":
+        steps = args.steps or 4000
+        text = (
+            f"Measured by `{command_line()}` on {time.strftime('%Y-%m-%d')} (1 torch thread, CPU time of this "
+            f"process; CMZDRILSAC with hyperparams/cmzdril_sac.yml's settings, {steps} timed steps).\n\n"
+            + sac_table(args.env, [measure_sac(args.env, steps, demos)]) + "\n"
+        )
+    else:
+        steps = args.steps or 40960
+        rows = []
+        for n in args.n_envs:
+            rows.append(measure(args.env, n, steps, demos))
+            print(table(args.env, rows[-1:]).splitlines()[-1], flush=True)
+        text = (
+            f"Measured by `{command_line()}` on {time.strftime('%Y-%m-%d')} (1 torch thread, CPU time of this "
+            f"process; CMZDRIL defaults, reward cmz, {steps} steps, n_steps = {UPDATE_SIZE} / envs).\n\n"
+            + table(args.env, rows) + "\n"
+        )
     print(text)
     if args.output is not None:
         atomic_write_text(args.output, text)
