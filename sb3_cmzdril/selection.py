@@ -171,6 +171,8 @@ class LongestEpisodesPolicy(_KeptWeights):
     :param check_every: training steps between checks.
     :param n_episodes: episodes per check.
     :param seed: the reset seed of each check's first episode.
+    :param env_kwargs: keyword arguments of ``gym.make`` when ``eval_env`` is an id.
+    :param verbose: 1 prints each check.
     :param tie_break: ``"latest"`` or ``"lowest_u"`` (:data:`TIE_BREAKS`).
     """
 
@@ -183,8 +185,8 @@ class LongestEpisodesPolicy(_KeptWeights):
         n_episodes: int = 5,
         seed: int = 0,
         env_kwargs: Mapping[str, Any] | None = None,
-        tie_break: str = "latest",
         verbose: int = 0,
+        tie_break: str = "latest",
     ) -> None:
         super().__init__(verbose)
         for name, value in (("check_every", check_every), ("n_episodes", n_episodes)):

@@ -611,6 +611,12 @@ def test_the_lowest_u_tie_break_refuses_a_model_without_an_ensemble():
         selector.on_training_start({}, {})
 
 
+def test_verbose_keeps_its_place_before_the_tie_break_in_the_constructor():
+    # The sixth positional argument was verbose before the tie break came, and still is.
+    selector = LongestEpisodesPolicy(_FallsAfterW(), 10, 2, 7, None, 1)
+    assert selector.verbose == 1 and selector.tie_break == "latest"
+
+
 def test_a_longest_episodes_file_written_before_u_was_recorded_resumes_with_u_unknown(tmp_path):
     path = tmp_path / "selection.pt"
     th.save({"state_dict": {"w": th.zeros(())}, "history": th.tensor([[0.0, 3.0], [10.0, 20.0]], dtype=th.float64),
