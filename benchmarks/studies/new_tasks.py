@@ -78,7 +78,8 @@ PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
 PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
                       "`absorbing_score: terminal`)")
 WARMUP = "--set critic_warmup_steps=10000"
-SAC_WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
+SAC_WARMUP_SET = "--set critic_warmup_steps=10000"
+WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
                     "10000`), 20 CPU-minutes per run")
 SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (`--select longest`, reward-free), "
                      "20 CPU-minutes per run")
@@ -149,15 +150,28 @@ TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest m
                "(`longest_tie_break: lowest_u`)")
 
 
+def sac_tuning(env: str, name: str, sets: str, label: str, trials: tuple[int, ...], named_trials: str,
+               note: str = "") -> Variant:
+    """``env``'s `cmz-sac` runs in results/tuning/NAME on ``trials``, made by tune.py with the shipped
+    cmzdril_sac.yml changed by ``sets`` on ``named_trials`` (as the command names them)."""
+    command = (f"python benchmarks/studies/tune.py {name} --base hyperparams/cmzdril_sac.yml {sets} -- --env {env} "
+               f"--methods cmz-sac --trials {named_trials} --eval-every 5 --workers 2 --no-progress{note}")
+    which = f"{trials[0]}-{trials[-1]}" if len(trials) > 1 else str(trials[0])
+    return Variant(env, "cmz-sac", f"{label}: trials {which}", f"results/tuning/{name}", command, trials=trials)
+
+
 def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
     """``env``'s `cmz-sac` runs with the lowest-u tie break on ``trials`` (the same training as the
     package's runs of those trials: only the kept policy can differ)."""
     name, named_trials, note = TIE_U_RUNS[env]
-    command = (f"python benchmarks/studies/tune.py {name} --base hyperparams/cmzdril_sac.yml --set "
-               f"longest_tie_break=lowest_u -- --env {env} --methods cmz-sac --trials {named_trials} --eval-every 5 "
-               f"--workers 2 --no-progress{note}")
-    which = f"{trials[0]}-{trials[-1]}" if len(trials) > 1 else str(trials[0])
-    return Variant(env, "cmz-sac", f"{TIE_U_LABEL}: trials {which}", f"results/tuning/{name}", command, trials=trials)
+    return sac_tuning(env, name, "--set longest_tie_break=lowest_u", TIE_U_LABEL, trials, named_trials, note)
+
+
+#: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left them)
+WARMUP = "W-sac-warmup10k"
+WARMUP_SET = "--set critic_warmup_steps=10000"
+WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
+                "(`critic_warmup_steps: 10000`)")
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -203,6 +217,9 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
     package_cmz_sac_confirmation("Walker2d-v5"),
+    sac_tuning("Walker2d-v5", WARMUP, WARMUP_SET, WARMUP_LABEL, (0, 1, 2, 3, 4), "0-4"),
+    sac_tuning("Walker2d-v5", WARMUP, WARMUP_SET, WARMUP_LABEL, (5, 6, 7, 8, 9), "5-9",
+               " (run as two such processes with --workers 1 side by side)"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
