@@ -78,8 +78,7 @@ PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
 PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
                       "`absorbing_score: terminal`)")
 WARMUP = "--set critic_warmup_steps=10000"
-SAC_WARMUP_SET = "--set critic_warmup_steps=10000"
-WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
+SAC_WARMUP_LABEL = ("the same, the critics trained alone for the first 10,000 gradient steps (`critic_warmup_steps: "
                     "10000`), 20 CPU-minutes per run")
 SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (`--select longest`, reward-free), "
                      "20 CPU-minutes per run")
@@ -151,11 +150,11 @@ TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest m
 
 
 def sac_tuning(env: str, name: str, sets: str, label: str, trials: tuple[int, ...], named_trials: str,
-               note: str = "") -> Variant:
+               note: str = "", workers: int = 2) -> Variant:
     """``env``'s `cmz-sac` runs in results/tuning/NAME on ``trials``, made by tune.py with the shipped
     cmzdril_sac.yml changed by ``sets`` on ``named_trials`` (as the command names them)."""
     command = (f"python benchmarks/studies/tune.py {name} --base hyperparams/cmzdril_sac.yml {sets} -- --env {env} "
-               f"--methods cmz-sac --trials {named_trials} --eval-every 5 --workers 2 --no-progress{note}")
+               f"--methods cmz-sac --trials {named_trials} --eval-every 5 --workers {workers} --no-progress{note}")
     which = f"{trials[0]}-{trials[-1]}" if len(trials) > 1 else str(trials[0])
     return Variant(env, "cmz-sac", f"{label}: trials {which}", f"results/tuning/{name}", command, trials=trials)
 
@@ -168,10 +167,9 @@ def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
 
 
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left them)
-WARMUP = "W-sac-warmup10k"
-WARMUP_SET = "--set critic_warmup_steps=10000"
-WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
-                "(`critic_warmup_steps: 10000`)")
+WALKER_WARMUP = "W-sac-warmup10k"
+WALKER_WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
+                       "(`critic_warmup_steps: 10000`)")
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -217,9 +215,9 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
     package_cmz_sac_confirmation("Walker2d-v5"),
-    sac_tuning("Walker2d-v5", WARMUP, WARMUP_SET, WARMUP_LABEL, (0, 1, 2, 3, 4), "0-4"),
-    sac_tuning("Walker2d-v5", WARMUP, WARMUP_SET, WARMUP_LABEL, (5, 6, 7, 8, 9), "5-9",
-               " (run as two such processes with --workers 1 side by side)"),
+    sac_tuning("Walker2d-v5", WALKER_WARMUP, WARMUP, WALKER_WARMUP_LABEL, (0, 1, 2, 3, 4), "0-4"),
+    sac_tuning("Walker2d-v5", WALKER_WARMUP, WARMUP, WALKER_WARMUP_LABEL, (5, 6, 7, 8, 9), "5-9",
+               " (two such processes side by side)", workers=1),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
