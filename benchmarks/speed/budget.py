@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -33,6 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_cmzdril import CMZDRIL, Demonstrations
+from sb3_cmzdril.experiments.report.formatting import md_table
 from sb3_cmzdril.experiments.run.spec import load_run_hyperparams
 from sb3_cmzdril.io import atomic_write_text, command_line
 from sb3_cmzdril.sac import CMZDRILSAC
@@ -86,36 +88,31 @@ def measure_sac(env_id: str, steps: int, demos: Demonstrations, seed: int = 0) -
             "setup_cpu_s": total_cpu - clock.cpu, "shipped_steps": float(hp.n_timesteps or 0)}
 
 
+def _table(header: list[str], rows: list[dict[str, float]],
+           cells: Callable[[dict[str, float], float], list[str]]) -> str:
+    """A markdown table of measurements: ``cells(row, CPU seconds per step)`` gives each row's cells."""
+    return md_table(header, [cells(r, r["loop_cpu_s"] / r["steps"]) for r in rows])
+
+
 def sac_table(env_id: str, rows: list[dict[str, float]]) -> str:
-    lines = [
-        f"| {env_id}, `cmz-sac` | steps per CPU second (loop) | CPU ms per step | pretraining and first 1,000 "
-        "steps, CPU s | CPU minutes for the shipped budget | steps in 20 CPU-minutes |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        per_step = r["loop_cpu_s"] / r["steps"]
-        lines.append(
-            f"| {r['shipped_steps']:.0f} steps shipped | {1 / per_step:.0f} | {1000 * per_step:.1f} "
-            f"| {r['setup_cpu_s']:.0f} | {(r['shipped_steps'] * per_step + r['setup_cpu_s']) / 60:.1f} "
-            f"| {(1200 - r['setup_cpu_s']) / per_step:,.0f} |"
-        )
-    return "\n".join(lines)
+    def cells(r: dict[str, float], per_step: float) -> list[str]:
+        shipped_minutes = (r["shipped_steps"] * per_step + r["setup_cpu_s"]) / 60
+        return [f"{r['shipped_steps']:.0f} steps shipped", f"{1 / per_step:.0f}", f"{1000 * per_step:.1f}",
+                f"{r['setup_cpu_s']:.0f}", f"{shipped_minutes:.1f}", f"{(1200 - r['setup_cpu_s']) / per_step:,.0f}"]
+
+    return _table([f"{env_id}, `cmz-sac`", "steps per CPU second (loop)", "CPU ms per step",
+                   "pretraining and first 1,000 steps, CPU s", "CPU minutes for the shipped budget",
+                   "steps in 20 CPU-minutes"], rows, cells)
 
 
 def table(env_id: str, rows: list[dict[str, float]]) -> str:
-    lines = [
-        f"| {env_id}: envs per process | steps per CPU second (loop) | wall steps/s (loop) | pretraining, CPU s "
-        "| projected CPU minutes for 1M steps | for 3M steps |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        per_step = r["loop_cpu_s"] / r["steps"]
-        lines.append(
-            f"| {r['n_envs']:.0f} | {r['steps'] / r['loop_cpu_s']:.0f} | {r['steps'] / r['loop_wall_s']:.0f} "
-            f"| {r['setup_cpu_s']:.0f} | {(1e6 * per_step + r['setup_cpu_s']) / 60:.1f} "
-            f"| {(3e6 * per_step + r['setup_cpu_s']) / 60:.1f} |"
-        )
-    return "\n".join(lines)
+    def cells(r: dict[str, float], per_step: float) -> list[str]:
+        return [f"{r['n_envs']:.0f}", f"{1 / per_step:.0f}", f"{r['steps'] / r['loop_wall_s']:.0f}",
+                f"{r['setup_cpu_s']:.0f}", f"{(1e6 * per_step + r['setup_cpu_s']) / 60:.1f}",
+                f"{(3e6 * per_step + r['setup_cpu_s']) / 60:.1f}"]
+
+    return _table([f"{env_id}: envs per process", "steps per CPU second (loop)", "wall steps/s (loop)",
+                   "pretraining, CPU s", "projected CPU minutes for 1M steps", "for 3M steps"], rows, cells)
 
 
 def main() -> None:
