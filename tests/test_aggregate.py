@@ -47,6 +47,15 @@ def test_score_matrix_is_trials_by_tasks_per_method(tmp_path):
     np.testing.assert_allclose(scores.by_method["cmz"], _by_hand(1))
 
 
+def test_the_off_policy_method_is_scored_by_its_longest_episodes_policy_not_its_last_weights(tmp_path):
+    # cmz-sac's result is the policy it kept for its longest episodes; its last weights ("final") fell.
+    for t in range(5):
+        write_run(tmp_path, "cmz-sac", t, [1.0], env=TASKS[0],
+                  final={"final": [10.0, 10.0], "longest": [900.0, 900.0]}, expert=1000.0)
+    scores = agg.score_matrix(final_table(load_runs(tmp_path)))
+    np.testing.assert_allclose(scores.by_method["cmz-sac"][:, 0], [900.0 / (1000.5 + 10 * t) for t in range(5)])
+
+
 def test_a_task_without_all_of_its_methods_trials_is_left_out_and_named(tmp_path):
     _grid(tmp_path)
     write_run(tmp_path, "env", 0, [1.0], env=TASKS[0], final={"final": [500.0, 500.0]})

@@ -67,7 +67,9 @@ def test_train_cmz_sac_writes_the_grid_layout_with_the_longest_episodes_choice(t
     out = tmp_path / "run"
     assert main(_train_args(tiny_experiment, sac_yaml, out)) == 0
     printed = capsys.readouterr().out
-    assert "final policy: return" in printed and "longest-episodes policy (epoch" in printed
+    # The method's result is the longest-episodes choice; the last weights are printed as such.
+    assert "final evaluation, last weights: return" in printed
+    assert "longest-episodes policy, the method's result (epoch" in printed
     config = json.loads((out / "config.json").read_text())
     assert config["method"] == "cmz-sac" and config["timesteps"] == 256
     assert config["model_kwargs"]["cmz_clip_quantile"] == 0.98 and config["model_kwargs"]["absorbing"] is True
@@ -207,4 +209,5 @@ def test_the_report_names_the_off_policy_learner_and_its_choice(tiny_experiment,
     assert (runs_dir / ENV / "cmz-sac" / "trial0" / "done.json").is_file()
     assert main(["report", str(runs_dir), "-o", str(tmp_path / "report")]) == 0
     page = (tmp_path / "report" / "results.md").read_text()
-    assert "CMZ-DRIL (SAC)" in page and "CMZ-DRIL (SAC) (longest episodes)" in page
+    # The plain name is the method's result (its longest-episodes policy); its last weights are named so.
+    assert "| CMZ-DRIL (SAC) |" in page and "| CMZ-DRIL (SAC) (last weights) |" in page

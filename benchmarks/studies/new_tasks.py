@@ -85,8 +85,8 @@ SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (
 
 
 GRID_MADE_BY = "the published grid (CONTRIBUTING.md)"
-#: the same learner as the package's method `cmz-sac` of train/benchmark: a step budget, not a CPU one, and
-#: its final policy is the last weights (the longest-episodes choice is its second policy)
+#: the same learner as the package's method `cmz-sac` of train/benchmark: a step budget, not a CPU one; the
+#: ablation rows show its last weights with the longest-episodes choice (the method's result) beside them
 CMZ_SAC_LABEL = ("`cmz-sac`, the package's method (hyperparams/cmzdril_sac.yml: the clipped CMZ reward and the "
                  "absorbing state, 70k steps; last weights, the longest-episodes choice beside them)")
 CMZ_SAC_TRIALS5_9 = "results/runs_sac_trials5-9"
@@ -500,7 +500,8 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
     ),
     pairs=(("sac", "bc"), ("sac", "dril")),
     figure="new_tasks_across_package_sac_trials5-9.png",
-    intro=("The package's method `cmz-sac` (hyperparams/cmzdril_sac.yml, 70k steps, last weights) on the "
+    intro=("The package's method `cmz-sac` (hyperparams/cmzdril_sac.yml, 70k steps; its result, the "
+           "longest-episodes choice) on the "
            "confirmation trials 5-9 of the three tasks it ran on through `sb3-cmzdril benchmark`; its settings "
            "were fixed before these runs. The report's aggregate ([results](results.md)) counts its trials 0-4. "
            "BC is the grid's command with `--trials 10`; DRIL ran on these trials of Walker2d-v5 and Hopper-v5 "

@@ -121,16 +121,19 @@ def _run_train(args) -> int:
         )
     else:
         print(f"{result['status']} at {result.get('num_timesteps')} steps: {spec.output_dir} (run again to continue)")
-    for line in final_evaluation_lines(result.get("final_evaluation"), spec.output_dir):
+    for line in final_evaluation_lines(result.get("final_evaluation"), spec.output_dir, spec.method):
         print(line)
     return 0 if result["status"] in ("done", "skipped") else 1
 
 
-def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike) -> list[str]:
+def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, method: str) -> list[str]:
     """One line per finally-evaluated policy: its held-out return and the file that holds it, so a user
-    sees that the lowest-disagreement policy (chosen without the env reward) may be the better one."""
+    sees that the lowest-disagreement policy (chosen without the env reward) may be the better one, and
+    which file is the method's result where that is not its last weights (cmz-sac's longest-episodes
+    policy)."""
     from pathlib import Path
 
+    from sb3_cmzdril.experiments.report.records import result_policy
     from sb3_cmzdril.experiments.run.run_folder import LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
 
     files = {
@@ -143,6 +146,8 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike) -
         if policy not in files or not isinstance(ev, dict) or "return_mean" not in ev:
             continue
         label, name = files[policy]
+        if result_policy(method) != "final":
+            label = {"final": "last weights", result_policy(method): f"{label}, the method's result"}.get(policy, label)
         epoch = f" (epoch {ev['epoch']})" if "epoch" in ev else ""
         lines.append(
             f"final evaluation, {label}{epoch}: return {ev['return_mean']:.2f} "

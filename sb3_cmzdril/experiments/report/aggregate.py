@@ -29,7 +29,7 @@ import numpy as np
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experiments.report.final_eval import FinalRow
 from sb3_cmzdril.experiments.report.formatting import md_table
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, result_policy
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Seed of every bootstrap here: the same runs give the same intervals on every report.
@@ -83,8 +83,9 @@ class Scores:
         return tuple(t for t in self.tasks[a] if t in self.tasks[b])
 
 
-def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | None:
-    """The normalised scores of each method on its tasks, over the trials its tasks share.
+def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
+    """The normalised scores of each method's result (:func:`.records.result_policy`: the final
+    policy, or the longest-episodes one for ``cmz-sac``) on its tasks, over the trials its tasks share.
 
     rliable's stratified bootstrap resamples the runs within each task and wants as many on each, so a
     method is scored on the largest set of trials one of its tasks has, and a task of that method
@@ -92,7 +93,7 @@ def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | No
     mean is not positive. None when nothing is left; a UserError when an (env, method) comes twice
     (from two grids: which one counts is the caller's choice, not ours).
     """
-    chosen = [r for r in rows if r.policy == policy]
+    chosen = [r for r in rows if r.policy == result_policy(r.method)]
     seen: set[tuple[str, str]] = set()
     for row in chosen:
         if (row.env, row.method) in seen:
@@ -108,7 +109,7 @@ def score_matrix(rows: Sequence[FinalRow], policy: str = "final") -> Scores | No
             continue
         wanted = max((tuple(sorted(r.per_trial("return"))) for r in mine), key=len)
         for row in mine:
-            by_trial = {run.trial: normalised_score(run.final[policy]) for run in row.runs}
+            by_trial = {run.trial: normalised_score(run.final[row.policy]) for run in row.runs}
             label = f"{row.env} {METHOD_LABELS[method]}"
             if not set(wanted) <= set(by_trial):
                 left_out.append(f"{label}: {len(set(by_trial) & set(wanted))} of the {len(wanted)} trials")

@@ -24,7 +24,14 @@ from sb3_cmzdril.experiments.report.final_eval import (
     paired,
     trials_text,
 )
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, RunRecord, env_key, group
+from sb3_cmzdril.experiments.report.records import (
+    METHOD_LABELS,
+    METHOD_ORDER,
+    RunRecord,
+    env_key,
+    group,
+    result_policy,
+)
 from sb3_cmzdril.experiments.report.tables import METRICS
 from sb3_cmzdril.io import PathLike, atomic_path
 
@@ -149,7 +156,7 @@ def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
             values = row.per_run("return")
             # Trials side by side (not random jitter): the figure is the same on every report.
             spread = np.linspace(-0.06, 0.06, len(values)) if len(values) > 1 else np.zeros(1)
-            face = COLORS[method] if policy == "final" else "none"
+            face = COLORS[method] if policy == result_policy(method) else "none"
             ax.scatter(x + offset + spread, values, s=22, facecolors=face, edgecolors=COLORS[method], zorder=3)
             mean, low, high = row.stat("return")
             if np.isfinite(low):
@@ -179,9 +186,10 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Pat
     for ax, env in zip(axes, envs, strict=True):
         _plot_env(ax, rows, env)
     handles = [
-        Line2D([], [], marker="o", linestyle="", color="tab:gray", label="final policy, one point per trial"),
+        Line2D([], [], marker="o", linestyle="", color="tab:gray",
+               label="the method's result (final policy; CMZ-DRIL (SAC): longest episodes), one point per trial"),
         Line2D([], [], marker="o", linestyle="", markerfacecolor="none", color="tab:gray",
-               label="lowest-u policy (reward-free choice), one point per trial"),
+               label="its other policy (CMZ-DRIL: lowest u; CMZ-DRIL (SAC): last weights), one point per trial"),
         Line2D([], [], color="black", marker="_", markersize=12,
                label=f"mean over trials, bar: {100 * CONFIDENCE:g}% bootstrap CI"),
         Line2D([], [], color=COLORS["bc"], linestyle="--", label="BC mean"),
@@ -189,7 +197,8 @@ def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Pat
     ]
     fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize=8)
     fig.suptitle((title + "\n" if title else "") + "each trial's return averaged over its held-out pool episodes "
-                 "(final_eval.csv)\nunder each method: in how many trials its final | lowest-u policy is above BC",
+                 "(final_eval.csv)\nunder each method: in how many trials its last weights | reward-free choice "
+                 "(lowest u or longest episodes) are above BC",
                  fontsize=11)
     return save_png(fig, path)
 

@@ -54,8 +54,15 @@ ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: the RL methods: CMZDRIL's policy whose own training rollout had the lowest ensemble disagreement,
 #: CMZDRILSAC's whose deterministic episodes from fixed starts lasted longest.
 POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest")
-#: How a table names a policy, after its method's label.
-POLICY_SUFFIXES: dict[str, str] = {"final": "", "lowest_u": " (lowest u)", "longest": " (longest episodes)"}
+#: How a table names a policy, after its method's label (none for the method's result, :func:`result_policy`).
+POLICY_SUFFIXES: dict[str, str] = {"final": " (last weights)", "lowest_u": " (lowest u)",
+                                   "longest": " (longest episodes)"}
+#: The policy a method hands back as its result where that is not its weights at the end of training
+#: ("final"). The off-policy learner's last weights can fall in a run's last steps after it walked for
+#: most of it; the policy whose deterministic episodes from fixed starts lasted longest (chosen without
+#: the env reward, sb3_cmzdril.selection) is what the method `cmz-sac` keeps for that (the comparison of
+#: the two: docs/beyond_home_tasks.md). Tables across methods (the README's, the aggregate's) score it.
+RESULT_POLICIES: dict[str, str] = {"cmz-sac": "longest"}
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
 FINAL_VALUES: tuple[str, ...] = ("return", "length", "frechet", "action_mse", "expert_return")
 
@@ -90,9 +97,17 @@ class Skipped:
         return f"{relative(self.path, root)}: {self.reason}"
 
 
+def result_policy(method: str) -> str:
+    """The policy ``method`` hands back as its result: "final" (its last weights) unless
+    :data:`RESULT_POLICIES` names another."""
+    return RESULT_POLICIES.get(method, "final")
+
+
 def label(method: str, policy: str = "final") -> str:
-    """``CMZ-DRIL`` for the final policy, ``CMZ-DRIL (lowest u)`` for the lowest-disagreement one."""
-    return METHOD_LABELS[method] + POLICY_SUFFIXES[policy]
+    """The method's name for its result (:func:`result_policy`), with a suffix for another of its
+    policies: ``CMZ-DRIL`` and ``CMZ-DRIL (lowest u)``, ``CMZ-DRIL (SAC)`` (its longest-episodes policy)
+    and ``CMZ-DRIL (SAC) (last weights)``."""
+    return METHOD_LABELS[method] + ("" if policy == result_policy(method) else POLICY_SUFFIXES[policy])
 
 
 def relative(path: Path, root: Path) -> str:
@@ -329,6 +344,8 @@ __all__ = [
     "METHOD_ORDER",
     "ENV_ORDER",
     "POLICIES",
+    "RESULT_POLICIES",
+    "result_policy",
     "RunRecord",
     "Skipped",
     "Grid",

@@ -35,6 +35,7 @@ from sb3_cmzdril.experiments.report.records import (
     env_key,
     label,
     relative,
+    result_policy,
     setting_differences,
 )
 from sb3_cmzdril.experiments.report.tables import (
@@ -101,6 +102,8 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
     for env in envs:
         methods = [m for m in METHOD_ORDER if any(r.method == m and r.env == env for rep in reports for r in rep.rows)]
         lines = [(m, "final") for m in methods]
+        lines += [(m, result_policy(m)) for m in methods if result_policy(m) != "final"
+                  and any(find(rep.final, env, m, result_policy(m)) for rep in reports)]
         if any(find(rep.final, env, "cmz", "lowest_u") for rep in reports):
             lines.append(("cmz", "lowest_u"))
         for method, policy in lines:
@@ -128,11 +131,12 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
 
 def readme_markdown(rep: GridReport) -> str:
     """The README's headline, small enough for a README: one row per env, one column per method, each
-    cell the final evaluation's % of the expert (mean over trials [CI]) of the method's final policy,
-    then CMZ-DRIL's lowest-u policy. A grid without a final evaluation gets Table I's mean (std) return."""
+    cell the final evaluation's % of the expert (mean over trials [CI]) of the method's result
+    (:func:`.records.result_policy`), then CMZ-DRIL's lowest-u policy. A grid without a final evaluation
+    gets Table I's mean (std) return of the training's last weights."""
     envs = sorted({r.env for r in rep.rows}, key=env_key)
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rep.rows)]
-    columns: list[tuple[str, str]] = [(m, "final") for m in methods]
+    columns: list[tuple[str, str]] = [(m, result_policy(m) if rep.final else "final") for m in methods]
     if rep.final and any(r.method == "cmz" and r.policy == "lowest_u" for r in rep.final):
         columns.append(("cmz", "lowest_u"))
     body = []
@@ -159,8 +163,17 @@ def readme_text(rep: GridReport, window: int) -> str:
     return ("Final evaluation, % of the expert: 100 times a run's mean return over the expert's on the same "
             "held-out episodes (every pool episode the run did not train on), mean over "
             f"{trials_text(rep.final)} trials [{100 * CONFIDENCE:g}% bootstrap CI over trials]; the final policy of "
-            "each method, and \"(lowest u)\": the CMZ-DRIL policy whose own training rollout had the lowest "
-            "ensemble disagreement (chosen without the env reward).")
+            f"each method{_result_clause(rep.final)}, and \"(lowest u)\": the CMZ-DRIL policy whose own training "
+            "rollout had the lowest ensemble disagreement (chosen without the env reward).")
+
+
+def _result_clause(rows: Sequence[FinalRow]) -> str:
+    """How the methods among ``rows`` whose result is not their last weights choose it, in words."""
+    chosen = [m for m in METHOD_ORDER if result_policy(m) == "longest" and any(r.method == m for r in rows)]
+    if not chosen:
+        return ""
+    return (f" (for {', '.join(METHOD_LABELS[m] for m in chosen)}: its policy whose deterministic episodes from "
+            "fixed starts lasted longest, chosen without the env reward)")
 
 
 def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int) -> str:

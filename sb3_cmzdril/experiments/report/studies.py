@@ -43,6 +43,7 @@ from sb3_cmzdril.experiments.report.records import (
     load_runs,
     progress_rows,
     relative,
+    result_policy,
 )
 
 #: the published grid: the BC and DRIL runs every ablation is paired with
@@ -581,16 +582,18 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
 
 
 def across_scores(study: AcrossTasks, root: Path, skipped: list[Skipped]) -> Scores | None:
-    """The normalised final scores (:func:`.aggregate.normalised_score`) of each method on the study's
-    trials; a task where a method lacks one of them is left out of that method with a note."""
+    """The normalised final scores (:func:`.aggregate.normalised_score`) of each method's result
+    (:func:`.records.result_policy`) on the study's trials; a task where a method lacks one of them is
+    left out of that method with a note."""
     tasks: dict[str, list[str]] = {}
     columns: dict[str, list[list[float]]] = {}
     left_out = []
     loaded: dict[Path, list[FinalRow]] = {}  # the grid's folder serves every grid method on every task
     for key, label, variants in study.methods:
         for variant in variants:
-            row = variant_rows(dataclasses.replace(variant, trials=study.trials), root, skipped, loaded)["final"]
-            by_trial = {} if row is None else {run.trial: normalised_score(run.final["final"]) for run in row.runs}
+            policy = result_policy(variant.method)
+            row = variant_rows(dataclasses.replace(variant, trials=study.trials), root, skipped, loaded)[policy]
+            by_trial = {} if row is None else {run.trial: normalised_score(run.final[policy]) for run in row.runs}
             missing = [t for t in study.trials if t not in by_trial]
             if missing:
                 left_out.append(f"{variant.env} {label}: no finished trial {', '.join(map(str, missing))}")
