@@ -166,10 +166,20 @@ def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
     return sac_tuning(env, name, "--set longest_tie_break=lowest_u", TIE_U_LABEL, trials, named_trials, note)
 
 
-#: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left them)
-WALKER_WARMUP = "W-sac-warmup10k"
-WALKER_WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
+#: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
+#: them): the runs folder under results/tuning/ per task
+CRITIC_WARMUP_RUNS = {"Walker2d-v5": "W-sac-warmup10k", "Hopper-v5": "H-sac-warmup10k"}
+CRITIC_WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
                        "(`critic_warmup_steps: 10000`)")
+#: how the later trials of a folder were run: by the same command, one run per process, two processes
+#: side by side (they share the folder's work by its run locks)
+SIDE_BY_SIDE = " (two such processes side by side)"
+
+
+def critic_warmup(env: str, trials: tuple[int, ...], named_trials: str, note: str = SIDE_BY_SIDE,
+                  workers: int = 1) -> Variant:
+    """``env``'s `cmz-sac` runs with ``critic_warmup_steps: 10000`` on ``trials``."""
+    return sac_tuning(env, CRITIC_WARMUP_RUNS[env], WARMUP, CRITIC_WARMUP_LABEL, trials, named_trials, note, workers)
 
 
 def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
@@ -215,9 +225,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
     package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
     package_cmz_sac_confirmation("Walker2d-v5"),
-    sac_tuning("Walker2d-v5", WALKER_WARMUP, WARMUP, WALKER_WARMUP_LABEL, (0, 1, 2, 3, 4), "0-4"),
-    sac_tuning("Walker2d-v5", WALKER_WARMUP, WARMUP, WALKER_WARMUP_LABEL, (5, 6, 7, 8, 9), "5-9",
-               " (two such processes side by side)", workers=1),
+    critic_warmup("Walker2d-v5", (0, 1, 2, 3, 4), "0-4", "", workers=2),
+    critic_warmup("Walker2d-v5", (5, 6, 7, 8, 9), "5-9"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
@@ -234,6 +243,9 @@ ABLATIONS: tuple[Variant, ...] = (
     package_cmz_sac_confirmation("Hopper-v5"),
     tie_u("Hopper-v5", (0,)),
     tie_u("Hopper-v5", (5,)),
+    critic_warmup("Hopper-v5", (0, 1, 2, 3, 4), "2-4",
+                  " (two such processes side by side; trials 0 and 1 first by the same command with --trials 0,1 "
+                  "--workers 2)"),
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
