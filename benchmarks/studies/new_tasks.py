@@ -35,6 +35,10 @@ DRIL_TRIALS5_9_COMMANDS = {
     "Hopper-v5": ("sb3-cmzdril benchmark --env Hopper-v5 --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
                   f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}"),
 }
+DRIL_TRIALS5_9_COMMANDS.update(dict.fromkeys(
+    ("HalfCheetah-v5", "Swimmer-v5"),
+    "sb3-cmzdril benchmark --env HalfCheetah-v5,Swimmer-v5 --methods dril --trials 5-9 --timesteps 300000 "
+    f"--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}"))
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 BC_TRIALS10 = "results/runs_bc_trials10"
@@ -109,11 +113,15 @@ def tuning_and_confirmation(label: str, name: str, sets: str, env: str = "Walker
 HOPPER_CHEETAH = "Hopper-v5,HalfCheetah-v5"
 
 
-def package_cmz_sac(env: str, envs: str) -> Variant:
-    """The package's `cmz-sac` on the grid's trials 0-4, made by ``benchmark --env ENVS``."""
+def package_cmz_sac(env: str, envs: str, how: str = "--workers 2") -> Variant:
+    """The package's `cmz-sac` on the grid's trials 0-4, made by ``benchmark --env ENVS`` and ``how``."""
     return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 0-4", GRID,
-                   f"sb3-cmzdril benchmark --env {envs} --methods cmz-sac --trials 5 --eval-every 5 --workers 2 "
+                   f"sb3-cmzdril benchmark --env {envs} --methods cmz-sac --trials 5 --eval-every 5 {how} "
                    "-o results/runs", trials=(0, 1, 2, 3, 4))
+
+
+#: Swimmer-v5's `cmz-sac` runs: one run per process, two processes side by side sharing the folder
+SWIMMER_SAC = "--workers 1 --no-progress"
 
 
 #: the confirmation trials 5-9 of Hopper-v5 and HalfCheetah-v5, one benchmark command after Hopper-v5's
@@ -130,6 +138,8 @@ CMZ_SAC_TRIALS5_9_COMMANDS = {
                     f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
     "Hopper-v5": HOPPER_CHEETAH_TRIALS5_9,
     "HalfCheetah-v5": HOPPER_CHEETAH_TRIALS5_9,
+    "Swimmer-v5": (f"sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz-sac --trials 5-9 --eval-every 5 "
+                   f"{SWIMMER_SAC} -o {CMZ_SAC_TRIALS5_9} (two such processes side by side)"),
 }
 
 
@@ -259,6 +269,8 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
+    package_cmz_sac("Swimmer-v5", "Swimmer-v5", f"{SWIMMER_SAC} (two such processes side by side)"),
+    package_cmz_sac_confirmation("Swimmer-v5"),
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
@@ -498,9 +510,9 @@ ACROSS_LEAD: tuple[AcrossTasks, ...] = (
 )
 
 #: the tasks the package's `cmz-sac` ran through `benchmark` on trials 0-9
-PACKAGE_SAC_TASKS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+PACKAGE_SAC_TASKS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5")
 ACROSS_PACKAGE_SAC = AcrossTasks(
-    "The package's `cmz-sac` over BC and DRIL on its three tasks, trials 5-9 (the confirmation)",
+    "The package's `cmz-sac` over BC and DRIL on its four MuJoCo tasks, trials 5-9 (the confirmation)",
     trials=(5, 6, 7, 8, 9),
     methods=(
         ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(package_cmz_sac_confirmation(env)
@@ -514,10 +526,10 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
     figure="new_tasks_across_package_sac_trials5-9.png",
     intro=("The package's method `cmz-sac` (hyperparams/cmzdril_sac.yml, 70k steps; its result, the "
            "longest-episodes choice) on the "
-           "confirmation trials 5-9 of the three tasks it ran on through `sb3-cmzdril benchmark`; its settings "
-           "were fixed before these runs. The report's aggregate ([results](results.md)) counts its trials 0-4. "
-           "BC is the grid's command with `--trials 10`; DRIL ran on these trials of Walker2d-v5 and Hopper-v5 "
-           "(the grid's settings), so it counts on those two. The grid's CMZ-DRIL has no runs of them."),
+           "confirmation trials 5-9 of the four MuJoCo tasks it ran on through `sb3-cmzdril benchmark`; its "
+           "settings were fixed before these runs. The report's aggregate ([results](results.md)) counts its trials "
+           "0-4. BC is the grid's command with `--trials 10`; DRIL is the grid's settings on these trials. The "
+           "grid's CMZ-DRIL has no runs of them."),
 )
 
 SWEEPS: tuple[Sweep, ...] = (
