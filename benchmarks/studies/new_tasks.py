@@ -153,8 +153,9 @@ def package_cmz_sac_confirmation(env: str) -> Variant:
 #: `cmz-sac` with the longest-episodes choice breaking a tie in length by the lowest mean u at the check:
 #: the runs folder under results/tuning/ per task, and the trials its command names
 TIE_U = "-sac-tie-u"
-TIE_U_RUNS = {"HalfCheetah-v5": ("HC" + TIE_U, "0-9", " (trials 0-1 first by the same command with --trials 0-4)"),
-              "Hopper-v5": ("H" + TIE_U, "0,5", "")}
+TIE_U_RUNS = {"HalfCheetah-v5": ("HC" + TIE_U, "0-9", " (trials 0-1 first by the same command with --trials 0-4)", 2),
+              "Hopper-v5": ("H" + TIE_U, "1,2,4", " (trials 0 and 5 first by the same command with --trials 0,5 "
+                            "--workers 2)", 3)}
 TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest mean u on the check's states "
                "(`longest_tie_break: lowest_u`)")
 
@@ -165,15 +166,17 @@ def sac_tuning(env: str, name: str, sets: str, label: str, trials: tuple[int, ..
     cmzdril_sac.yml changed by ``sets`` on ``named_trials`` (as the command names them)."""
     command = (f"python benchmarks/studies/tune.py {name} --base hyperparams/cmzdril_sac.yml {sets} -- --env {env} "
                f"--methods cmz-sac --trials {named_trials} --eval-every 5 --workers {workers} --no-progress{note}")
-    which = f"{trials[0]}-{trials[-1]}" if len(trials) > 1 else str(trials[0])
+    contiguous = len(trials) > 1 and trials == tuple(range(trials[0], trials[-1] + 1))
+    which = f"{trials[0]}-{trials[-1]}" if contiguous else ", ".join(map(str, trials))
     return Variant(env, "cmz-sac", f"{label}: trials {which}", f"results/tuning/{name}", command, trials=trials)
 
 
 def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
     """``env``'s `cmz-sac` runs with the lowest-u tie break on ``trials`` (the same training as the
     package's runs of those trials: only the kept policy can differ)."""
-    name, named_trials, note = TIE_U_RUNS[env]
-    return sac_tuning(env, name, "--set longest_tie_break=lowest_u", TIE_U_LABEL, trials, named_trials, note)
+    name, named_trials, note, workers = TIE_U_RUNS[env]
+    return sac_tuning(env, name, "--set longest_tie_break=lowest_u", TIE_U_LABEL, trials, named_trials, note,
+                      workers)
 
 
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
@@ -251,7 +254,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
     package_cmz_sac("Hopper-v5", HOPPER_CHEETAH),
     package_cmz_sac_confirmation("Hopper-v5"),
-    tie_u("Hopper-v5", (0,)),
+    tie_u("Hopper-v5", (0, 1, 2, 4)),
     tie_u("Hopper-v5", (5,)),
     critic_warmup("Hopper-v5", (0, 1, 2, 3, 4), "2-4",
                   " (two such processes side by side; trials 0 and 1 first by the same command with --trials 0,1 "
