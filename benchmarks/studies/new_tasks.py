@@ -25,20 +25,16 @@ from sb3_cmzdril.io import atomic_write_text
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: the BC and DRIL runs every ablation is paired with: the published grid (trials 0-4), then trials 5-9 for
-#: the confirmation of the variants (BC on HalfCheetah-v5, Hopper-v5, Walker2d-v5 and WaypointNav-v0 by
-#: :func:`bc_trials10_command`, whose trials 0-4 repeat the grid's exactly; DRIL on Walker2d-v5 and Hopper-v5 by
-#: :data:`DRIL_TRIALS5_9_COMMANDS`)
+#: the confirmation of the variants (BC on the four MuJoCo tasks and WaypointNav-v0 by :func:`bc_trials10_command`,
+#: whose trials 0-4 repeat the grid's exactly; DRIL on the four MuJoCo tasks by :data:`DRIL_TRIALS5_9_COMMANDS`)
 DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
 DRIL_TRIALS5_9_COMMANDS = {
     "Walker2d-v5": ("sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
                     f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9)"),
-    "Hopper-v5": ("sb3-cmzdril benchmark --env Hopper-v5 --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
-                  f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}"),
+    **{env: (f"sb3-cmzdril benchmark --env {envs} --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
+             f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}")
+       for envs in ("Hopper-v5", "HalfCheetah-v5,Swimmer-v5") for env in envs.split(",")},
 }
-DRIL_TRIALS5_9_COMMANDS.update(dict.fromkeys(
-    ("HalfCheetah-v5", "Swimmer-v5"),
-    "sb3-cmzdril benchmark --env HalfCheetah-v5,Swimmer-v5 --methods dril --trials 5-9 --timesteps 300000 "
-    f"--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}"))
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 BC_TRIALS10 = "results/runs_bc_trials10"

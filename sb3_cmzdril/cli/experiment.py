@@ -133,21 +133,23 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, m
     policy)."""
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.report.records import result_policy
     from sb3_cmzdril.experiments.run.run_folder import LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
+    from sb3_cmzdril.experiments.run.spec import result_policy
 
     files = {
         "final": ("final policy", MODEL_FILE),
         "lowest_u": ("lowest-u policy", LOWEST_U_MODEL),
         "longest": ("longest-episodes policy", LONGEST_MODEL),
     }
+    result = result_policy(method)
+    if result != "final":
+        files["final"] = ("last weights", MODEL_FILE)
+        files[result] = (f"{files[result][0]}, the method's result", files[result][1])
     lines = []
     for policy, ev in (final or {}).items():
         if policy not in files or not isinstance(ev, dict) or "return_mean" not in ev:
             continue
         label, name = files[policy]
-        if result_policy(method) != "final":
-            label = {"final": "last weights", result_policy(method): f"{label}, the method's result"}.get(policy, label)
         epoch = f" (epoch {ev['epoch']})" if "epoch" in ev else ""
         lines.append(
             f"final evaluation, {label}{epoch}: return {ev['return_mean']:.2f} "

@@ -84,7 +84,7 @@ class Scores:
 
 
 def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
-    """The normalised scores of each method's result (:func:`.records.result_policy`: the final
+    """The normalised scores of each method's result (:func:`result_policy`: the final
     policy, or the longest-episodes one for ``cmz-sac``) on its tasks, over the trials its tasks share.
 
     rliable's stratified bootstrap resamples the runs within each task and wants as many on each, so a

@@ -31,7 +31,7 @@ from sb3_cmzdril.experiments.run.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.experiments.run.spec import METHODS
+from sb3_cmzdril.experiments.run.spec import METHODS, result_policy
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
 
@@ -54,15 +54,10 @@ ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: the RL methods: CMZDRIL's policy whose own training rollout had the lowest ensemble disagreement,
 #: CMZDRILSAC's whose deterministic episodes from fixed starts lasted longest.
 POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest")
-#: How a table names a policy, after its method's label (none for the method's result, :func:`result_policy`).
+#: How a table names a policy, after its method's label (none for the method's result,
+#: :func:`~sb3_cmzdril.experiments.run.spec.result_policy`).
 POLICY_SUFFIXES: dict[str, str] = {"final": " (last weights)", "lowest_u": " (lowest u)",
                                    "longest": " (longest episodes)"}
-#: The policy a method hands back as its result where that is not its weights at the end of training
-#: ("final"). The off-policy learner's last weights can fall in a run's last steps after it walked for
-#: most of it; the policy whose deterministic episodes from fixed starts lasted longest (chosen without
-#: the env reward, sb3_cmzdril.selection) is what the method `cmz-sac` keeps for that (the comparison of
-#: the two: docs/beyond_home_tasks.md). Tables across methods (the README's, the aggregate's) score it.
-RESULT_POLICIES: dict[str, str] = {"cmz-sac": "longest"}
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
 FINAL_VALUES: tuple[str, ...] = ("return", "length", "frechet", "action_mse", "expert_return")
 
@@ -95,12 +90,6 @@ class Skipped:
 
     def text(self, root: Path) -> str:
         return f"{relative(self.path, root)}: {self.reason}"
-
-
-def result_policy(method: str) -> str:
-    """The policy ``method`` hands back as its result: "final" (its last weights) unless
-    :data:`RESULT_POLICIES` names another."""
-    return RESULT_POLICIES.get(method, "final")
 
 
 def label(method: str, policy: str = "final") -> str:
@@ -344,7 +333,6 @@ __all__ = [
     "METHOD_ORDER",
     "ENV_ORDER",
     "POLICIES",
-    "RESULT_POLICIES",
     "result_policy",
     "RunRecord",
     "Skipped",

@@ -132,7 +132,7 @@ def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable |
 def readme_markdown(rep: GridReport) -> str:
     """The README's headline, small enough for a README: one row per env, one column per method, each
     cell the final evaluation's % of the expert (mean over trials [CI]) of the method's result
-    (:func:`.records.result_policy`), then CMZ-DRIL's lowest-u policy. A grid without a final evaluation
+    (:func:`result_policy`), then CMZ-DRIL's lowest-u policy. A grid without a final evaluation
     gets Table I's mean (std) return of the training's last weights."""
     envs = sorted({r.env for r in rep.rows}, key=env_key)
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rep.rows)]

@@ -583,7 +583,7 @@ def selection_markdown(root: Path, skipped: list[Skipped], variants: tuple[Varia
 
 def across_scores(study: AcrossTasks, root: Path, skipped: list[Skipped]) -> Scores | None:
     """The normalised final scores (:func:`.aggregate.normalised_score`) of each method's result
-    (:func:`.records.result_policy`) on the study's trials; a task where a method lacks one of them is
+    (:func:`result_policy`) on the study's trials; a task where a method lacks one of them is
     left out of that method with a note."""
     tasks: dict[str, list[str]] = {}
     columns: dict[str, list[list[float]]] = {}

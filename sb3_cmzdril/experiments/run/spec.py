@@ -94,6 +94,14 @@ def is_off_policy(method: str) -> bool:
     return method in OFFPOLICY_METHODS
 
 
+def result_policy(method: str) -> str:
+    """The final-evaluation policy ``method`` hands back as its result: "longest" for the off-policy
+    methods, whose last weights can fall in a run's last steps after walking for most of it (the policy
+    whose deterministic episodes from fixed starts lasted longest, chosen without the env reward; the
+    comparison of the two is in docs/beyond_home_tasks.md), "final" (the last weights) for the others."""
+    return "longest" if is_off_policy(method) else "final"
+
+
 def learner_classes(method: str) -> tuple[Any, type[BaseAlgorithm]]:
     """(the package's class, the SB3 class it extends) that train ``method``: their constructors
     take the YAML entry's keys. The first is CMZDRIL or CMZDRILSAC, whose constructors and methods
@@ -586,6 +594,7 @@ __all__ = [
     "OFFPOLICY_EPOCH_STEPS",
     "OFFPOLICY_HYPERPARAMS_NAME",
     "OFFPOLICY_METHODS",
+    "result_policy",
     "PAPER_METHODS",
     "ResolvedRun",
     "RunSpec",
