@@ -291,6 +291,33 @@ def versions() -> dict[str, str]:
     return found
 
 
+def cpu_model() -> str:
+    """The processor's model name (Linux: /proc/cpuinfo's ``model name``), or the architecture where
+    the system does not say."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                key, sep, value = line.partition(":")
+                if sep and key.strip() == "model name" and value.strip():
+                    return value.strip()
+    except OSError:  # not Linux
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def machine() -> dict[str, Any]:
+    """The machine a run segment ran on, for its CPU time to be read against: the same steps took
+    twice the CPU time on one day's machine as on another's, and rounded differently."""
+    import torch
+
+    return {
+        "cpu": cpu_model(),
+        "logical_cpus": os.cpu_count() or 0,
+        "torch_threads": torch.get_num_threads(),
+        "os": f"{platform.system()} {platform.release()}",
+    }
+
+
 def portable_path(path: PathLike) -> str:
     """``path`` as a record stores it: relative to the current folder when it lies below it.
 

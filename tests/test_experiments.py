@@ -9,12 +9,14 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch as th
 
 from helpers import ENV, POOL_EPISODES, Interrupt
 from helpers import TINY_PPO_YAML as TINY_YAML
@@ -68,6 +70,21 @@ def test_run_state_adds_cpu_time_across_segments(tmp_path):
     del legacy["cpu_time_s"]
     (tmp_path / "state.json").write_text(json.dumps(legacy))
     assert RunState(tmp_path, spec, 64).cpu_time() < 0.05
+
+
+def test_each_segment_of_state_json_names_the_machine_it_ran_on(tmp_path):
+    """CPU seconds are only comparable on one machine: every segment, a resume's too, records the CPU
+    model, the logical CPUs and torch's threads it ran with."""
+    spec = RunSpec(ENV, "cmz", "pool.npz", 0, 1, 1, 100, str(tmp_path), "hp.yml")
+    RunState(tmp_path, spec, 0).write(64)
+    RunState(tmp_path, spec, 64).write(128)
+    segments = json.loads((tmp_path / "state.json").read_text())["segments"]
+    assert len(segments) == 2
+    for segment in segments:
+        found = segment["machine"]
+        assert isinstance(found["cpu"], str) and found["cpu"]
+        assert found["logical_cpus"] == os.cpu_count()
+        assert found["torch_threads"] == th.get_num_threads()
 
 
 def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):

@@ -11,7 +11,8 @@
                            the end; after done.json it is the final model; for bc the BC policy)
     DIR/vecnormalize.pkl   VecNormalize statistics beside model.zip, when the hyperparameters
                            ask for ``normalize``
-    DIR/state.json         step count, wall time and the segments (start, resumes) of the run
+    DIR/state.json         step count, wall and CPU time and the segments (start, resumes) of the run,
+                           each with the machine it ran on (CPU model, logical CPUs, torch's threads)
     DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
     DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
                            (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint;
@@ -60,6 +61,7 @@ from sb3_cmzdril.io import (
     is_temporary,
     jsonable,
     lock_output,
+    machine,
     portable_path,
     read_json,
     read_json_or_empty,
@@ -234,7 +236,8 @@ def file_sha256(path: PathLike) -> str:
 
 
 class RunState:
-    """state.json: step count, wall and CPU time across segments, and how each segment started.
+    """state.json: step count, wall and CPU time across segments, and how each segment started and
+    on which machine (CPU model, logical CPUs, torch's threads).
 
     CPU time is this process's (``time.process_time``, every thread of it) from the segment's start.
     Another process waiting for the core does not add to it as it adds to wall time, but a loaded
@@ -255,6 +258,7 @@ class RunState:
             "from_timesteps": int(start_steps),
             "seed": spec.seed + int(start_steps),  # what the segment reseeded with (config.json's "resume")
             "command": spec.command,
+            "machine": machine(),
         })
 
     def wall_time(self) -> float:
