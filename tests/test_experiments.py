@@ -28,6 +28,7 @@ from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
 from sb3_cmzdril.experiments.run.run_folder import RunState, check_finished
 from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
 from sb3_cmzdril.experiments.run.spec import RunSpec
+from sb3_cmzdril.io import cpu_model
 
 GRID = dict(timesteps=256, n_eval_episodes=2, eval_every=1, checkpoint_every=2)
 
@@ -173,6 +174,7 @@ def test_interrupted_run_continued_from_its_checkpoint(grid_runs):
     done = json.loads((out / "done.json").read_text())
     assert done["num_timesteps"] == 256 and done["segments"] == 2
     assert 0 < state["cpu_time_s"] <= done["cpu_time_s"]
+    assert done["cpus"] == [cpu_model()]  # both segments ran here: one CPU model
 
 
 @pytest.mark.slow

@@ -95,6 +95,12 @@ def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": 600.0}))
     text = studies.render(root, _variants("ref", "var"))
     assert "| 10.0 (1 of 3 runs) |" in text
+    # Runs made on two processors: the cell names both, since their CPU seconds do not compare.
+    for trial, cpu in enumerate(["CPU B", "CPU A"]):
+        done = root / "var" / ENV / "cmz" / f"trial{trial}" / "done.json"
+        done.write_text(json.dumps({**json.loads(done.read_text()), "cpus": [cpu]}))
+    text = studies.render(root, _variants("ref", "var"))
+    assert "| 2.5 (on 2 CPU models: CPU A, CPU B) |" in text
 
 
 def _with_cost(run: Path, cpu_seconds: float, steps: int) -> None:

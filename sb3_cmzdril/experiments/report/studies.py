@@ -207,11 +207,15 @@ def cpu_and_steps(run: RunRecord) -> tuple[float, float] | None:
 
 def cpu_minutes(row: FinalRow) -> str:
     """Median CPU minutes per run (done.json's ``cpu_time_s``: pretraining, training and evaluations),
-    "—" where no run recorded it (runs made before the records kept CPU time)."""
+    "—" where no run recorded it (runs made before the records kept CPU time), naming the CPU models
+    when the runs recorded more than one (done.json's ``cpus``)."""
     values = [r.summary["cpu_time_s"] for r in row.runs if isinstance(r.summary.get("cpu_time_s"), (int, float))]
     if not values:
         return "—"
     note = "" if len(values) == len(row.runs) else f" ({len(values)} of {len(row.runs)} runs)"
+    cpus = sorted({str(cpu) for r in row.runs for cpu in r.summary.get("cpus", [])})
+    if len(cpus) > 1:  # CPU seconds of different processors do not compare
+        note += f" (on {len(cpus)} CPU models: {', '.join(cpus)})"
     return f"{np.median(values) / 60:.1f}{note}"
 
 

@@ -319,6 +319,8 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "wall_time_s": round(state.wall_time(), 2),
         "cpu_time_s": round(state.cpu_time(), 2),
         "segments": len(state.data["segments"]),
+        # the CPU models its segments ran on (state.json has each segment's), for cpu_time_s's sake
+        "cpus": sorted({str(seg["machine"]["cpu"]) for seg in state.data["segments"] if "machine" in seg}),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "run_dir": portable_path(spec.output_dir),
     }
