@@ -236,6 +236,8 @@ ABLATIONS: tuple[Variant, ...] = (
     package_cmz_sac_confirmation("Walker2d-v5"),
     critic_warmup("Walker2d-v5", (0, 1, 2, 3, 4), "0-4", "", workers=2),
     critic_warmup("Walker2d-v5", (5, 6, 7, 8, 9), "5-9"),
+    sac_tuning("Walker2d-v5", "W-sac-120k", "--set n_timesteps=120000",
+               f"{CMZ_SAC_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
