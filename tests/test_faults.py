@@ -288,6 +288,47 @@ def test_an_envs_own_key_error_keeps_its_traceback_and_is_no_user_error(command,
     assert "cannot make" not in done.stderr  # the old wrapper's "cannot make ... with the env_kwargs/normalize of"
 
 
+MISSING_DEPENDENCY_ENVS = '''
+"""An env registered by its module path, whose module needs a package that is not installed."""
+import gymnasium as gym
+
+gym.register("NeedsBox2D-v0", entry_point="needs_box2d:Lander", max_episode_steps=200)
+'''
+NEEDS_BOX2D = '''
+from gymnasium.error import DependencyNotInstalled
+
+raise DependencyNotInstalled('Box2D is not installed, run `pip install "gymnasium[box2d]"`')
+'''
+
+
+@pytest.mark.parametrize("command", ["train", "collect-demos", "evaluate"])
+def test_an_env_whose_optional_dependency_is_missing_is_one_line_and_exit_2(command, tiny, tmp_path):
+    """A missing optional dependency (gymnasium's Box2D or MuJoCo) is the user's install to fix, not a
+    bug: one line naming the env and gymnasium's advice, exit 2, and no folder or file written, where
+    gym.make would raise it with a traceback after the command had made its output folder."""
+    (tmp_path / "registers.py").write_text(MISSING_DEPENDENCY_ENVS)
+    (tmp_path / "needs_box2d.py").write_text(NEEDS_BOX2D)
+    environ = _env()
+    environ["PYTHONPATH"] = os.pathsep.join([str(tmp_path), environ["PYTHONPATH"]])
+    out = tmp_path / "out"
+    options = ["--env", "registers:NeedsBox2D-v0"]
+    if command == "train":
+        options += ["--demos", str(tiny["pool"]), "--reward", "bc", "--hyperparams", str(tiny["hp"]),
+                    "--no-progress", "-o", str(out)]
+    elif command == "collect-demos":
+        options += ["--expert", "pendulum-pd", "--episodes", "1", "-o", str(out / "demos.npz")]
+    else:
+        options += ["--demos", str(tiny["pool"]), "--model", str(out / "model.zip")]
+    done = subprocess.run([sys.executable, "-m", "sb3_cmzdril", command, *options], capture_output=True, text=True,
+                          env=environ, timeout=300)
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"sb3-cmzdril {command}: error: cannot make registers:NeedsBox2D-v0: Box2D is not installed, "
+        'run `pip install "gymnasium[box2d]"`'], done.stderr
+    assert not out.exists()
+
+
 class _PendulumExpert:
     """The PD expert as an object with ``predict``; ``meanwhile`` runs once, during its first action."""
 

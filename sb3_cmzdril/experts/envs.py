@@ -17,7 +17,8 @@ def env_name(env_id: str) -> str:
 
 
 def check_env_id(env_id: str) -> str:
-    """The env id if gymnasium knows it (importing a ``module:`` prefix first), else a ValueError."""
+    """The env id if gymnasium knows it (importing a ``module:`` prefix first) and its module imports
+    with the optional dependencies it needs, else a UserError (a ValueError) naming the problem."""
     import importlib
 
     # A bare WaypointNav-v0 needs no import here: the package's __init__, which Python runs before
@@ -29,9 +30,17 @@ def check_env_id(env_id: str) -> str:
         except ImportError as e:
             raise UserError(f"unknown environment {env_id!r}: cannot import module {module!r} ({e})") from None
     try:
-        gym.spec(name if sep else env_id)
+        spec = gym.spec(name if sep else env_id)
     except gym.error.Error as e:
         raise UserError(f"unknown environment {env_id!r}: {e}") from None
+    # gymnasium raises DependencyNotInstalled (Box2D, MuJoCo) when the env's module is imported, which
+    # gym.make does after a command has made its folders: import it now. Other import errors are bugs
+    # in that module and keep their traceback.
+    if isinstance(spec.entry_point, str) and ":" in spec.entry_point:
+        try:
+            importlib.import_module(spec.entry_point.split(":", 1)[0])
+        except gym.error.DependencyNotInstalled as e:
+            raise UserError(f"cannot make {env_id}: {e}") from None
     return env_id
 
 
