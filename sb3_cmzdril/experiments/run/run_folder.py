@@ -12,7 +12,7 @@
     DIR/vecnormalize.pkl   VecNormalize statistics beside model.zip, when the hyperparameters
                            ask for ``normalize``
     DIR/state.json         step count, wall and CPU time and the segments (start, resumes) of the run,
-                           each with the machine it ran on (CPU model, logical CPUs, torch's threads)
+                           each with the machine it ran on (CPU model, logical CPUs, torch's threads, OS)
     DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
     DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
                            (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint;
@@ -237,7 +237,7 @@ def file_sha256(path: PathLike) -> str:
 
 class RunState:
     """state.json: step count, wall and CPU time across segments, and how each segment started and
-    on which machine (CPU model, logical CPUs, torch's threads).
+    on which machine (CPU model, logical CPUs, torch's threads, OS).
 
     CPU time is this process's (``time.process_time``, every thread of it) from the segment's start.
     Another process waiting for the core does not add to it as it adds to wall time, but a loaded
