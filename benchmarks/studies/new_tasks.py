@@ -93,6 +93,19 @@ def bc_trials10_command(env: str) -> str:
 
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
 ABS_NORMREW = "--set absorbing=auto " + NORMREW
+#: rl-baselines3-zoo's tuned PPO for Walker2d (its hyperparams/ppo.yml, entry Walker2d-v4; its `normalize: true` is
+#: ABS_NORMREW's reward normalisation here, the policy's inputs being standardised from the demos already)
+ZOO_PPO_WALKER = ("--set n_steps=512 --set batch_size=32 --set gamma=0.99 --set learning_rate=5.05041e-05 "
+                  "--set ent_coef=0.000585045 --set clip_range=0.1 --set n_epochs=20 --set gae_lambda=0.95 "
+                  "--set max_grad_norm=1 --set vf_coef=0.871923")
+BC_REFIT_LABEL = "BC pretraining refit on every demo step (`bc_refit: true`; docs/bc_single_episode.md)"
+
+
+def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5) -> Variant:
+    """The grid's CMZ-DRIL on ``env``'s trials 0-4 with ``bc_refit: true``, the only change."""
+    return Variant(env, "cmz", BC_REFIT_LABEL, f"results/tuning/{name}",
+                   f"python benchmarks/studies/tune.py {name} --set bc_refit=true -- --env {env_id or env} --methods "
+                   f"cmz --trials 0-4 --timesteps 300000 --eval-every {eval_every} --workers 1 --no-progress")
 CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
@@ -270,6 +283,11 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
             "-- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 1000000 --eval-every 5 --workers 2"),
+    Variant("Walker2d-v5", "cmz", "rl-baselines3-zoo's tuned PPO for Walker2d (n_steps 512, batch 32, 20 epochs, "
+            "learning rate 5.05e-5, clip range 0.1, its gamma, GAE lambda, entropy and value coefficients, "
+            "gradient clip), absorbing state + reward normalisation", "results/tuning/W-zoo-ppo-abs-normrew",
+            f"python benchmarks/studies/tune.py W-zoo-ppo-abs-normrew {ABS_NORMREW} {ZOO_PPO_WALKER} -- --env "
+            "Walker2d-v5 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 20 --workers 2 --no-progress"),
     Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
             "per run", "results/offpolicy/W-sac-64-abs",
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
@@ -286,6 +304,7 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     cmz_confirmation("Hopper-v5"),
+    bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
@@ -306,6 +325,7 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     cmz_confirmation("HalfCheetah-v5"),
+    bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
@@ -325,6 +345,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
+    bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
