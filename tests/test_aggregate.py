@@ -83,6 +83,18 @@ def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_
     assert profile[0] == 1.0 and profile[-1] == 0.0  # every score is above 0, none above 1.25
 
 
+def test_the_per_task_table_gives_each_methods_mean_over_trials_and_a_dash_where_it_has_no_runs(tmp_path):
+    _grid(tmp_path)
+    for t in range(5):
+        write_run(tmp_path, "dril", t, [1.0], env=TASKS[0], final={"final": [500.0, 500.0]}, expert=1000.0)
+    table = agg.per_task_markdown(agg.score_matrix(final_table(load_runs(tmp_path)))).splitlines()
+    assert table[0] == "| Task | BC, mean % of expert | DRIL, mean % of expert | CMZ-DRIL, mean % of expert |"
+    bc, cmz = (100 * _by_hand(i).mean(axis=0) for i in (0, 1))
+    dril = 100 * np.mean([500.0 / (1000.5 + 10 * t) for t in range(5)])
+    assert table[2] == f"| {TASKS[0]} | {bc[0]:.1f} | {dril:.1f} | {cmz[0]:.1f} |"
+    assert table[3] == f"| {TASKS[1]} | {bc[1]:.1f} | — | {cmz[1]:.1f} |"
+
+
 def test_the_same_runs_give_the_same_intervals(tmp_path):
     rows = _grid(tmp_path)
     first = agg.aggregate(agg.score_matrix(rows)).summary

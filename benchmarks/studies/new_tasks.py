@@ -60,29 +60,32 @@ BASELINES = (GRID, BC_TRIALS10, DRIL_TRIALS5_9, CMZ_TRIALS5_9, OUTSIDE, OUTSIDE_
 CONFIRMATION_TRIALS = (5, 6, 7, 8, 9)
 
 
+def confirmation_runs(env: str, method: str) -> tuple[str, str]:
+    """The folder holding ``method``'s runs of ``env``'s confirmation trials 5-9, and the command that made them."""
+    if env == "LunarLander-v3":
+        return OUTSIDE_TRIALS5_9, OUTSIDE_TRIALS5_9_COMMAND
+    if method == "bc":
+        return BC_TRIALS10, bc_trials10_command(env)
+    if method == "dril" and env in DRIL_TRIALS5_9_COMMANDS:
+        return DRIL_TRIALS5_9, DRIL_TRIALS5_9_COMMANDS[env]
+    return CMZ_TRIALS5_9, CMZ_TRIALS5_9_COMMANDS[env]
+
+
 def cmz_confirmation(env: str) -> Variant:
     """The grid's CMZ-DRIL (package defaults) on ``env``'s confirmation trials 5-9."""
-    if env == "LunarLander-v3":
-        return Variant(env, "cmz", "package defaults, 3 demonstrations: trials 5-9 (the confirmation)",
-                       OUTSIDE_TRIALS5_9, OUTSIDE_TRIALS5_9_COMMAND, trials=CONFIRMATION_TRIALS)
-    return Variant(env, "cmz", "package defaults: trials 5-9 (the confirmation)", CMZ_TRIALS5_9,
-                   CMZ_TRIALS5_9_COMMANDS[env], trials=CONFIRMATION_TRIALS)
+    demos = ", 3 demonstrations" if env == "LunarLander-v3" else ""
+    return Variant(env, "cmz", f"package defaults{demos}: trials 5-9 (the confirmation)",
+                   *confirmation_runs(env, "cmz"), trials=CONFIRMATION_TRIALS)
 
 
 def bc_confirmation(env: str) -> Variant:
-    """BC (the grid's command with ``--trials 10``) on ``env``, the runs its trials 5-9 come from."""
-    if env == "LunarLander-v3":
-        return Variant(env, "bc", "BC", OUTSIDE_TRIALS5_9, OUTSIDE_TRIALS5_9_COMMAND)
-    return Variant(env, "bc", "BC", BC_TRIALS10, bc_trials10_command(env))
+    """BC (the grid's command with ``--trials 10``, or LunarLander-v3's runs) on ``env``: its trials 5-9."""
+    return Variant(env, "bc", "BC", *confirmation_runs(env, "bc"))
 
 
 def dril_confirmation(env: str) -> Variant:
     """DRIL (the grid's settings) on ``env``'s confirmation trials 5-9."""
-    if env == "LunarLander-v3":
-        return Variant(env, "dril", "DRIL", OUTSIDE_TRIALS5_9, OUTSIDE_TRIALS5_9_COMMAND)
-    if env in DRIL_TRIALS5_9_COMMANDS:
-        return Variant(env, "dril", "DRIL", DRIL_TRIALS5_9, DRIL_TRIALS5_9_COMMANDS[env])
-    return Variant(env, "dril", "DRIL", CMZ_TRIALS5_9, CMZ_TRIALS5_9_COMMANDS[env])
+    return Variant(env, "dril", "DRIL", *confirmation_runs(env, "dril"))
 
 
 def bc_trials10_command(env: str) -> str:
@@ -99,6 +102,7 @@ ZOO_PPO_WALKER = ("--set n_steps=512 --set batch_size=32 --set gamma=0.99 --set 
                   "--set ent_coef=0.000585045 --set clip_range=0.1 --set n_epochs=20 --set gae_lambda=0.95 "
                   "--set max_grad_norm=1 --set vf_coef=0.871923")
 BC_REFIT_LABEL = "BC pretraining refit on every demo step (`bc_refit: true`; docs/bc_single_episode.md)"
+CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
 def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5) -> Variant:
@@ -106,7 +110,6 @@ def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int
     return Variant(env, "cmz", BC_REFIT_LABEL, f"results/tuning/{name}",
                    f"python benchmarks/studies/tune.py {name} --set bc_refit=true -- --env {env_id or env} --methods "
                    f"cmz --trials 0-4 --timesteps 300000 --eval-every {eval_every} --workers 1 --no-progress")
-CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
 DRIL_ABS = "--set reward=dril --set absorbing=true"
@@ -590,8 +593,7 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
         ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(package_cmz_sac_confirmation(env)
                                                     for env in PACKAGE_SAC_TASKS)),
         ("bc", "BC", tuple(bc_confirmation(env) for env in PACKAGE_SAC_TASKS)),
-        ("dril", "DRIL", tuple(Variant(env, "dril", "DRIL", DRIL_TRIALS5_9, command)
-                               for env, command in DRIL_TRIALS5_9_COMMANDS.items())),
+        ("dril", "DRIL", tuple(dril_confirmation(env) for env in DRIL_TRIALS5_9_COMMANDS)),
     ),
     pairs=(("sac", "bc"), ("sac", "dril")),
     figure="new_tasks_across_package_sac_trials5-9.png",
@@ -602,6 +604,7 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
            "0-4. BC is the grid's command with `--trials 10`; DRIL is the grid's settings on these trials. The "
            "grid's CMZ-DRIL on these trials follows below."),
 )
+
 
 def cmz_confirmation_study(title: str, envs: tuple[str, ...], figure: str, intro: str) -> AcrossTasks:
     """The grid's CMZ-DRIL against DRIL and BC on the confirmation trials 5-9 of ``envs``."""

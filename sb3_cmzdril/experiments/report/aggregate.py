@@ -230,6 +230,21 @@ def _pct(point: float, low: float, high: float) -> str:
     return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
 
 
+def per_task_markdown(scores: Scores) -> str:
+    """Each task's mean score (% of expert) per method over its trials, the numbers the aggregates pool;
+    "—" where a method has no runs of the task."""
+    methods = list(scores.by_method)
+    tasks = list(dict.fromkeys(t for m in methods for t in scores.tasks[m]))
+
+    def cell(method: str, task: str) -> str:
+        if task not in scores.tasks[method]:
+            return "—"
+        return f"{100 * scores.on(method, [task]).mean():.1f}"
+
+    return md_table(["Task", *(f"{scores.labels[m]}, mean % of expert" for m in methods)],
+                    [[task, *(cell(m, task) for m in methods)] for task in tasks])
+
+
 def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
     """The report's "Across tasks" section: the method, the tables and the figure (``figure``: its link
     from the page)."""
@@ -259,6 +274,10 @@ def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
             [[s.labels[a], s.labels[b], f"{p:.2f} [{lo:.2f}, {hi:.2f}]", ", ".join(tasks)]
              for (a, b), (p, lo, hi, tasks) in agg.improvement.items()],
         ),
+        "",
+        "**Per task**: the mean over trials of the scores pooled above.",
+        "",
+        per_task_markdown(s),
         "",
     ]
     if figure is not None:
