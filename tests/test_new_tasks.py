@@ -81,6 +81,19 @@ def test_a_variant_limited_to_some_trials_counts_only_those(root):
     assert "| from ref, trial 7 | 0 | no finished runs |" in lines["from ref, trial 7"]
 
 
+def test_the_reward_free_choice_is_paired_with_bc_and_dril_by_hand(root):
+    # The variant's lowest-u policies: 130 and 90 (trials 0-1); the grid's BC 120 in every trial, its DRIL
+    # 100 (trial 0) and 80 (trial 1): the choice is above BC in 1 of 2 and above DRIL in 2 of 2.
+    for trial, value in enumerate([130.0, 90.0]):
+        write_run(root / "choice", "cmz", trial, [1.0], env=ENV, final={"final": [50.0, 50.0], "lowest_u": [value] * 2})
+        write_run(root / "results" / "runs", "dril", trial, [1.0], env=ENV, final={"final": [100.0 - 20 * trial] * 2})
+    text = studies.render(root, _variants("ref", "choice"))
+    line = next(line for line in text.splitlines() if line.startswith("| from choice"))
+    assert "(above BC 1 of 2, DRIL 2 of 2) |" in line
+    assert line.endswith("| 0 of 2 | 0 of 2 | 0 of 2 |")  # the last weights (50) are below all three
+    assert "policy: % of expert (above BC, DRIL: trials)" in text
+
+
 def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     # The variant's two runs took 120 and 180 CPU seconds: median 2.5 minutes. The reference's runs
     # recorded none; with one of its three runs at 600 s, the column says which share it covers.

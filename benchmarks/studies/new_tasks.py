@@ -149,6 +149,14 @@ GRID_MADE_BY = "the published grid (CONTRIBUTING.md)"
 #: ablation rows show its last weights with the longest-episodes choice (the method's result) beside them
 CMZ_SAC_LABEL = ("`cmz-sac`, the package's method (hyperparams/cmzdril_sac.yml: the clipped CMZ reward and the "
                  "absorbing state, 70k steps; last weights, the longest-episodes choice beside them)")
+#: a task's own setting in hyperparams/cmzdril_sac.yml, named in its `cmz-sac` rows
+CMZ_SAC_LABELS = {"Walker2d-v5": (f"{CMZ_SAC_LABEL[:-1]}; Walker2d-v5's entry trains the critics alone for the first "
+                                  "10,000 gradient steps, `critic_warmup_steps: 10000`)")}
+#: Walker2d-v5's `cmz-sac` before its entry in hyperparams/cmzdril_sac.yml took the critics' warm-up
+NO_WARMUP_LABEL = ("`cmz-sac` as it shipped before Walker2d-v5's critics' warm-up (hyperparams/cmzdril_sac.yml "
+                   "without `critic_warmup_steps`; last weights, the longest-episodes choice beside them)")
+#: where Walker2d-v5's runs of that setting moved when the warm-up became Walker2d-v5's setting
+NO_WARMUP_RUNS = "results/tuning/W-sac-no-warmup"
 CMZ_SAC_TRIALS5_9 = "results/runs_sac_trials5-9"
 
 
@@ -176,6 +184,20 @@ def package_cmz_sac(env: str, envs: str, how: str = "--workers 2") -> Variant:
                    "-o results/runs", trials=(0, 1, 2, 3, 4))
 
 
+#: Walker2d-v5's `cmz-sac` runs of the grid's trials 0-4: made with the critics' warm-up before it was
+#: Walker2d-v5's setting, by the command below, then moved to results/runs
+WALKER_CMZ_SAC = Variant("Walker2d-v5", "cmz-sac", f"{CMZ_SAC_LABELS['Walker2d-v5']}: trials 0-4", GRID,
+                         f"python benchmarks/studies/tune.py W-sac-warmup10k --base hyperparams/cmzdril_sac.yml "
+                         f"{WARMUP} -- --env Walker2d-v5 --methods cmz-sac --trials 0-4 --eval-every 5 --workers 2 "
+                         "--no-progress (moved to results/runs)", trials=(0, 1, 2, 3, 4))
+
+
+def no_warmup_walker(trials: tuple[int, ...], made_by: str) -> Variant:
+    """Walker2d-v5's `cmz-sac` runs as the method shipped before the critics' warm-up, on ``trials``."""
+    return Variant("Walker2d-v5", "cmz-sac", f"{NO_WARMUP_LABEL}: trials {trials[0]}-{trials[-1]}", NO_WARMUP_RUNS,
+                   f"{made_by} (moved here)", trials=trials)
+
+
 #: Swimmer-v5's `cmz-sac` runs: one run per process, two processes side by side sharing the folder
 SWIMMER_SAC = "--workers 1 --no-progress"
 
@@ -190,8 +212,9 @@ HOPPER_CHEETAH_TRIALS5_9 = (
 
 #: the command behind each task's `cmz-sac` runs of trials 5-9
 CMZ_SAC_TRIALS5_9_COMMANDS = {
-    "Walker2d-v5": (f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 -o "
-                    f"{CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
+    "Walker2d-v5": (f"python benchmarks/studies/tune.py W-sac-warmup10k --base hyperparams/cmzdril_sac.yml {WARMUP} "
+                    "-- --env Walker2d-v5 --methods cmz-sac --trials 5-9 --eval-every 5 --workers 1 --no-progress "
+                    f"(two such processes side by side; moved to {CMZ_SAC_TRIALS5_9})"),
     "Hopper-v5": HOPPER_CHEETAH_TRIALS5_9,
     "HalfCheetah-v5": HOPPER_CHEETAH_TRIALS5_9,
     "Swimmer-v5": (f"sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz-sac --trials 5-9 --eval-every 5 "
@@ -201,7 +224,7 @@ CMZ_SAC_TRIALS5_9_COMMANDS = {
 
 def package_cmz_sac_confirmation(env: str) -> Variant:
     """The package's `cmz-sac` on the confirmation trials 5-9, in :data:`CMZ_SAC_TRIALS5_9`."""
-    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABEL}: trials 5-9", CMZ_SAC_TRIALS5_9,
+    return Variant(env, "cmz-sac", f"{CMZ_SAC_LABELS.get(env, CMZ_SAC_LABEL)}: trials 5-9", CMZ_SAC_TRIALS5_9,
                    CMZ_SAC_TRIALS5_9_COMMANDS[env],
                    trials=(5, 6, 7, 8, 9))
 
@@ -237,7 +260,7 @@ def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
 
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
 #: them): the runs folder under results/tuning/ per task
-CRITIC_WARMUP_RUNS = {"Walker2d-v5": "W-sac-warmup10k", "Hopper-v5": "H-sac-warmup10k"}
+CRITIC_WARMUP_RUNS = {"Hopper-v5": "H-sac-warmup10k"}
 CRITIC_WARMUP_LABEL = (f"{CMZ_SAC_LABEL}, the critics trained alone for the first 10,000 gradient steps "
                        "(`critic_warmup_steps: 10000`)")
 #: how the later trials of a folder were run: by the same command, one run per process, two processes
@@ -281,7 +304,8 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "results/tuning/W-abs-normrew",
             tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
-            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)"),
+            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)",
+            trials=(0, 1, 2, 3, 4)),
     Variant("Walker2d-v5", "cmz", "1M steps, 8 envs per process (n_steps 256), absorbing state + reward normalisation",
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
@@ -298,12 +322,14 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL, "W-sac-64-clip98-abs", CLIP_ABS),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "W-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST),
     *tuning_and_confirmation(CLONE_LABEL, "W-sac-64-clone", CLONE),
-    package_cmz_sac("Walker2d-v5", "Walker2d-v5"),
+    WALKER_CMZ_SAC,
     package_cmz_sac_confirmation("Walker2d-v5"),
-    critic_warmup("Walker2d-v5", (0, 1, 2, 3, 4), "0-4", "", workers=2),
-    critic_warmup("Walker2d-v5", (5, 6, 7, 8, 9), "5-9"),
+    no_warmup_walker((0, 1, 2, 3, 4), "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz-sac --trials 5 "
+                     "--eval-every 5 --workers 2 -o results/runs"),
+    no_warmup_walker((5, 6, 7, 8, 9), f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 "
+                     f"-o {CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
     sac_tuning("Walker2d-v5", "W-sac-120k", "--set n_timesteps=120000",
-               f"{CMZ_SAC_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
+               f"{NO_WARMUP_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
             "the published grid (CONTRIBUTING.md)"),
     cmz_confirmation("Hopper-v5"),
@@ -415,7 +441,10 @@ COST_CURVES: tuple[CostCurves, ...] = (
 
 #: The variants whose runs chose their final policy reward-free (``--select longest``, or the package's
 #: `cmz-sac` with the lowest-u tie break)
-SELECTIONS: tuple[Variant, ...] = tuple(v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U)))
+SELECTIONS: tuple[Variant, ...] = tuple(
+    v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U))
+    # Walker2d-v5's `cmz-sac` with and without the critics' warm-up: its target is asked of the kept policy
+    or (v.env, v.method) == ("Walker2d-v5", "cmz-sac") and v.runs in (GRID, CMZ_SAC_TRIALS5_9, NO_WARMUP_RUNS))
 
 MUJOCO = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5")
 #: the off-policy learner's runs per task: clipped CMZ reward, absorbing state, the longest-episodes choice

@@ -233,6 +233,14 @@ def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
     return "no reference runs" if reference is None else above_reference(row, reference)
 
 
+def chosen_against(chosen: FinalRow, baselines: dict[str, FinalRow | None]) -> str:
+    """" (above BC k of n, DRIL k of n)": the reward-free choice's paired counts, which the targets ask of
+    a method whose result is that choice (`cmz-sac`'s longest-episodes policy); "" without baselines."""
+    counts = [f"{METHOD_LABELS[m]} {above_reference(chosen, b)}" for m, b in baselines.items()
+              if b is not None and m != chosen.method]
+    return f" (above {', '.join(counts)})" if counts else ""
+
+
 def baseline_row(env: str, method: str, folders: tuple[str, ...], root: Path) -> FinalRow | None:
     """The final rows of ``method`` in ``folders``, merged by trial: a trial comes from the first
     folder that has it (the published grid first; later folders add trials it lacks)."""
@@ -271,7 +279,7 @@ def ablation_markdown(
                 str(final.n_trials),
                 fmt_ci(*final.stat("pct_of_expert")),
                 per_trial,
-                fmt_ci(*lowest.stat("pct_of_expert")) if lowest is not None else "—",
+                "—" if lowest is None else fmt_ci(*lowest.stat("pct_of_expert")) + chosen_against(lowest, baselines),
                 fmt(window_return(final)),
                 cpu_minutes(final),
                 paired_cell(final, reference),
@@ -279,7 +287,7 @@ def ablation_markdown(
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
             ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
-             "Lowest-u (or longest-episodes) policy: % of expert", "Table I window return",
+             "Lowest-u (or longest-episodes) policy: % of expert (above BC, DRIL: trials)", "Table I window return",
              "CPU minutes per run (median)",
              "Final above the reference (trials)",
              f"Final above BC of {where} (trials)", f"Final above DRIL of {where} (trials)"],
