@@ -1,5 +1,7 @@
-"""The committed run records (results/) and expert metadata (experts/) are portable."""
+"""The committed run records (results/) and expert metadata (experts/): portable, and the published
+runs are what the shipped hyperparameters make."""
 
+import json
 import re
 from pathlib import Path
 
@@ -21,3 +23,26 @@ def test_committed_records_hold_no_absolute_paths_of_the_machine_that_made_them(
 def test_the_run_records_live_apart_from_the_documentation_source():
     assert (ROOT / "results" / "runs").is_dir()
     assert not list((ROOT / "docs").glob("runs*")) and not (ROOT / "docs" / "tuning").exists()
+
+
+#: The folders whose rows the docs call the package defaults: the published grid and its trials 5-9.
+DEFAULTS_FOLDERS = ("runs", "runs_cmz_trials5-9", "runs_dril_trials5-9", "runs_sac_trials5-9", "runs_bc_trials10")
+
+
+def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
+    # A row labelled "package defaults" must come from the shipped YAML as it is now: a default that
+    # changes moves the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
+    from sb3_cmzdril.experiments.run.run_folder import as_stored
+    from sb3_cmzdril.hyperparams import load_hyperparams
+
+    shipped = {"cmz-sac": ROOT / "hyperparams" / "cmzdril_sac.yml"}
+    checked, stale = 0, []
+    for folder in DEFAULTS_FOLDERS:
+        for path in sorted((ROOT / "results" / folder).glob("*/*/trial*/config.json")):
+            config = json.loads(path.read_text())
+            entry = load_hyperparams(shipped.get(config["method"], ROOT / "hyperparams" / "cmzdril.yml"),
+                                     config["env_id"])
+            checked += 1
+            if as_stored({"values": entry.raw})["values"] != config["hyperparams_values"]:
+                stale.append(str(path.relative_to(ROOT)))
+    assert checked > 200 and stale == []
