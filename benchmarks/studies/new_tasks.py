@@ -28,9 +28,27 @@ COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: the confirmation of the variants (BC on the four MuJoCo tasks and WaypointNav-v0 by :func:`bc_trials10_command`,
 #: whose trials 0-4 repeat the grid's exactly; DRIL on the four MuJoCo tasks by :data:`DRIL_TRIALS5_9_COMMANDS`)
 DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
+NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+ABS_NORMREW = "--set absorbing=auto " + NORMREW
+#: Walker2d-v5's entry (absorbing state + reward normalisation) was tried as a variant first: its runs of
+#: every method were made by this command and moved into the grid's folders when it became the entry
+WALKER_ENTRY = (f"python benchmarks/studies/tune.py W-abs-normrew {ABS_NORMREW} -- --env Walker2d-v5 --timesteps "
+                "300000 --eval-every 5 --workers 2 --no-progress")
+#: where Walker2d-v5's runs of the entry before (no absorbing state, no reward normalisation) moved
+WALKER_BEFORE, WALKER_BEFORE_TRIALS5_9 = "results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"
+
+
+#: the grid's other RL methods on Walker2d-v5, whose rows its entry changed too
+WALKER_OTHERS = (("dril", "DRIL"), ("env", "PPO on the env's reward"))
+
+
+def walker_entry(methods: str, trials: str, moved_to: str) -> str:
+    """The command behind Walker2d-v5's runs of ``methods`` on ``trials`` with its entry, and where they went."""
+    return f"{WALKER_ENTRY} --methods {methods} --trials {trials} (moved to {moved_to})"
+
+
 DRIL_TRIALS5_9_COMMANDS = {
-    "Walker2d-v5": ("sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
-                    f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9)"),
+    "Walker2d-v5": walker_entry("dril", "5-9", DRIL_TRIALS5_9),
     **{env: (f"sb3-cmzdril benchmark --env {envs} --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
              f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}")
        for envs in ("Hopper-v5", "HalfCheetah-v5,Swimmer-v5") for env in envs.split(",")},
@@ -43,7 +61,8 @@ CMZ_TRIALS5_9 = "results/runs_cmz_trials5-9"
 CMZ_TRIALS5_9_COMMANDS = {
     **{env: ("sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz --trials 5-9 "
              "--timesteps 300000 --eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
-             f"-o {CMZ_TRIALS5_9}") for env in ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5")},
+             f"-o {CMZ_TRIALS5_9}") for env in ("Hopper-v5", "HalfCheetah-v5")},
+    "Walker2d-v5": walker_entry("cmz", "5-9", CMZ_TRIALS5_9),
     "Swimmer-v5": ("sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz --trials 5-9 --timesteps 300000 "
                    "--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
                    f"-o {CMZ_TRIALS5_9}"),
@@ -89,13 +108,13 @@ def dril_confirmation(env: str) -> Variant:
 
 
 def bc_trials10_command(env: str) -> str:
-    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10`."""
+    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10` (Walker2d-v5's: 5-9)."""
+    if env == "Walker2d-v5":
+        return walker_entry("bc", "5-9", BC_TRIALS10)
     return (f"sb3-cmzdril benchmark --env {env} --methods bc --trials 10 --timesteps 300000 --eval-every 5 "
             f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
 
 
-NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
-ABS_NORMREW = "--set absorbing=auto " + NORMREW
 #: rl-baselines3-zoo's tuned PPO for Walker2d (its hyperparams/ppo.yml, entry Walker2d-v4; its `normalize: true` is
 #: ABS_NORMREW's reward normalisation here, the policy's inputs being standardised from the demos already)
 ZOO_PPO_WALKER = ("--set n_steps=512 --set batch_size=32 --set gamma=0.99 --set learning_rate=5.05041e-05 "
@@ -282,9 +301,17 @@ def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int =
 
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
-    Variant("Walker2d-v5", "cmz", "package defaults (no absorbing state)", "results/runs",
-            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5") + " (moved to results/runs)"),
+    Variant("Walker2d-v5", "cmz", "package defaults (Walker2d-v5's entry: absorbing state + reward normalisation)",
+            "results/runs", walker_entry("cmz", "0-4", "results/runs") + "; trials 0-1 at commit a3f38d8, when "
+            "`absorbing: auto` was the default, without its --set"),
     cmz_confirmation("Walker2d-v5"),
+    Variant("Walker2d-v5", "cmz", "the entry before (no absorbing state, no reward normalisation): trials 0-4",
+            WALKER_BEFORE, tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
+            + " (moved to results/runs, and back here when the entry changed)"),
+    Variant("Walker2d-v5", "cmz", "the entry before (no absorbing state, no reward normalisation): trials 5-9",
+            WALKER_BEFORE_TRIALS5_9, "sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz "
+            "--trials 5-9 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --hyperparams "
+            f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9} (moved here)"),
     Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
     Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
@@ -301,11 +328,6 @@ ABLATIONS: tuple[Variant, ...] = (
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
             "the default (moved here)"),
-    Variant("Walker2d-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
-            "results/tuning/W-abs-normrew",
-            tune_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5")
-            + " (trials 0-1 at commit a3f38d8, when `absorbing: auto` was the default, without its --set)",
-            trials=(0, 1, 2, 3, 4)),
     Variant("Walker2d-v5", "cmz", "1M steps, 8 envs per process (n_steps 256), absorbing state + reward normalisation",
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
@@ -328,6 +350,17 @@ ABLATIONS: tuple[Variant, ...] = (
                      "--eval-every 5 --workers 2 -o results/runs"),
     no_warmup_walker((5, 6, 7, 8, 9), f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 "
                      f"-o {CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
+    # Walker2d-v5's entry changed DRIL and PPO on the true reward too (reward normalisation): both entries' rows
+    *(Variant("Walker2d-v5", method, f"{label}, package defaults (Walker2d-v5's entry; the published grid)",
+              "results/runs", walker_entry(method, "0-4", "results/runs")) for method, label in WALKER_OTHERS),
+    Variant("Walker2d-v5", "dril", "DRIL, package defaults: trials 5-9 (the confirmation)",
+            *confirmation_runs("Walker2d-v5", "dril"), trials=CONFIRMATION_TRIALS),
+    *(Variant("Walker2d-v5", method, f"{label}, the entry before: trials 0-4", WALKER_BEFORE,
+              f"{GRID_MADE_BY} with the entry before (moved here)") for method, label in WALKER_OTHERS),
+    Variant("Walker2d-v5", "dril", "DRIL, the entry before: trials 5-9", WALKER_BEFORE_TRIALS5_9,
+            "sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
+            f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9; moved here)",
+            trials=CONFIRMATION_TRIALS),
     sac_tuning("Walker2d-v5", "W-sac-120k", "--set n_timesteps=120000",
                f"{NO_WARMUP_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
     Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
@@ -676,20 +709,23 @@ ACROSS_CMZ_CONFIRMATION = (
 
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
-          ("results/runs", "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
-          "the main grid's command (1 demo, results/runs) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
+          (WALKER_BEFORE, "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
+          "the main grid's command (1 demo; Walker2d-v5's entry before its absorbing state and reward normalisation, "
+          f"its runs now in {WALKER_BEFORE}) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
           "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
-          "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`"),
+          "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`, with that entry",
+          fixed="Walker2d-v5's entry before (no absorbing state, no reward normalisation)"),
     Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
-          ("results/runs", "results/runs_1m"), "new_tasks_budget.png",
-          "the main grid's command (300k, results/runs) and `sb3-cmzdril benchmark --env Walker2d-v5 --methods "
-          "cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 --hyperparams "
-          "hyperparams/cmzdril.yml -o results/runs_1m`"),
+          (WALKER_BEFORE, "results/runs_1m"), "new_tasks_budget.png",
+          f"the main grid's command (300k, with the entry before; its runs now in {WALKER_BEFORE}) and `sb3-cmzdril "
+          "benchmark --env Walker2d-v5 --methods cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 "
+          "--hyperparams hyperparams/cmzdril.yml -o results/runs_1m`, with that entry",
+          fixed="Walker2d-v5's entry before (no absorbing state, no reward normalisation)"),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
-          ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
-          f"`{tune_command('W-abs-normrew', ABS_NORMREW, 'Walker2d-v5')}` (1 demo; see its ablation row) and "
+          ("results/runs", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
+          "the published grid (1 demo, Walker2d-v5's entry; see its ablation rows) and "
           f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
-          fixed="absorbing state + reward normalisation"),
+          fixed="absorbing state + reward normalisation, Walker2d-v5's entry"),
 )
 
 
