@@ -388,6 +388,9 @@ ABLATIONS: tuple[Variant, ...] = (
             "the published grid (CONTRIBUTING.md)"),
     cmz_confirmation("HalfCheetah-v5"),
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit"),
+    Variant("HalfCheetah-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/HC-normrew",
+            f"python benchmarks/studies/tune.py HC-normrew {NORMREW} -- --env HalfCheetah-v5 --methods cmz "
+            "--trials 0-4 --timesteps 300000 --eval-every 5 --workers 2 --no-progress"),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
