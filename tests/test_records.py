@@ -33,15 +33,15 @@ def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
     # A row labelled "package defaults" must come from the shipped YAML as it is now: a default that
     # changes moves the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
     from sb3_cmzdril.experiments.run.run_folder import as_stored
+    from sb3_cmzdril.experiments.run.spec import default_hyperparams_name
     from sb3_cmzdril.hyperparams import load_hyperparams
 
-    shipped = {"cmz-sac": ROOT / "hyperparams" / "cmzdril_sac.yml"}
     checked, stale = 0, []
     for folder in DEFAULTS_FOLDERS:
         for path in sorted((ROOT / "results" / folder).glob("*/*/trial*/config.json")):
             config = json.loads(path.read_text())
-            entry = load_hyperparams(shipped.get(config["method"], ROOT / "hyperparams" / "cmzdril.yml"),
-                                     config["env_id"])
+            shipped = ROOT / "hyperparams" / f"{default_hyperparams_name(config['method'])}.yml"
+            entry = load_hyperparams(shipped, config["env_id"])
             checked += 1
             if as_stored({"values": entry.raw})["values"] != config["hyperparams_values"]:
                 stale.append(str(path.relative_to(ROOT)))

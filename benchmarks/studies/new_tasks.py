@@ -166,11 +166,13 @@ SAC_LONGEST_LABEL = ("the same, keeping the policy whose episodes last longest (
 GRID_MADE_BY = "the published grid (CONTRIBUTING.md)"
 #: the same learner as the package's method `cmz-sac` of train/benchmark: a step budget, not a CPU one; the
 #: ablation rows show its last weights with the longest-episodes choice (the method's result) beside them
-CMZ_SAC_LABEL = ("`cmz-sac`, the package's method (hyperparams/cmzdril_sac.yml: the clipped CMZ reward and the "
-                 "absorbing state, 70k steps; last weights, the longest-episodes choice beside them)")
+CMZ_SAC_SETTINGS = ("hyperparams/cmzdril_sac.yml: the clipped CMZ reward and the absorbing state, 70k steps; last "
+                    "weights, the longest-episodes choice beside them")
+CMZ_SAC_LABEL = f"`cmz-sac`, the package's method ({CMZ_SAC_SETTINGS})"
 #: a task's own setting in hyperparams/cmzdril_sac.yml, named in its `cmz-sac` rows
-CMZ_SAC_LABELS = {"Walker2d-v5": (f"{CMZ_SAC_LABEL[:-1]}; Walker2d-v5's entry trains the critics alone for the first "
-                                  "10,000 gradient steps, `critic_warmup_steps: 10000`)")}
+CMZ_SAC_LABELS = {"Walker2d-v5": (f"`cmz-sac`, the package's method ({CMZ_SAC_SETTINGS}; Walker2d-v5's entry trains "
+                                  "the critics alone for the first 10,000 gradient steps, `critic_warmup_steps: "
+                                  "10000`)")}
 #: Walker2d-v5's `cmz-sac` before its entry in hyperparams/cmzdril_sac.yml took the critics' warm-up
 NO_WARMUP_LABEL = ("`cmz-sac` as it shipped before Walker2d-v5's critics' warm-up (hyperparams/cmzdril_sac.yml "
                    "without `critic_warmup_steps`; last weights, the longest-episodes choice beside them)")
