@@ -30,39 +30,67 @@ COMMAND = "python benchmarks/studies/new_tasks.py --force"
 DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
 ABS_NORMREW = "--set absorbing=auto " + NORMREW
-#: Walker2d-v5's entry (absorbing state + reward normalisation) was tried as a variant first: its runs of
-#: every method were made by this command and moved into the grid's folders when it became the entry
-WALKER_ENTRY = (f"python benchmarks/studies/tune.py W-abs-normrew {ABS_NORMREW} -- --env Walker2d-v5 --timesteps "
-                "300000 --eval-every 5 --workers 2 --no-progress")
-#: where Walker2d-v5's runs of the entry before (no absorbing state, no reward normalisation) moved
-WALKER_BEFORE, WALKER_BEFORE_TRIALS5_9 = "results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"
+#: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
+#: reward normalisation, HalfCheetah-v5's reward normalisation): the tune.py runs folder and its --set flags. Their
+#: runs of every method were made by that command and moved into the grid's folders when it became the entry.
+ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew", ABS_NORMREW), "HalfCheetah-v5": ("HC-normrew", NORMREW)}
+#: where those tasks' runs of the entry before moved: the grid's trials 0-4, then trials 5-9 (and BC's trials 0-9)
+ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"),
+                "HalfCheetah-v5": ("results/tuning/HC-no-normrew", "results/tuning/HC-no-normrew-trials5-9")}
+WALKER_BEFORE, WALKER_BEFORE_TRIALS5_9 = ENTRY_BEFORE["Walker2d-v5"]
+#: what each entry is, as its rows name it
+ENTRY_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation", "HalfCheetah-v5": "reward normalisation"}
+BEFORE_LABELS = {"Walker2d-v5": "no absorbing state, no reward normalisation",
+                 "HalfCheetah-v5": "no reward normalisation"}
 
 
-#: the grid's other RL methods on Walker2d-v5, whose rows its entry changed too
-WALKER_OTHERS = (("dril", "DRIL"), ("env", "PPO on the env's reward"))
+#: the grid's other RL methods on those tasks, whose rows the entry changed too
+ENTRY_OTHERS = (("dril", "DRIL"), ("env", "PPO on the env's reward"))
+
+
+def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
+    """The command behind ``env``'s runs of ``methods`` on ``trials`` with its entry, and where they ``moved``."""
+    name, sets = ENTRY_VARIANTS[env]
+    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --timesteps 300000 --eval-every 5 "
+            f"--workers 2 --no-progress --methods {methods} --trials {trials} ({moved})")
 
 
 def walker_entry(methods: str, trials: str, moved_to: str) -> str:
-    """The command behind Walker2d-v5's runs of ``methods`` on ``trials`` with its entry, and where they went."""
-    return f"{WALKER_ENTRY} --methods {methods} --trials {trials} (moved to {moved_to})"
+    """:func:`entry_command` for Walker2d-v5's runs, all moved to one folder."""
+    return entry_command("Walker2d-v5", methods, trials, f"moved to {moved_to}")
 
 
+#: where HalfCheetah-v5's runs of DRIL's and BC's trials 0-9, one command each, went
+CHEETAH_TEN = "trials 0-4 moved to results/runs, 5-9 to {}"
+
+
+
+def dril_trials5_9_grid(envs: str) -> str:
+    """The benchmark command that made DRIL's runs of trials 5-9 of ``envs`` with the shipped YAML."""
+    return (f"sb3-cmzdril benchmark --env {envs} --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
+            f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}")
+
+
+#: the command behind HalfCheetah-v5's and Swimmer-v5's DRIL runs of trials 5-9 (HalfCheetah-v5's: the entry before's)
+DRIL_TRIALS5_9_GRID = dril_trials5_9_grid("HalfCheetah-v5,Swimmer-v5")
 DRIL_TRIALS5_9_COMMANDS = {
     "Walker2d-v5": walker_entry("dril", "5-9", DRIL_TRIALS5_9),
-    **{env: (f"sb3-cmzdril benchmark --env {envs} --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
-             f"--workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}")
-       for envs in ("Hopper-v5", "HalfCheetah-v5,Swimmer-v5") for env in envs.split(",")},
+    "HalfCheetah-v5": entry_command("HalfCheetah-v5", "dril", "0-9", CHEETAH_TEN.format(DRIL_TRIALS5_9)),
+    "Hopper-v5": dril_trials5_9_grid("Hopper-v5"),
+    "Swimmer-v5": DRIL_TRIALS5_9_GRID,
 }
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 BC_TRIALS10 = "results/runs_bc_trials10"
 #: the grid's CMZ-DRIL on the confirmation trials 5-9, and WaypointNav-v0's DRIL there
 CMZ_TRIALS5_9 = "results/runs_cmz_trials5-9"
+#: the command that made Hopper-v5's runs there, and the entry before's of Walker2d-v5 and HalfCheetah-v5
+CMZ_TRIALS5_9_GRID = ("sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz --trials 5-9 "
+                      "--timesteps 300000 --eval-every 5 --workers 2 --no-progress --hyperparams "
+                      f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9}")
 CMZ_TRIALS5_9_COMMANDS = {
-    **{env: ("sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz --trials 5-9 "
-             "--timesteps 300000 --eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
-             f"-o {CMZ_TRIALS5_9}") for env in ("Hopper-v5", "HalfCheetah-v5")},
-    "Walker2d-v5": walker_entry("cmz", "5-9", CMZ_TRIALS5_9),
+    "Hopper-v5": CMZ_TRIALS5_9_GRID,
+    **{env: entry_command(env, "cmz", "5-9", f"moved to {CMZ_TRIALS5_9}") for env in ENTRY_VARIANTS},
     "Swimmer-v5": ("sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz --trials 5-9 --timesteps 300000 "
                    "--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
                    f"-o {CMZ_TRIALS5_9}"),
@@ -108,9 +136,12 @@ def dril_confirmation(env: str) -> Variant:
 
 
 def bc_trials10_command(env: str) -> str:
-    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10` (Walker2d-v5's: 5-9)."""
+    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10` (Walker2d-v5's and
+    HalfCheetah-v5's: 5-9, their trials 0-4 being the grid's)."""
     if env == "Walker2d-v5":
         return walker_entry("bc", "5-9", BC_TRIALS10)
+    if env == "HalfCheetah-v5":
+        return entry_command(env, "bc", "0-9", CHEETAH_TEN.format(BC_TRIALS10))
     return (f"sb3-cmzdril benchmark --env {env} --methods bc --trials 10 --timesteps 300000 --eval-every 5 "
             f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
 
@@ -124,9 +155,11 @@ BC_REFIT_LABEL = "BC pretraining refit on every demo step (`bc_refit: true`; doc
 CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
-def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5) -> Variant:
-    """The grid's CMZ-DRIL on ``env``'s trials 0-4 with ``bc_refit: true``, the only change."""
-    return Variant(env, "cmz", BC_REFIT_LABEL, f"results/tuning/{name}",
+def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5, before: bool = False) -> Variant:
+    """The grid's CMZ-DRIL on ``env``'s trials 0-4 with ``bc_refit: true``, the only change (to ``env``'s entry
+    before its last change, if ``before``)."""
+    label = BC_REFIT_LABEL + (", with the entry before" if before else "")
+    return Variant(env, "cmz", label, f"results/tuning/{name}",
                    f"python benchmarks/studies/tune.py {name} --set bc_refit=true -- --env {env_id or env} --methods "
                    f"cmz --trials 0-4 --timesteps 300000 --eval-every {eval_every} --workers 1 --no-progress")
 
@@ -301,19 +334,48 @@ def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int =
             f"--timesteps 300000 --eval-every 5 --workers {workers}")
 
 
+def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
+    """The rows of a task whose entry in hyperparams/cmzdril.yml changed (:data:`ENTRY_VARIANTS`): CMZ-DRIL with
+    the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets."""
+    before, before_trials5_9 = ENTRY_BEFORE[env]
+    label = f"the entry before ({BEFORE_LABELS[env]})"
+    return (
+        Variant(env, "cmz", f"package defaults ({env}'s entry: {ENTRY_LABELS[env]})", "results/runs", cmz_made_by),
+        cmz_confirmation(env),
+        Variant(env, "cmz", f"{label}: trials 0-4", before, before_made_by),
+        Variant(env, "cmz", f"{label}: trials 5-9", before_trials5_9, f"{CMZ_TRIALS5_9_GRID} (moved here)"),
+    )
+
+
+def grid_entry_command(env: str, method: str) -> str:
+    """The command behind ``env``'s grid runs (trials 0-4) of ``method`` with its entry."""
+    if env == "HalfCheetah-v5":
+        if method == "dril":
+            return DRIL_TRIALS5_9_COMMANDS[env]
+        return entry_command(env, "env,zero", "0-4", "moved to results/runs")
+    return walker_entry(method, "0-4", "results/runs")
+
+
+def entry_others(env: str) -> tuple[Variant, ...]:
+    """DRIL and PPO on the env's reward with ``env``'s entry and with the entry before: the entry changed them too
+    (its reward normalisation is for every method)."""
+    before, before_trials5_9 = ENTRY_BEFORE[env]
+    return (
+        *(Variant(env, method, f"{label}, package defaults ({env}'s entry; the published grid)", "results/runs",
+                  grid_entry_command(env, method)) for method, label in ENTRY_OTHERS),
+        Variant(env, "dril", "DRIL, package defaults: trials 5-9 (the confirmation)",
+                *confirmation_runs(env, "dril"), trials=CONFIRMATION_TRIALS),
+        *(Variant(env, method, f"{label}, the entry before: trials 0-4", before,
+                  f"{GRID_MADE_BY} with the entry before (moved here)") for method, label in ENTRY_OTHERS),
+    )
+
+
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
-    Variant("Walker2d-v5", "cmz", "package defaults (Walker2d-v5's entry: absorbing state + reward normalisation)",
-            "results/runs", walker_entry("cmz", "0-4", "results/runs") + "; trials 0-1 at commit a3f38d8, when "
-            "`absorbing: auto` was the default, without its --set"),
-    cmz_confirmation("Walker2d-v5"),
-    Variant("Walker2d-v5", "cmz", "the entry before (no absorbing state, no reward normalisation): trials 0-4",
-            WALKER_BEFORE, tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
-            + " (moved to results/runs, and back here when the entry changed)"),
-    Variant("Walker2d-v5", "cmz", "the entry before (no absorbing state, no reward normalisation): trials 5-9",
-            WALKER_BEFORE_TRIALS5_9, "sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz "
-            "--trials 5-9 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --hyperparams "
-            f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9} (moved here)"),
+    *entry_rows("Walker2d-v5", walker_entry("cmz", "0-4", "results/runs") + "; trials 0-1 at commit a3f38d8, "
+                "when `absorbing: auto` was the default, without its --set",
+                tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
+                + " (moved to results/runs, and back here when the entry changed)"),
     Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
     Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
@@ -352,13 +414,7 @@ ABLATIONS: tuple[Variant, ...] = (
                      "--eval-every 5 --workers 2 -o results/runs"),
     no_warmup_walker((5, 6, 7, 8, 9), f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 "
                      f"-o {CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
-    # Walker2d-v5's entry changed DRIL and PPO on the true reward too (reward normalisation): both entries' rows
-    *(Variant("Walker2d-v5", method, f"{label}, package defaults (Walker2d-v5's entry; the published grid)",
-              "results/runs", walker_entry(method, "0-4", "results/runs")) for method, label in WALKER_OTHERS),
-    Variant("Walker2d-v5", "dril", "DRIL, package defaults: trials 5-9 (the confirmation)",
-            *confirmation_runs("Walker2d-v5", "dril"), trials=CONFIRMATION_TRIALS),
-    *(Variant("Walker2d-v5", method, f"{label}, the entry before: trials 0-4", WALKER_BEFORE,
-              f"{GRID_MADE_BY} with the entry before (moved here)") for method, label in WALKER_OTHERS),
+    *entry_others("Walker2d-v5"),
     Variant("Walker2d-v5", "dril", "DRIL, the entry before: trials 5-9", WALKER_BEFORE_TRIALS5_9,
             "sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
             f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9; moved here)",
@@ -386,23 +442,20 @@ ABLATIONS: tuple[Variant, ...] = (
     critic_warmup("Hopper-v5", (0, 1, 2, 3, 4), "2-4",
                   " (two such processes side by side; trials 0 and 1 first by the same command with --trials 0,1 "
                   "--workers 2)"),
-    Variant("HalfCheetah-v5", "cmz", "package defaults (the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
-    cmz_confirmation("HalfCheetah-v5"),
-    bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit"),
-    Variant("HalfCheetah-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/HC-normrew",
-            f"python benchmarks/studies/tune.py HC-normrew {NORMREW} -- --env HalfCheetah-v5 --methods cmz "
-            "--trials 0-4 --timesteps 300000 --eval-every 5 --workers 2 --no-progress"),
-    Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    *entry_rows("HalfCheetah-v5", entry_command("HalfCheetah-v5", "cmz", "0-4", "moved to results/runs"),
+                f"{GRID_MADE_BY} (moved here)"),
+    bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
+    Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
+            "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
     package_cmz_sac_confirmation("HalfCheetah-v5"),
     tie_u("HalfCheetah-v5", (0, 1, 2, 3, 4)),
     tie_u("HalfCheetah-v5", (5, 6, 7, 8, 9)),
-    Variant("HalfCheetah-v5", "dril", "DRIL, package defaults (for comparison; the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
+    *entry_others("HalfCheetah-v5"),
+    Variant("HalfCheetah-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["HalfCheetah-v5"][1],
+            f"{DRIL_TRIALS5_9_GRID} (moved here)", trials=CONFIRMATION_TRIALS),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("Swimmer-v5"),
     package_cmz_sac("Swimmer-v5", "Swimmer-v5", f"{SWIMMER_SAC} (two such processes side by side)"),
