@@ -64,7 +64,6 @@ def walker_entry(methods: str, trials: str, moved_to: str) -> str:
 CHEETAH_TEN = "trials 0-4 moved to results/runs, 5-9 to {}"
 
 
-
 def dril_trials5_9_grid(envs: str) -> str:
     """The benchmark command that made DRIL's runs of trials 5-9 of ``envs`` with the shipped YAML."""
     return (f"sb3-cmzdril benchmark --env {envs} --methods dril --trials 5-9 --timesteps 300000 --eval-every 5 "
@@ -359,7 +358,7 @@ def grid_entry_command(env: str, method: str) -> str:
 def entry_others(env: str) -> tuple[Variant, ...]:
     """DRIL and PPO on the env's reward with ``env``'s entry and with the entry before: the entry changed them too
     (its reward normalisation is for every method)."""
-    before, before_trials5_9 = ENTRY_BEFORE[env]
+    before = ENTRY_BEFORE[env][0]
     return (
         *(Variant(env, method, f"{label}, package defaults ({env}'s entry; the published grid)", "results/runs",
                   grid_entry_command(env, method)) for method, label in ENTRY_OTHERS),
