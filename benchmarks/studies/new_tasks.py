@@ -465,6 +465,9 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
+    Variant("WaypointNav-v0", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/WN-normrew",
+            f"python benchmarks/studies/tune.py WN-normrew {NORMREW} -- --env sb3_cmzdril:WaypointNav-v0 --methods "
+            "cmz --trials 0-4 --timesteps 300000 --eval-every 1 --workers 2 --no-progress"),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
