@@ -333,6 +333,18 @@ def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int =
             f"--timesteps 300000 --eval-every 5 --workers {workers}")
 
 
+def tuning_and_confirmation_ppo(label: str, name: str, sets: str, env_arg: str,
+                                eval_every: int = 5) -> tuple[Variant, ...]:
+    """A PPO variant of CMZ-DRIL in results/tuning/NAME as a row per five trials (tuning 0-4, confirmation 5-9);
+    ``env_arg`` is the benchmark's ``--env`` (a module prefix allowed), the row's env is the id after it."""
+    return tuple(Variant(env_arg.rpartition(":")[2], "cmz", f"{label}: trials {first}-{first + 4}",
+                         f"results/tuning/{name}",
+                         f"python benchmarks/studies/tune.py {name} {sets} -- --env {env_arg} --methods cmz --trials "
+                         f"{first}-{first + 4} --timesteps 300000 --eval-every {eval_every} --workers 2 --no-progress",
+                         trials=tuple(range(first, first + 5)))
+                 for first in (0, 5))
+
+
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
     """The rows of a task whose entry in hyperparams/cmzdril.yml changed (:data:`ENTRY_VARIANTS`): CMZ-DRIL with
     the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets."""
@@ -465,9 +477,8 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    Variant("WaypointNav-v0", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/WN-normrew",
-            f"python benchmarks/studies/tune.py WN-normrew {NORMREW} -- --env sb3_cmzdril:WaypointNav-v0 --methods "
-            "cmz --trials 0-4 --timesteps 300000 --eval-every 1 --workers 2 --no-progress"),
+    *tuning_and_confirmation_ppo("reward normalisation (VecNormalize norm_reward)", "WN-normrew", NORMREW,
+                                 "sb3_cmzdril:WaypointNav-v0", eval_every=1),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
