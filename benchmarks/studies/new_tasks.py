@@ -458,6 +458,9 @@ ABLATIONS: tuple[Variant, ...] = (
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
             "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
+    *tuning_and_confirmation_ppo("u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with the "
+                                 "entry (reward normalisation)", "HC-normrew-clip98", f"{NORMREW} {CLIP98}",
+                                 "HalfCheetah-v5"),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
