@@ -29,6 +29,7 @@ COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: whose trials 0-4 repeat the grid's exactly; DRIL on the four MuJoCo tasks by :data:`DRIL_TRIALS5_9_COMMANDS`)
 DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
+NORMREW_LABEL = "reward normalisation (VecNormalize norm_reward)"
 ABS_NORMREW = "--set absorbing=auto " + NORMREW
 #: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
 #: reward normalisation, HalfCheetah-v5's reward normalisation): the tune.py runs folder and its --set flags. Their
@@ -333,16 +334,18 @@ def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int =
             f"--timesteps 300000 --eval-every 5 --workers {workers}")
 
 
-def tuning_and_confirmation_ppo(label: str, name: str, sets: str, env_arg: str,
-                                eval_every: int = 5) -> tuple[Variant, ...]:
-    """A PPO variant of CMZ-DRIL in results/tuning/NAME as a row per five trials (tuning 0-4, confirmation 5-9);
-    ``env_arg`` is the benchmark's ``--env`` (a module prefix allowed), the row's env is the id after it."""
-    return tuple(Variant(env_arg.rpartition(":")[2], "cmz", f"{label}: trials {first}-{first + 4}",
-                         f"results/tuning/{name}",
-                         f"python benchmarks/studies/tune.py {name} {sets} -- --env {env_arg} --methods cmz --trials "
-                         f"{first}-{first + 4} --timesteps 300000 --eval-every {eval_every} --workers 2 --no-progress",
+def tuning_and_confirmation_ppo(env: str, label: str, name: str, command: str) -> tuple[Variant, ...]:
+    """A PPO variant of CMZ-DRIL in results/tuning/NAME, made by ``command``, as a row per five trials (the tuning
+    trials 0-4, the confirmation trials 5-9)."""
+    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", f"results/tuning/{name}", command,
                          trials=tuple(range(first, first + 5)))
                  for first in (0, 5))
+
+
+def ppo_tune_command(name: str, sets: str, env_arg: str, trials: str, eval_every: int = 5) -> str:
+    """The benchmarks/studies/tune.py command behind a PPO variant of the grid (300k steps, 2 workers)."""
+    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env_arg} --methods cmz --trials {trials} "
+            f"--timesteps 300000 --eval-every {eval_every} --workers 2 --no-progress")
 
 
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
@@ -387,7 +390,7 @@ ABLATIONS: tuple[Variant, ...] = (
                 "when `absorbing: auto` was the default, without its --set",
                 tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
                 + " (moved to results/runs, and back here when the entry changed)"),
-    Variant("Walker2d-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/W-normrew",
+    Variant("Walker2d-v5", "cmz", NORMREW_LABEL, "results/tuning/W-normrew",
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
     Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
             "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
@@ -441,7 +444,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
     Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
-    Variant("Hopper-v5", "cmz", "reward normalisation (VecNormalize norm_reward)", "results/tuning/Hopper-normrew",
+    Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
@@ -458,9 +461,10 @@ ABLATIONS: tuple[Variant, ...] = (
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
             "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    *tuning_and_confirmation_ppo("u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with the "
-                                 "entry (reward normalisation)", "HC-normrew-clip98", f"{NORMREW} {CLIP98}",
-                                 "HalfCheetah-v5"),
+    *tuning_and_confirmation_ppo(
+        "HalfCheetah-v5", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with the entry "
+        "(reward normalisation)", "HC-normrew-clip98",
+        ppo_tune_command("HC-normrew-clip98", f"{NORMREW} {CLIP98}", "HalfCheetah-v5", "0-9")),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
@@ -480,8 +484,10 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    *tuning_and_confirmation_ppo("reward normalisation (VecNormalize norm_reward)", "WN-normrew", NORMREW,
-                                 "sb3_cmzdril:WaypointNav-v0", eval_every=1),
+    *tuning_and_confirmation_ppo(
+        "WaypointNav-v0", NORMREW_LABEL, "WN-normrew",
+        ppo_tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
+        + " (trials 5-9: the same with --trials 5-9)"),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
@@ -497,6 +503,11 @@ ABLATIONS: tuple[Variant, ...] = (
             f"python benchmarks/studies/tune.py LL-abs-terminal --base benchmarks/studies/outside_env.yml "
             f"{PPO_TERMINAL} -- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 5 "
             "--eval-every 5 --workers 2 --no-progress"),
+    *tuning_and_confirmation_ppo(
+        "LunarLander-v3", f"{NORMREW_LABEL}, 3 demonstrations", "LL-normrew",
+        f"python benchmarks/studies/tune.py LL-normrew --base benchmarks/studies/outside_env.yml {NORMREW} -- --env "
+        "LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-9 --eval-every 5 --workers 2 "
+        "--no-progress"),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
             offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
     Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
