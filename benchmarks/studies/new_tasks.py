@@ -481,6 +481,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
+    *tuning_and_confirmation_ppo("Swimmer-v5", NORMREW_LABEL, "S-normrew",
+                                 ppo_tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9")),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
