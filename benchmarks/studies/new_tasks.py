@@ -809,9 +809,10 @@ SWEEPS: tuple[Sweep, ...] = (
           "--hyperparams hyperparams/cmzdril.yml -o results/runs_1m`, with that entry",
           fixed="Walker2d-v5's entry before (no absorbing state, no reward normalisation)"),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
-          ("results/runs", "results/tuning/W-abs-normrew-demos3"), "new_tasks_demos_abs_normrew.png",
-          "the published grid (1 demo, Walker2d-v5's entry; see its ablation rows) and "
-          f"`{tune_command('W-abs-normrew-demos3', ABS_NORMREW, 'Walker2d-v5 --n-demos 3')}`",
+          ("results/runs", "results/tuning/W-abs-normrew-demos3", "results/tuning/W-abs-normrew-demos10"),
+          "new_tasks_demos_abs_normrew.png",
+          "the published grid (1 demo, Walker2d-v5's entry; see its ablation rows) and, for N in 3 and 10, "
+          f"`{tune_command('W-abs-normrew-demosN', ABS_NORMREW, 'Walker2d-v5 --n-demos N')}`",
           fixed="absorbing state + reward normalisation, Walker2d-v5's entry"),
 )
 
