@@ -219,12 +219,19 @@ def offpolicy_command(name: str, env: str, sets: str) -> str:
             f"--set 'net_arch=[64,64]' {sets} (one process per trial T)")
 
 
+def trial_set_rows(env: str, label: str, runs: str, made_by: str,
+                   firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
+    """A variant of CMZ-DRIL as a row per five trials from each of ``firsts``: the tuning trials 0-4, the
+    confirmation trials 5-9."""
+    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", runs, made_by,
+                         trials=tuple(range(first, first + 5)))
+                 for first in firsts)
+
+
 def tuning_and_confirmation(label: str, name: str, sets: str, env: str = "Walker2d-v5",
                             firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
-    """An off-policy variant as a row per five trials: the tuning trials 0-4, the confirmation trials 5-9."""
-    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", f"results/offpolicy/{name}",
-                         offpolicy_command(name, env, sets), trials=tuple(range(first, first + 5)))
-                 for first in firsts)
+    """An off-policy variant in results/offpolicy/NAME as a row per five trials (:func:`trial_set_rows`)."""
+    return trial_set_rows(env, label, f"results/offpolicy/{name}", offpolicy_command(name, env, sets), firsts)
 
 
 #: Hopper-v5's and HalfCheetah-v5's `cmz-sac` runs came from one benchmark command
@@ -328,24 +335,15 @@ def critic_warmup(env: str, trials: tuple[int, ...], named_trials: str, note: st
     return sac_tuning(env, CRITIC_WARMUP_RUNS[env], WARMUP, CRITIC_WARMUP_LABEL, trials, named_trials, note, workers)
 
 
-def tune_command(name: str, sets: str, env: str, trials: int = 5, workers: int = 2) -> str:
+def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers: int = 2, eval_every: int = 5) -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
-            f"--timesteps 300000 --eval-every 5 --workers {workers}")
+            f"--timesteps 300000 --eval-every {eval_every} --workers {workers}")
 
 
-def tuning_and_confirmation_ppo(env: str, label: str, name: str, command: str) -> tuple[Variant, ...]:
-    """A PPO variant of CMZ-DRIL in results/tuning/NAME, made by ``command``, as a row per five trials (the tuning
-    trials 0-4, the confirmation trials 5-9)."""
-    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", f"results/tuning/{name}", command,
-                         trials=tuple(range(first, first + 5)))
-                 for first in (0, 5))
-
-
-def ppo_tune_command(name: str, sets: str, env_arg: str, trials: str, eval_every: int = 5) -> str:
-    """The benchmarks/studies/tune.py command behind a PPO variant of the grid (300k steps, 2 workers)."""
-    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env_arg} --methods cmz --trials {trials} "
-            f"--timesteps 300000 --eval-every {eval_every} --workers 2 --no-progress")
+def tuning_rows(env: str, label: str, name: str, made_by: str) -> tuple[Variant, ...]:
+    """A PPO variant in results/tuning/NAME, made by ``made_by``, as a row per five trials (:func:`trial_set_rows`)."""
+    return trial_set_rows(env, label, f"results/tuning/{name}", made_by)
 
 
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
@@ -461,10 +459,10 @@ ABLATIONS: tuple[Variant, ...] = (
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
             "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
-    *tuning_and_confirmation_ppo(
+    *tuning_rows(
         "HalfCheetah-v5", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with the entry "
         "(reward normalisation)", "HC-normrew-clip98",
-        ppo_tune_command("HC-normrew-clip98", f"{NORMREW} {CLIP98}", "HalfCheetah-v5", "0-9")),
+        tune_command("HC-normrew-clip98", f"{NORMREW} {CLIP98}", "HalfCheetah-v5", "0-9") + " --no-progress"),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "HC-sac-64-clip98-abs", CLIP_ABS, "HalfCheetah-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "HC-sac-64-clone", CLONE, "HalfCheetah-v5", firsts=(0,)),
     package_cmz_sac("HalfCheetah-v5", HOPPER_CHEETAH),
@@ -481,15 +479,14 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(SAC_CLIP_LABEL + ", keeping the policy whose episodes last longest (`--select longest`)",
                              "S-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Swimmer-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
-    *tuning_and_confirmation_ppo("Swimmer-v5", NORMREW_LABEL, "S-normrew",
-                                 ppo_tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9")),
+    *tuning_rows("Swimmer-v5", NORMREW_LABEL, "S-normrew",
+                 tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    *tuning_and_confirmation_ppo(
-        "WaypointNav-v0", NORMREW_LABEL, "WN-normrew",
-        ppo_tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
-        + " (trials 5-9: the same with --trials 5-9)"),
+    *tuning_rows("WaypointNav-v0", NORMREW_LABEL, "WN-normrew",
+                 tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
+                 + " --no-progress (trials 5-9: the same with --trials 5-9)"),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
@@ -505,7 +502,7 @@ ABLATIONS: tuple[Variant, ...] = (
             f"python benchmarks/studies/tune.py LL-abs-terminal --base benchmarks/studies/outside_env.yml "
             f"{PPO_TERMINAL} -- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 5 "
             "--eval-every 5 --workers 2 --no-progress"),
-    *tuning_and_confirmation_ppo(
+    *tuning_rows(
         "LunarLander-v3", f"{NORMREW_LABEL}, 3 demonstrations", "LL-normrew",
         f"python benchmarks/studies/tune.py LL-normrew --base benchmarks/studies/outside_env.yml {NORMREW} -- --env "
         "LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-9 --eval-every 5 --workers 2 "
