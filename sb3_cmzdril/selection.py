@@ -18,6 +18,11 @@ signals are:
   ensemble disagrees on least (``tie_break="lowest_u"``, for a model with an ensemble). It reads
   termination and the ensemble, never reward; on a task without failure terminations every check
   ties, and ``"latest"`` keeps the last policy.
+
+A third policy is made rather than chosen: :class:`AveragedPolicy` (for an on-policy learner such as
+:class:`~sb3_cmzdril.algorithm.CMZDRIL`) averages the policy weights after each update over the last
+part of training, as stochastic weight averaging does (Izmailov et al., 2018; for deep RL, Nikishin et
+al., 2018), so that the policy a run ends with depends less on where its last update happened to land.
 """
 from __future__ import annotations
 
@@ -65,15 +70,16 @@ class _KeptWeights(BaseCallback):
             raise RuntimeError("no policy has been scored yet: nothing to select")
         model.policy.load_state_dict(self.best_state)
 
-    def _choice(self) -> dict[str, th.Tensor]:
-        """Besides the weights, what :meth:`save` writes: tensors only, so that loading needs no pickle."""
+    def _choice(self) -> dict[str, Any]:
+        """Besides the weights, what :meth:`save` writes: tensors (or dicts of them) only, so that
+        loading needs no pickle."""
         raise NotImplementedError
 
     def kept(self) -> dict[str, float]:
         """Which policy is kept and why, as plain numbers (for a run's summary)."""
         raise NotImplementedError
 
-    def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
+    def _restore(self, blob: Mapping[str, Any]) -> None:
         """Take back what :meth:`_choice` gave; a KeyError or ValueError when the file lacks it."""
         raise NotImplementedError
 
@@ -300,4 +306,83 @@ def _stacked(observations: list[Any]) -> Any:
     return np.concatenate(observations)
 
 
-__all__ = ["TIE_BREAKS", "LongestEpisodesPolicy", "LowestDisagreementPolicy"]
+class AveragedPolicy(_KeptWeights):
+    """The uniform average of the policy's weights after every update from ``start_timesteps`` on.
+
+    For an on-policy learner (a rollout per update, as :class:`~sb3_cmzdril.algorithm.CMZDRIL`): the
+    weights are added at the start of each rollout whose policy has trained for at least
+    ``start_timesteps`` steps, and once more when training ends (the last update's weights). Every
+    floating-point tensor of the policy's state is averaged (in float64, cast back); the rest are
+    the latest. :meth:`save`/:meth:`load` persist the running sum, so that a resumed run
+    (``learn(..., reset_num_timesteps=False)`` after loading the model) adds each policy once.
+
+    :param start_timesteps: the first training step count whose policy is averaged (0: the
+        behaviour-cloned start too).
+    """
+
+    _file_kind = "policy-average"
+
+    def __init__(self, start_timesteps: int, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if isinstance(start_timesteps, bool) or not isinstance(start_timesteps, (int, np.integer)) \
+                or start_timesteps < 0:
+            raise UserError(f"start_timesteps must be a non-negative integer, got {start_timesteps!r}")
+        self.start_timesteps = int(start_timesteps)
+        self.count = 0
+        #: training steps of the first and the last policy averaged (-1 before the first)
+        self.first_timesteps = self.last_timesteps = -1
+        self._sum: dict[str, th.Tensor] = {}
+
+    def _on_training_start(self) -> None:
+        if not isinstance(self.model, OnPolicyAlgorithm):
+            raise UserError(f"AveragedPolicy averages after each rollout's update: it needs an on-policy learner, "
+                            f"not {type(self.model).__name__}")
+
+    def _on_rollout_start(self) -> None:
+        self._add()
+
+    def _on_training_end(self) -> None:
+        self._add()
+
+    def _add(self) -> None:
+        timesteps = int(self.model.num_timesteps)
+        # A resumed run's first rollout starts from the step its checkpoint already added.
+        if timesteps < self.start_timesteps or timesteps <= self.last_timesteps:
+            return
+        state = self.model.policy.state_dict()
+        for k, v in state.items():
+            if v.is_floating_point():
+                v64 = v.detach().to("cpu", th.float64)
+                self._sum[k] = v64.clone() if k not in self._sum else self._sum[k].add_(v64)
+        self.count += 1
+        self.first_timesteps = timesteps if self.first_timesteps < 0 else self.first_timesteps
+        self.last_timesteps = timesteps
+        self.best_state = {
+            k: (self._sum[k] / self.count).to(v.dtype) if k in self._sum else v.detach().to("cpu", copy=True)
+            for k, v in state.items()
+        }
+        if self.verbose >= 1:
+            print(f"[averaged] {timesteps} steps: {self.count} policies averaged")
+
+    def _choice(self) -> dict[str, Any]:
+        return {
+            "sum": self._sum,
+            "count": th.tensor(self.count),
+            "first_timesteps": th.tensor(self.first_timesteps),
+            "last_timesteps": th.tensor(self.last_timesteps),
+        }
+
+    def kept(self) -> dict[str, float]:
+        """How many policies were averaged, and the training steps of the first and the last."""
+        return {"n_averaged": self.count, "first_timesteps": self.first_timesteps,
+                "last_timesteps": self.last_timesteps}
+
+    def _restore(self, blob: Mapping[str, Any]) -> None:
+        total = blob["sum"]
+        if not isinstance(total, dict):
+            raise TypeError(f"sum is a {type(total).__name__}")
+        self._sum, self.count = dict(total), int(blob["count"])
+        self.first_timesteps, self.last_timesteps = int(blob["first_timesteps"]), int(blob["last_timesteps"])
+
+
+__all__ = ["TIE_BREAKS", "AveragedPolicy", "LongestEpisodesPolicy", "LowestDisagreementPolicy"]

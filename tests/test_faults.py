@@ -38,9 +38,13 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
-def tiny(request) -> dict[str, Path]:
-    """The tiny experiment's demo pool (<demos_dir>/<EnvName>/demos.npz) and hyperparameters."""
-    return request.getfixturevalue("tiny_experiment")
+def tiny(request, tmp_path_factory) -> dict[str, Path]:
+    """The tiny experiment's demo pool (<demos_dir>/<EnvName>/demos.npz) and hyperparameters, with an
+    averaged policy over the last 3/4 of each run, so that a killed run resumes its running average too."""
+    paths = dict(request.getfixturevalue("tiny_experiment"))
+    hp = tmp_path_factory.mktemp("hp") / "cmzdril.yml"
+    hp.write_text(paths["hp"].read_text() + "  average_from: 0.25\n")
+    return {**paths, "hp": hp}
 
 
 def _env() -> dict[str, str]:
@@ -207,7 +211,7 @@ def test_killed_benchmark_and_train_leave_nothing_behind_and_resume_to_clean_sto
         assert (out / name).read_text() == (reference / name).read_text(), name
     rows = (out / "eval.csv").read_text().splitlines()
     assert int(rows[-1].split(",")[1]) == TIMESTEPS
-    for name in ("model.zip", "lowest_u.pt"):
+    for name in ("model.zip", "lowest_u.pt", "averaged.pt"):
         killed, clean = _tensors(out / name), _tensors(reference / name)
         assert set(killed) == set(clean) and len(killed) > 5, name
         for key, value in clean.items():

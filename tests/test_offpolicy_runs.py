@@ -211,3 +211,11 @@ def test_the_report_names_the_off_policy_learner_and_its_choice(tiny_experiment,
     page = (tmp_path / "report" / "results.md").read_text()
     # The plain name is the method's result (its longest-episodes policy); its last weights are named so.
     assert "| CMZ-DRIL (SAC) |" in page and "| CMZ-DRIL (SAC) (last weights) |" in page
+
+
+def test_average_from_is_refused_for_the_off_policy_learner(tiny_experiment, sac_yaml, tmp_path):
+    hp = tmp_path / "average_from.yml"
+    hp.write_text(sac_yaml.read_text() + "  average_from: 0.5\n")
+    with pytest.raises(UserError, match=r"average_from applies only to the PPO methods .*not to 'cmz-sac'"):
+        plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=hp, output_dir=tmp_path / "x")
+    assert not (tmp_path / "x").exists()

@@ -133,13 +133,14 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, m
     policy)."""
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
+    from sb3_cmzdril.experiments.run.run_folder import AVERAGED_MODEL, LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
     from sb3_cmzdril.experiments.run.spec import result_policy
 
     files = {
         "final": ("final policy", MODEL_FILE),
         "lowest_u": ("lowest-u policy", LOWEST_U_MODEL),
         "longest": ("longest-episodes policy", LONGEST_MODEL),
+        "averaged": ("averaged policy", AVERAGED_MODEL),
     }
     result = result_policy(method)
     if result != "final":

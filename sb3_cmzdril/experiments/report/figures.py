@@ -129,9 +129,10 @@ def plot_figure(
     return save_png(fig, path)
 
 
-#: Horizontal offset of the final policy's and the reward-free choice's points around a method's tick
-#: (a method has one kind of choice: lowest u for CMZDRIL, longest episodes for CMZDRILSAC).
-_POLICY_OFFSET = {"final": -0.17, "lowest_u": 0.17, "longest": 0.17}
+#: Horizontal offset of the final policy's, the reward-free choice's and the averaged policy's points
+#: around a method's tick (a method has one kind of choice: lowest u for CMZDRIL, longest episodes for
+#: CMZDRILSAC).
+_POLICY_OFFSET = {"final": -0.17, "lowest_u": 0.17, "longest": 0.17, "averaged": 0.0}
 
 
 def _tick_label(rows: Sequence[FinalRow], env: str, method: str) -> str:

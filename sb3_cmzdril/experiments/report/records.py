@@ -52,12 +52,13 @@ METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env", "cmz-sac")
 ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: The policies of a final evaluation: the one at the end of training, and the reward-free choice of
 #: the RL methods: CMZDRIL's policy whose own training rollout had the lowest ensemble disagreement,
-#: CMZDRILSAC's whose deterministic episodes from fixed starts lasted longest.
-POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest")
+#: CMZDRILSAC's whose deterministic episodes from fixed starts lasted longest; and, for PPO runs whose
+#: hyperparameters name ``average_from``, the average of the policy's weights over the last updates.
+POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest", "averaged")
 #: How a table names a policy, after its method's label (none for the method's result,
 #: :func:`~sb3_cmzdril.experiments.run.spec.result_policy`).
 POLICY_SUFFIXES: dict[str, str] = {"final": " (last weights)", "lowest_u": " (lowest u)",
-                                   "longest": " (longest episodes)"}
+                                   "longest": " (longest episodes)", "averaged": " (averaged)"}
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
 FINAL_VALUES: tuple[str, ...] = ("return", "length", "frechet", "action_mse", "expert_return")
 

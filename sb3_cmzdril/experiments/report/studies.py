@@ -61,6 +61,8 @@ class Variant:
     made_by: str  #: the command (and commit) that made the runs
     #: only these trials of the folder (None: all), so tuning trials and confirmation trials get a row each
     trials: tuple[int, ...] | None = None
+    #: the policy an ablation row shows as its final one ("averaged": the same runs' averaged policy)
+    policy: str = "final"
 
 
 
@@ -267,7 +269,7 @@ def ablation_markdown(
         baselines = {m: baseline_row(env, m, grid, root) for m in ("bc", "dril")}
         body = []
         for variant, row in zip(variants, rows, strict=True):
-            final, lowest = row["final"], row["lowest_u"] or row["longest"]
+            final, lowest = row[variant.policy], row["lowest_u"] or row["longest"]
             if final is None:
                 body.append([variant.label, "0", "no finished runs"] + [""] * 7)
                 continue

@@ -18,11 +18,14 @@
                            (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint;
                            an off-policy run (cmz-sac) keeps longest.pt instead, the policy whose
                            deterministic episodes from fixed starts lasted longest
+    DIR/averaged.pt        with ``average_from`` in the hyperparameters (PPO methods): the running
+                           average of the policy's weights over the run's last updates, saved with
+                           each checkpoint
     DIR/replay_buffer.pkl  an off-policy run's replay buffer, with each checkpoint; removed when the
                            run is done
     DIR/final_eval.csv     the final evaluation: every pool episode not used for training, replayed by
-                           the final policy ("final") and by the kept one ("lowest_u" or "longest"),
-                           one row per (policy, episode)
+                           the final policy ("final"), by the kept one ("lowest_u" or "longest") and by
+                           the averaged one ("averaged"), one row per (policy, episode)
     DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
     DIR/done.json          written last: the final summary; its presence means "finished"
 
@@ -87,11 +90,15 @@ LOWEST_U_FILE = "lowest_u.pt"
 LOWEST_U_MODEL = "model_lowest_u.zip"
 LONGEST_FILE = "longest.pt"
 LONGEST_MODEL = "model_longest.zip"
+AVERAGED_FILE = "averaged.pt"
+AVERAGED_MODEL = "model_averaged.zip"
 REPLAY_BUFFER_FILE = "replay_buffer.pkl"
-#: final_eval.csv's name of a run's reward-free choice: "lowest_u" for CMZDRIL, "longest" for CMZDRILSAC
-#: (:mod:`sb3_cmzdril.selection`), with the files of its choice and of its model
+#: final_eval.csv's names of the policies a run keeps beside its last weights (:mod:`sb3_cmzdril.selection`),
+#: with the files of each and of its model: the reward-free choice ("lowest_u" for CMZDRIL, "longest" for
+#: CMZDRILSAC) and, where asked, the averaged policy
 SELECTIONS: dict[str, tuple[str, str]] = {"lowest_u": (LOWEST_U_FILE, LOWEST_U_MODEL),
-                                          "longest": (LONGEST_FILE, LONGEST_MODEL)}
+                                          "longest": (LONGEST_FILE, LONGEST_MODEL),
+                                          "averaged": (AVERAGED_FILE, AVERAGED_MODEL)}
 DISCARDED_CSV = "eval.discarded.csv"
 ERROR_FILE = "error.txt"
 LOG_FILE = "log.txt"
@@ -469,10 +476,8 @@ class RunFolder:
         self.model = self.path / MODEL_FILE
         self.vecnormalize = self.path / VECNORMALIZE_FILE
         self.eval_csv = self.path / EVAL_CSV
-        #: final_eval.csv's name of the run's reward-free choice, and the files that keep it
+        #: final_eval.csv's name of the run's reward-free choice
         self.selection_name = "longest" if run.spec.off_policy else "lowest_u"
-        choice, choice_model = SELECTIONS[self.selection_name]
-        self.selection, self.selection_model = self.path / choice, self.path / choice_model
         self.replay_buffer = self.path / REPLAY_BUFFER_FILE
         self.config: dict[str, Any] = {}  #: config.json's content, once :meth:`open` has written or read it
 
@@ -517,9 +522,13 @@ class RunFolder:
             formats.append(HumanOutputFormat(sys.stdout))
         return Logger(folder=None, output_formats=formats)
 
-    def checkpoint(self, model: Any, selector: Any, state: RunState) -> None:
+    def kept_file(self, name: str) -> Path:
+        """Where the kept policy ``name`` (a key of :data:`SELECTIONS`) and what led to it are saved."""
+        return self.path / SELECTIONS[name][0]
+
+    def checkpoint(self, model: Any, kept: Mapping[str, Any], state: RunState) -> None:
         """model.zip, the VecNormalize statistics beside it, an off-policy learner's replay buffer, the
-        reward-free choice so far and state.json."""
+        kept policies so far (name -> selector, :mod:`sb3_cmzdril.selection`) and state.json."""
         # The checkpoint's files belong together: Ctrl-C or SIGTERM waits until all are written.
         with deferred_signals():
             vec_normalize = model.get_vec_normalize_env()
@@ -531,7 +540,8 @@ class RunFolder:
             if self.run.spec.off_policy:
                 with atomic_path(self.replay_buffer, suffix=".pkl") as tmp:
                     model.save_replay_buffer(tmp)
-            selector.save(self.selection)  # with the checkpoint, so a resume continues the same search
+            for name, selector in kept.items():  # with the checkpoint, so a resume continues the same search
+                selector.save(self.kept_file(name))
             state.write(model.num_timesteps)
 
     def has_pretrain(self) -> bool:
@@ -545,8 +555,9 @@ class RunFolder:
         with atomic_path(self.path / FINAL_EVAL_CSV) as tmp:
             tmp.write_text("\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
 
-    def save_selected_model(self, model: Any) -> None:
-        with atomic_path(self.selection_model, suffix=".zip") as tmp:
+    def save_kept_model(self, model: Any, name: str) -> None:
+        """The model holding the kept policy ``name``, beside model.zip."""
+        with atomic_path(self.path / SELECTIONS[name][1], suffix=".zip") as tmp:
             model.save(tmp)
 
     def finish(self, summary: dict[str, Any]) -> dict[str, Any]:
@@ -588,6 +599,8 @@ def latest_epoch(output_dir: PathLike) -> int | None:
 
 
 __all__ = [
+    "AVERAGED_FILE",
+    "AVERAGED_MODEL",
     "CONFIG_FILE",
     "DISCARDED_CSV",
     "DONE_FILE",

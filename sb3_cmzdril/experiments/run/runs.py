@@ -24,6 +24,7 @@ This module stays the public path of the planning and run-folder names that user
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -109,7 +110,7 @@ def run_experiment(
         return {**done, "status": "skipped"}
     folder.check_resumable()
     # Read before folder.open() writes config.json: a damaged lowest_u.pt refuses with the folder untouched.
-    selector = _selector(run, folder, folder.resumable)
+    kept = _kept_policies(run, folder, folder.resumable)
     with folder.open():  # created and locked; config.json written, or matched with the run there
         resume = folder.resumable
         model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
@@ -120,14 +121,15 @@ def run_experiment(
             state.data["segments"][-1]["discarded_eval_rows"] = discarded
         eval_cb = _eval_callback(run, folder, verbose)
         try:
-            _train(run, folder, model, state, eval_cb, selector, list(callbacks), start=start, resume=resume,
+            _train(run, folder, model, state, eval_cb, kept, list(callbacks), start=start, resume=resume,
                    progress_bar=progress_bar)
             finished = model.num_timesteps >= spec.timesteps
-            final = _final_evaluation(run, folder, model, selector) if finished else None
+            final = _final_evaluation(run, folder, model, kept) if finished else None
         finally:
             eval_cb.close()
-            if hasattr(selector, "close"):  # the longest-episodes checks' own env
-                selector.close()
+            for selector in kept.values():
+                if hasattr(selector, "close"):  # the longest-episodes checks' own env
+                    selector.close()
             venv.close()
         if not finished:
             return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(folder.path)}
@@ -171,24 +173,30 @@ def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
 LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED = 5, 100_000
 
 
-def _selector(run: ResolvedRun, folder: RunFolder, resume: bool) -> Any:
-    """The run's reward-free choice of a policy, continued from the checkpoint's: the lowest-disagreement
-    rollout's policy for CMZDRIL, the policy with the longest episodes for CMZDRILSAC (checked every
-    ``eval_every`` epochs), whose rollouts are single steps."""
-    from sb3_cmzdril.selection import LongestEpisodesPolicy, LowestDisagreementPolicy
+def _kept_policies(run: ResolvedRun, folder: RunFolder, resume: bool) -> dict[str, Any]:
+    """The policies a run keeps beside its last weights (final_eval.csv's name -> selector), continued
+    from the checkpoint's: its reward-free choice, the lowest-disagreement rollout's policy for CMZDRIL
+    or the policy with the longest episodes for CMZDRILSAC (checked every ``eval_every`` epochs), whose
+    rollouts are single steps; and, with ``average_from`` in the hyperparameters, the average of the
+    policies after every update from that fraction of the run's steps on."""
+    from sb3_cmzdril.selection import AveragedPolicy, LongestEpisodesPolicy, LowestDisagreementPolicy
 
-    selector: Any
+    kept: dict[str, Any] = {}
     if run.spec.off_policy:
-        selector = LongestEpisodesPolicy(
+        kept[folder.selection_name] = LongestEpisodesPolicy(
             run.spec.env_id, check_every=run.spec.eval_every * OFFPOLICY_EPOCH_STEPS,
             n_episodes=LONGEST_CHECK_EPISODES, seed=LONGEST_CHECK_SEED + 100 * run.spec.seed,
             env_kwargs=run.hp.env_kwargs, tie_break=run.settings.get("longest_tie_break", "latest"),
         )
     else:
-        selector = LowestDisagreementPolicy()
+        kept[folder.selection_name] = LowestDisagreementPolicy()
+    average_from = run.settings.get("average_from")
+    if average_from is not None and run.spec.method != "bc":
+        kept["averaged"] = AveragedPolicy(math.ceil(average_from * run.spec.timesteps))
     if resume:
-        selector.load(folder.selection)
-    return selector
+        for name, selector in kept.items():
+            selector.load(folder.kept_file(name))
+    return kept
 
 
 def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:
@@ -203,7 +211,7 @@ def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:
 
 
 def _train(
-    run: ResolvedRun, folder: RunFolder, model: Any, state: RunState, eval_cb: Any, selector: Any,
+    run: ResolvedRun, folder: RunFolder, model: Any, state: RunState, eval_cb: Any, kept: dict[str, Any],
     callbacks: list[Any], *, start: int, resume: bool, progress_bar: bool,
 ) -> None:
     """Pretrain (BC to convergence, the ensemble fit), then PPO or SAC from step ``start`` to the run's
@@ -218,23 +226,25 @@ def _train(
     if spec.method == "bc":
         # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
         model.learn(0, callback=[eval_cb])
-        folder.checkpoint(model, selector, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
+        folder.checkpoint(model, {}, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
         return
     checkpoint_cb = _checkpoint_callback_class()(
-        lambda m: folder.checkpoint(m, selector, state), spec.checkpoint_every, epoch_steps(model)
+        lambda m: folder.checkpoint(m, kept, state), spec.checkpoint_every, epoch_steps(model)
     )
     progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
     model.learn(
         max(spec.timesteps - start, 0),
-        callback=[eval_cb, selector, checkpoint_cb, progress_cb, *callbacks],
+        # The kept policies before the checkpoint: a checkpoint at a rollout's start holds what they took there.
+        callback=[eval_cb, *kept.values(), checkpoint_cb, progress_cb, *callbacks],
         reset_num_timesteps=not resume,
     )
 
 
-def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector: Any) -> dict[str, Any]:
+def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, kept: dict[str, Any]) -> dict[str, Any]:
     """Replay every pool episode not used for training with the final policy and, for the RL
-    methods, the reward-free choice (lowest u, or longest episodes); write final_eval.csv (one row per
-    policy and episode) and the chosen policy's model zip; return the summaries for done.json.
+    methods, the kept ones (the reward-free choice: lowest u, or longest episodes; the averaged
+    policy where asked); write final_eval.csv (one row per policy and episode) and each kept policy's
+    model zip; return the summaries for done.json.
 
     Five episodes per evaluation cannot tell methods apart on HalfCheetah (one BC policy scored 188
     on one machine and 242 on another); the whole rest of the pool can.
@@ -243,9 +253,9 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector:
 
     episodes = run.held_out
     held_out = run.pool.select(episodes)
-    policies = {"final": None}
-    if run.spec.method != "bc" and selector.best_state is not None:
-        policies[folder.selection_name] = selector
+    policies: dict[str, Any] = {"final": None}
+    if run.spec.method != "bc":
+        policies.update((name, selector) for name, selector in kept.items() if selector.best_state is not None)
     results: dict[str, Any] = {"episodes": episodes}
     rows = []
     final_state = {k: v.detach().clone() for k, v in model.policy.state_dict().items()}
@@ -253,7 +263,7 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, selector:
         for name, source in policies.items():
             if source is not None:
                 source.apply(model)
-                folder.save_selected_model(model)
+                folder.save_kept_model(model, name)
             ev = evaluate_against_expert(
                 model, run.spec.env_id, held_out, env_kwargs=run.hp.env_kwargs, start_mismatch="ignore"
             )

@@ -49,8 +49,9 @@ OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
 #: checkpoints and average Table I over the same stretches of steps.
 OFFPOLICY_EPOCH_STEPS = 2048
 #: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs):
-#: the training episodes, and (cmz-sac only) how the longest-episodes choice breaks a tie in length.
-EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break")
+#: the training episodes, (cmz-sac only) how the longest-episodes choice breaks a tie in length, and
+#: (PPO methods only) from which fraction of the run's steps on an averaged policy is kept and evaluated.
+EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "average_from")
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -196,6 +197,16 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         if tie_break not in TIE_BREAKS:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break must be one of "
                             f"{list(TIE_BREAKS)}, got {tie_break!r}")
+    average_from = settings.get("average_from")
+    if average_from is not None:
+        # bc has no updates to average and ignores it, as it ignores the reward's keys.
+        if is_off_policy(method):
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: average_from applies only to the PPO methods "
+                            f"(it averages the policy after each rollout's update), not to {method!r}")
+        if isinstance(average_from, bool) or not isinstance(average_from, (int, float)) \
+                or not 0 <= average_from < 1:
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: average_from must be a fraction of the run's "
+                            f"steps in [0, 1) or null, got {average_from!r}")
     classes = learner_classes(method)
     unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs(classes))
     if unknown:
