@@ -16,6 +16,7 @@ why; the tables, figures and the page's text come from
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -346,6 +347,21 @@ def tuning_rows(env: str, label: str, name: str, made_by: str) -> tuple[Variant,
     return trial_set_rows(env, label, f"results/tuning/{name}", made_by)
 
 
+AVERAGED = "--set average_from=0.75"
+AVERAGED_LABEL = "weights averaged over the last quarter of updates (`average_from: 0.75`)"
+
+
+def averaged_rows(env: str, name: str, env_id: str | None = None, eval_every: int = 5) -> tuple[Variant, ...]:
+    """results/tuning/NAME's averaged policies per trial set, each after the same runs' last weights: the
+    averaging changes no update, so those are the grid's final policies trained again. ``env_id``: the
+    command's, where it is not ``env``."""
+    made_by = tune_command(name, AVERAGED, env_id or env, "0-9", eval_every=eval_every) + " --no-progress"
+    lasts = tuning_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", name, made_by)
+    averaged = tuning_rows(env, f"{AVERAGED_LABEL}, the averaged policy", name, made_by)
+    return tuple(row for last, mean in zip(lasts, averaged, strict=True)
+                 for row in (last, dataclasses.replace(mean, policy="averaged")))
+
+
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
     """The rows of a task whose entry in hyperparams/cmzdril.yml changed (:data:`ENTRY_VARIANTS`): CMZ-DRIL with
     the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets."""
@@ -444,6 +460,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
+    *averaged_rows("Hopper-v5", "H-avg75"),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
@@ -487,6 +504,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_rows("WaypointNav-v0", NORMREW_LABEL, "WN-normrew",
                  tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
                  + " --no-progress (trials 5-9: the same with --trials 5-9)"),
+    *averaged_rows("WaypointNav-v0", "WN-avg75", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
     Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
