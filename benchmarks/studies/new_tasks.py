@@ -349,15 +349,21 @@ def tuning_rows(env: str, label: str, name: str, made_by: str) -> tuple[Variant,
 
 AVERAGED = "--set average_from=0.75"
 AVERAGED_LABEL = "weights averaged over the last quarter of updates (`average_from: 0.75`)"
+#: where the averaged policy gained nothing on the tuning trials, the confirmation trials were not run
+AVERAGED_STOPPED = " (stopped once trials 0-4 had finished, the trials after them removed unfinished)"
 
 
-def averaged_rows(env: str, name: str, env_id: str | None = None, eval_every: int = 5) -> tuple[Variant, ...]:
-    """results/tuning/NAME's averaged policies per trial set, each after the same runs' last weights: the
-    averaging changes no update, so those are the grid's final policies trained again. ``env_id``: the
-    command's, where it is not ``env``."""
-    made_by = tune_command(name, AVERAGED, env_id or env, "0-9", eval_every=eval_every) + " --no-progress"
-    lasts = tuning_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", name, made_by)
-    averaged = tuning_rows(env, f"{AVERAGED_LABEL}, the averaged policy", name, made_by)
+def averaged_rows(env: str, name: str, env_id: str | None = None, eval_every: int = 5,
+                  firsts: tuple[int, ...] = (0, 5), command_trials: str = "0-9", note: str = "") -> tuple[Variant, ...]:
+    """results/tuning/NAME's averaged policies per trial set (from each of ``firsts``), each after the same
+    runs' last weights: the averaging changes no update, so the two rows are two readouts of one training
+    run. ``env_id``, ``command_trials``: the command's (``env_id`` where it is not ``env``); ``note``: how
+    the command's run ended."""
+    made_by = tune_command(name, AVERAGED, env_id or env, command_trials, eval_every=eval_every) + " --no-progress"
+    made_by += note
+    lasts = trial_set_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", f"results/tuning/{name}", made_by, firsts)
+    averaged = trial_set_rows(env, f"{AVERAGED_LABEL}, the averaged policy", f"results/tuning/{name}", made_by,
+                              firsts)
     return tuple(row for last, mean in zip(lasts, averaged, strict=True)
                  for row in (last, dataclasses.replace(mean, policy="averaged")))
 
@@ -429,6 +435,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "gradient clip), absorbing state + reward normalisation", "results/tuning/W-zoo-ppo-abs-normrew",
             f"python benchmarks/studies/tune.py W-zoo-ppo-abs-normrew {ABS_NORMREW} {ZOO_PPO_WALKER} -- --env "
             "Walker2d-v5 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 20 --workers 2 --no-progress"),
+    *averaged_rows("Walker2d-v5", "W-avg75", firsts=(0,), command_trials="0-4"),
     Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
             "per run", "results/offpolicy/W-sac-64-abs",
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
@@ -474,6 +481,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *entry_rows("HalfCheetah-v5", entry_command("HalfCheetah-v5", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)"),
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
+    *averaged_rows("HalfCheetah-v5", "HC-avg75", firsts=(0,), note=AVERAGED_STOPPED),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
             "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
     *tuning_rows(
@@ -498,6 +506,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_and_confirmation(CLONE_LABEL, "S-sac-64-clone", CLONE, "Swimmer-v5", firsts=(0,)),
     *tuning_rows("Swimmer-v5", NORMREW_LABEL, "S-normrew",
                  tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9") + " --no-progress"),
+    *averaged_rows("Swimmer-v5", "S-avg75", firsts=(0,), command_trials="0-4"),
     Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("WaypointNav-v0"),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
