@@ -342,9 +342,10 @@ def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers:
             f"--timesteps 300000 --eval-every {eval_every} --workers {workers}")
 
 
-def tuning_rows(env: str, label: str, name: str, made_by: str) -> tuple[Variant, ...]:
+def tuning_rows(env: str, label: str, name: str, made_by: str,
+                firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
     """A PPO variant in results/tuning/NAME, made by ``made_by``, as a row per five trials (:func:`trial_set_rows`)."""
-    return trial_set_rows(env, label, f"results/tuning/{name}", made_by)
+    return trial_set_rows(env, label, f"results/tuning/{name}", made_by, firsts)
 
 
 AVERAGED = "--set average_from=0.75"
@@ -359,11 +360,10 @@ def averaged_rows(env: str, name: str, env_id: str | None = None, eval_every: in
     runs' last weights: the averaging changes no update, so the two rows are two readouts of one training
     run. ``env_id``, ``command_trials``: the command's (``env_id`` where it is not ``env``); ``note``: how
     the command's run ended."""
-    made_by = tune_command(name, AVERAGED, env_id or env, command_trials, eval_every=eval_every) + " --no-progress"
-    made_by += note
-    lasts = trial_set_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", f"results/tuning/{name}", made_by, firsts)
-    averaged = trial_set_rows(env, f"{AVERAGED_LABEL}, the averaged policy", f"results/tuning/{name}", made_by,
-                              firsts)
+    made_by = tune_command(name, AVERAGED, env_id or env, command_trials, eval_every=eval_every)
+    made_by += " --no-progress" + note
+    lasts = tuning_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", name, made_by, firsts)
+    averaged = tuning_rows(env, f"{AVERAGED_LABEL}, the averaged policy", name, made_by, firsts)
     return tuple(row for last, mean in zip(lasts, averaged, strict=True)
                  for row in (last, dataclasses.replace(mean, policy="averaged")))
 
