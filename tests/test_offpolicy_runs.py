@@ -213,9 +213,14 @@ def test_the_report_names_the_off_policy_learner_and_its_choice(tiny_experiment,
     assert "| CMZ-DRIL (SAC) |" in page and "| CMZ-DRIL (SAC) (last weights) |" in page
 
 
-def test_average_from_is_refused_for_the_off_policy_learner(tiny_experiment, sac_yaml, tmp_path):
-    hp = tmp_path / "average_from.yml"
-    hp.write_text(sac_yaml.read_text() + "  average_from: 0.5\n")
-    with pytest.raises(UserError, match=r"average_from applies only to the PPO methods .*not to 'cmz-sac'"):
+@pytest.mark.parametrize(("line", "message"), [
+    ("average_from: 0.5", r"average_from applies only to the PPO methods .*not to 'cmz-sac'"),
+    ("keep_longest: true", r"keep_longest applies only to the PPO methods; 'cmz-sac' always keeps the longest"),
+])
+def test_ppo_only_experiment_keys_are_refused_for_the_off_policy_learner(tiny_experiment, sac_yaml, tmp_path, line,
+                                                                        message):
+    hp = tmp_path / "ppo_only.yml"
+    hp.write_text(sac_yaml.read_text() + f"  {line}\n")
+    with pytest.raises(UserError, match=message):
         plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=hp, output_dir=tmp_path / "x")
     assert not (tmp_path / "x").exists()

@@ -128,6 +128,32 @@ def test_average_from_in_the_yaml_adds_the_averaged_policy_to_a_runs_final_evalu
     assert set(json.loads((tmp_path / "bc" / "done.json").read_text())["final_evaluation"]) == {"episodes", "final"}
 
 
+def test_keep_longest_adds_the_longest_episodes_choice_to_a_ppo_runs_final_evaluation(tiny_experiment, tmp_path):
+    hp = _with(tiny_experiment["hp"], tmp_path, "keep_longest: true")
+    out = tmp_path / "run"
+    spec = plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], hyperparams=hp, output_dir=out, timesteps=256,
+                    n_eval_episodes=1, eval_every=2)
+    run = resolve_run(spec)
+    assert run.settings["keep_longest"] is True and "keep_longest" not in run.model_kwargs()
+    run_experiment(spec)
+    final = json.loads((out / "done.json").read_text())["final_evaluation"]
+    # Checked at the start, every 2 epochs of 64 steps (128, 256) and at the end (256 again: one check).
+    assert final["longest"]["timesteps"] in (0, 128, 256)
+    assert final["longest"]["epoch"] == final["longest"]["timesteps"] // 64
+    policies = [line.split(",")[0] for line in (out / "final_eval.csv").read_text().splitlines()[1:]]
+    assert sorted(set(policies)) == ["final", "longest", "lowest_u"]
+    assert (out / "longest.pt").is_file() and (out / "model_longest.zip").is_file()
+    blob = th.load(out / "longest.pt", weights_only=True)
+    assert blob["history"][:, 0].tolist() == [0.0, 128.0, 256.0]
+
+
+def test_keep_longest_must_be_true_or_false(tiny_experiment, tmp_path):
+    hp = _with(tiny_experiment["hp"], tmp_path, "keep_longest: 1")
+    with pytest.raises(UserError, match="keep_longest must be true or false, got 1"):
+        plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], hyperparams=hp, output_dir=tmp_path / "x")
+    assert not (tmp_path / "x").exists()
+
+
 @pytest.mark.parametrize(("line", "message"), [
     ("average_from: 1.0", "average_from must be a fraction of the run's steps in [0, 1) or null, got 1.0"),
     ("average_from: -0.1", "average_from must be a fraction of the run's steps in [0, 1) or null, got -0.1"),

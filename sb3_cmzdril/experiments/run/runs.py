@@ -24,6 +24,7 @@ This module stays the public path of the planning and run-folder names that user
 """
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -168,28 +169,31 @@ def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
     return model, venv, start
 
 
-#: The longest-episodes checks of an off-policy run: episodes per check, and the first reset seed of
-#: trial 0's (trial t: + 100 t); no pool episode of the shipped pools starts from these seeds.
+#: The longest-episodes checks (an off-policy run's, or a PPO run's with ``keep_longest``): episodes per
+#: check, and the first reset seed of trial 0's (trial t: + 100 t); no pool episode of the shipped pools
+#: starts from these seeds.
 LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED = 5, 100_000
 
 
 def _kept_policies(run: ResolvedRun, folder: RunFolder, resume: bool) -> dict[str, Any]:
     """The policies a run keeps beside its last weights (final_eval.csv's name -> selector), continued
     from the checkpoint's: its reward-free choice, the lowest-disagreement rollout's policy for CMZDRIL
-    or the policy with the longest episodes for CMZDRILSAC (checked every ``eval_every`` epochs), whose
-    rollouts are single steps; and, with ``average_from`` in the hyperparameters, the average of the
-    policies after every update from that fraction of the run's steps on."""
-    from sb3_cmzdril.selection import AveragedPolicy, LongestEpisodesPolicy, LowestDisagreementPolicy
+    or the policy with the longest episodes for CMZDRILSAC, whose rollouts are single steps; for
+    CMZDRIL with ``keep_longest`` in the hyperparameters, the longest-episodes choice beside its own;
+    and, with ``average_from``, the average of the policies after every update from that fraction of
+    the run's steps on. The longest-episodes checks come every ``eval_every`` epochs."""
+    from sb3_cmzdril.selection import AveragedPolicy, LowestDisagreementPolicy
 
     kept: dict[str, Any] = {}
     if run.spec.off_policy:
-        kept[folder.selection_name] = LongestEpisodesPolicy(
-            run.spec.env_id, check_every=run.spec.eval_every * OFFPOLICY_EPOCH_STEPS,
-            n_episodes=LONGEST_CHECK_EPISODES, seed=LONGEST_CHECK_SEED + 100 * run.spec.seed,
-            env_kwargs=run.hp.env_kwargs, tie_break=run.settings.get("longest_tie_break", "latest"),
-        )
+        kept[folder.selection_name] = _longest_policy(run, OFFPOLICY_EPOCH_STEPS)
     else:
         kept[folder.selection_name] = LowestDisagreementPolicy()
+    if run.spec.method != "bc" and run.settings.get("keep_longest") and "longest" not in kept:
+        from stable_baselines3 import PPO
+
+        n_steps = run.model_kwargs().get("n_steps", inspect.signature(PPO).parameters["n_steps"].default)
+        kept["longest"] = _longest_policy(run, int(n_steps) * run.hp.n_envs)
     average_from = run.settings.get("average_from")
     if average_from is not None and run.spec.method != "bc":
         kept["averaged"] = AveragedPolicy(math.ceil(average_from * run.spec.timesteps))
@@ -197,6 +201,17 @@ def _kept_policies(run: ResolvedRun, folder: RunFolder, resume: bool) -> dict[st
         for name, selector in kept.items():
             selector.load(folder.kept_file(name))
     return kept
+
+
+def _longest_policy(run: ResolvedRun, epoch: int) -> Any:
+    """The run's longest-episodes choice, checked every ``eval_every`` epochs of ``epoch`` env steps."""
+    from sb3_cmzdril.selection import LongestEpisodesPolicy
+
+    return LongestEpisodesPolicy(
+        run.spec.env_id, check_every=run.spec.eval_every * epoch, n_episodes=LONGEST_CHECK_EPISODES,
+        seed=LONGEST_CHECK_SEED + 100 * run.spec.seed, env_kwargs=run.hp.env_kwargs,
+        tie_break=run.settings.get("longest_tie_break", "latest"),
+    )
 
 
 def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:

@@ -50,8 +50,9 @@ OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
 OFFPOLICY_EPOCH_STEPS = 2048
 #: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs):
 #: the training episodes, (cmz-sac only) how the longest-episodes choice breaks a tie in length, and
-#: (PPO methods only) from which fraction of the run's steps on an averaged policy is kept and evaluated.
-EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "average_from")
+#: (PPO methods only) from which fraction of the run's steps on an averaged policy is kept and evaluated,
+#: and whether the longest-episodes choice is kept and evaluated too.
+EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "average_from", "keep_longest")
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -207,6 +208,14 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
                 or not 0 <= average_from < 1:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: average_from must be a fraction of the run's "
                             f"steps in [0, 1) or null, got {average_from!r}")
+    keep_longest = settings.get("keep_longest")
+    if keep_longest is not None:
+        if not isinstance(keep_longest, bool):
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: keep_longest must be true or false, "
+                            f"got {keep_longest!r}")
+        if is_off_policy(method):
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: keep_longest applies only to the PPO methods; "
+                            f"{method!r} always keeps the longest-episodes choice (its result)")
     classes = learner_classes(method)
     unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs(classes))
     if unknown:
