@@ -307,11 +307,14 @@ def cpu_model() -> str:
 
 def machine() -> dict[str, Any]:
     """The machine a run segment ran on, for its CPU time to be read against: the same steps took
-    twice the CPU time on one day's machine as on another's, and rounded differently."""
+    twice the CPU time on one day's machine as on another's, and rounded differently. Two machines
+    with the same model name can still differ in the instruction set torch dispatches its CPU kernels
+    for (``cpu_capability``: AVX2, AVX512...), and with it in how a kernel rounds."""
     import torch
 
     return {
         "cpu": cpu_model(),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "logical_cpus": os.cpu_count() or 0,
         "torch_threads": torch.get_num_threads(),
         "os": f"{platform.system()} {platform.release()}",

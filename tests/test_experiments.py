@@ -75,7 +75,7 @@ def test_run_state_adds_cpu_time_across_segments(tmp_path):
 
 def test_each_segment_of_state_json_names_the_machine_it_ran_on(tmp_path):
     """CPU seconds are only comparable on one machine: every segment, a resume's too, records the CPU
-    model, the logical CPUs and torch's threads it ran with."""
+    model, the instruction set of torch's kernels, the logical CPUs and torch's threads it ran with."""
     spec = RunSpec(ENV, "cmz", "pool.npz", 0, 1, 1, 100, str(tmp_path), "hp.yml")
     RunState(tmp_path, spec, 0).write(64)
     RunState(tmp_path, spec, 64).write(128)
@@ -86,6 +86,7 @@ def test_each_segment_of_state_json_names_the_machine_it_ran_on(tmp_path):
         assert isinstance(found["cpu"], str) and found["cpu"]
         assert found["logical_cpus"] == os.cpu_count()
         assert found["torch_threads"] == th.get_num_threads()
+        assert found["cpu_capability"] == th.backends.cpu.get_cpu_capability()
 
 
 def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):
