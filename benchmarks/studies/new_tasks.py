@@ -354,18 +354,39 @@ AVERAGED_LABEL = "weights averaged over the last quarter of updates (`average_fr
 AVERAGED_STOPPED = " (stopped once trials 0-4 had finished, the trials after them removed unfinished)"
 
 
+def readout_rows(env: str, name: str, sets: str, label: str, policy: str, kept: str, env_id: str | None = None,
+                 eval_every: int = 5, firsts: tuple[int, ...] = (0, 5), command_trials: str = "0-9",
+                 note: str = "") -> tuple[Variant, ...]:
+    """results/tuning/NAME's kept ``policy`` (final_eval.csv's name, ``kept`` its words) per trial set (from
+    each of ``firsts``), each after the same runs' last weights: keeping it changes no update, so the two
+    rows are two readouts of one training run. ``env_id``, ``command_trials``: the command's (``env_id``
+    where it is not ``env``); ``note``: how the command's run ended."""
+    made_by = tune_command(name, sets, env_id or env, command_trials, eval_every=eval_every)
+    made_by += " --no-progress" + note
+    lasts = tuning_rows(env, f"{label}, the runs' last weights", name, made_by, firsts)
+    chosen = tuning_rows(env, f"{label}, {kept}", name, made_by, firsts)
+    return tuple(row for last, other in zip(lasts, chosen, strict=True)
+                 for row in (last, dataclasses.replace(other, policy=policy)))
+
+
 def averaged_rows(env: str, name: str, env_id: str | None = None, eval_every: int = 5,
                   firsts: tuple[int, ...] = (0, 5), command_trials: str = "0-9", note: str = "") -> tuple[Variant, ...]:
-    """results/tuning/NAME's averaged policies per trial set (from each of ``firsts``), each after the same
-    runs' last weights: the averaging changes no update, so the two rows are two readouts of one training
-    run. ``env_id``, ``command_trials``: the command's (``env_id`` where it is not ``env``); ``note``: how
-    the command's run ended."""
-    made_by = tune_command(name, AVERAGED, env_id or env, command_trials, eval_every=eval_every)
-    made_by += " --no-progress" + note
-    lasts = tuning_rows(env, f"{AVERAGED_LABEL}, the runs' last weights", name, made_by, firsts)
-    averaged = tuning_rows(env, f"{AVERAGED_LABEL}, the averaged policy", name, made_by, firsts)
-    return tuple(row for last, mean in zip(lasts, averaged, strict=True)
-                 for row in (last, dataclasses.replace(mean, policy="averaged")))
+    """results/tuning/NAME's averaged policies beside the runs' last weights (:func:`readout_rows`)."""
+    return readout_rows(env, name, AVERAGED, AVERAGED_LABEL, "averaged", "the averaged policy", env_id, eval_every,
+                        firsts, command_trials, note)
+
+
+LONGEST = "--set keep_longest=true"
+LONGEST_LABEL = ("the longest-episodes choice kept beside the last weights (`keep_longest: true`: every 5 epochs, "
+                 "5 deterministic episodes from fixed starts; reward-free)")
+#: the tuning trials first, then the confirmation trials by the same command
+LONGEST_THEN = " (trials 5-9: the same with --trials 5-9)"
+
+
+def longest_rows(env: str, name: str, firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
+    """results/tuning/NAME's longest-episodes choices beside the runs' last weights (:func:`readout_rows`)."""
+    return readout_rows(env, name, LONGEST, LONGEST_LABEL, "longest", "the longest-episodes choice", firsts=firsts,
+                        command_trials="0-4", note=LONGEST_THEN if 5 in firsts else "")
 
 
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
@@ -436,6 +457,7 @@ ABLATIONS: tuple[Variant, ...] = (
             f"python benchmarks/studies/tune.py W-zoo-ppo-abs-normrew {ABS_NORMREW} {ZOO_PPO_WALKER} -- --env "
             "Walker2d-v5 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 20 --workers 2 --no-progress"),
     *averaged_rows("Walker2d-v5", "W-avg75", firsts=(0,), command_trials="0-4"),
+    *longest_rows("Walker2d-v5", "W-longest", firsts=(0,)),
     Variant("Walker2d-v5", "cmz", "CMZDRILSAC (SAC, 64x64, demos in every batch, absorbing state), 20 CPU-minutes "
             "per run", "results/offpolicy/W-sac-64-abs",
             offpolicy_command("W-sac-64-abs", "Walker2d-v5", "--set absorbing=auto")),
@@ -468,6 +490,7 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *averaged_rows("Hopper-v5", "H-avg75"),
+    *longest_rows("Hopper-v5", "H-longest", firsts=(0,)),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
@@ -586,7 +609,9 @@ COST_CURVES: tuple[CostCurves, ...] = (
 #: The variants whose runs chose their final policy reward-free (``--select longest``, or the package's
 #: `cmz-sac` with the lowest-u tie break)
 SELECTIONS: tuple[Variant, ...] = tuple(
-    v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U))
+    # a PPO study's last-weights row is the twin of its kept row (readout_rows): one table for the two
+    v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U)) and not (v.runs.startswith("results/tuning/")
+                                                                         and v.policy == "final")
     # Walker2d-v5's `cmz-sac` with and without the critics' warm-up: its target is asked of the kept policy
     or (v.env, v.method) == ("Walker2d-v5", "cmz-sac") and v.runs in (GRID, CMZ_SAC_TRIALS5_9, NO_WARMUP_RUNS))
 

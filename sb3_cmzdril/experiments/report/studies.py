@@ -711,8 +711,9 @@ def render(
            "whose episodes lasted longest, the latest on a tie: a choice that reads termination, never reward. "
            "The kept policy is the run's final policy in the ablation tables (for the package's `cmz-sac` runs, "
            "its second policy; with `longest_tie_break: lowest_u` a tie goes to the check whose states the "
-           "ensemble disagrees on least, its mean u); here it is beside the last weights of the same runs, both "
-           "on every held-out episode.", kept] if selections else []),
+           "ensemble disagrees on least, its mean u; for PPO runs with `keep_longest: true`, its second row); here "
+           "it is beside the last weights of the same runs, both on every held-out episode.", kept]
+          if selections else []),
         *(["## Across tasks", across_tables] if across else []),
         "## What the agent does in training\n\nMean over trials [95% CI] of what each run logged per "
         "training rollout, early and late. Episode length: steps per episode (time limit 1,000); shorter "
