@@ -305,6 +305,15 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
+def cpu_capability() -> str:
+    """The instruction set torch dispatches its CPU kernels for ("AVX2", "AVX512", "DEFAULT"...); torch
+    before 2.1 does not say."""
+    import torch
+
+    backend = getattr(torch.backends, "cpu", None)
+    return str(backend.get_cpu_capability()) if backend is not None else "unknown (torch < 2.1)"
+
+
 def machine() -> dict[str, Any]:
     """The machine a run segment ran on, for its CPU time to be read against: the same steps took
     twice the CPU time on one day's machine as on another's, and rounded differently. Two machines
@@ -314,7 +323,7 @@ def machine() -> dict[str, Any]:
 
     return {
         "cpu": cpu_model(),
-        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "cpu_capability": cpu_capability(),
         "logical_cpus": os.cpu_count() or 0,
         "torch_threads": torch.get_num_threads(),
         "os": f"{platform.system()} {platform.release()}",

@@ -86,7 +86,9 @@ def test_each_segment_of_state_json_names_the_machine_it_ran_on(tmp_path):
         assert isinstance(found["cpu"], str) and found["cpu"]
         assert found["logical_cpus"] == os.cpu_count()
         assert found["torch_threads"] == th.get_num_threads()
-        assert found["cpu_capability"] == th.backends.cpu.get_cpu_capability()
+        # torch 2.0 (the floor) has no torch.backends.cpu: the record says it does not know
+        backend = getattr(th.backends, "cpu", None)
+        assert found["cpu_capability"] == (backend.get_cpu_capability() if backend else "unknown (torch < 2.1)")
 
 
 def test_rows_after_the_checkpoint_and_cut_short_rows_move_aside(tmp_path):
