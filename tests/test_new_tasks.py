@@ -2,6 +2,7 @@
 and benchmarks/studies/new_tasks.py, the script that writes the page, run as a user runs it."""
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import subprocess
@@ -338,3 +339,16 @@ def test_across_tasks_scores_each_method_on_its_own_folders_by_hand(tmp_path):
     assert "| New learner | BC | 1.00 [1.00, 1.00] | Hopper-v5 |" in page
     assert "| BC | New learner | 0.00 [0.00, 0.00] | Hopper-v5 |" in page
     assert "`new` (New learner on Hopper-v5, Walker2d-v5)" in page
+
+
+def test_every_reward_free_choice_folder_gets_one_kept_policy_table(monkeypatch):
+    """A PPO study's two readouts of one folder (last weights, kept policy) share a table; a folder with
+    one row of its own (the lowest-u tie break's) keeps its table."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks" / "studies"))
+    page = importlib.import_module("new_tasks")
+    chosen = [(v.runs, v.trials) for v in page.SELECTIONS]
+    assert len(chosen) == len(set(chosen))
+    folders = {v.runs for v in page.SELECTIONS}
+    assert {"results/tuning/W-longest", "results/tuning/H-longest"} <= folders
+    assert {"results/tuning/HC-sac-tie-u", "results/tuning/H-sac-tie-u"} <= folders
+    assert all(v.policy == "longest" for v in page.SELECTIONS if v.runs.endswith(("W-longest", "H-longest")))

@@ -608,10 +608,11 @@ COST_CURVES: tuple[CostCurves, ...] = (
 
 #: The variants whose runs chose their final policy reward-free (``--select longest``, or the package's
 #: `cmz-sac` with the lowest-u tie break)
+#: folders with a row of a kept policy beside their last weights' row (readout_rows): one table for the two
+READOUT_RUNS = frozenset(v.runs for v in ABLATIONS if v.policy != "final")
 SELECTIONS: tuple[Variant, ...] = tuple(
-    # a PPO study's last-weights row is the twin of its kept row (readout_rows): one table for the two
-    v for v in ABLATIONS if v.runs.endswith(("-longest", TIE_U)) and not (v.runs.startswith("results/tuning/")
-                                                                         and v.policy == "final")
+    v for v in ABLATIONS
+    if v.runs.endswith(("-longest", TIE_U)) and not (v.policy == "final" and v.runs in READOUT_RUNS)
     # Walker2d-v5's `cmz-sac` with and without the critics' warm-up: its target is asked of the kept policy
     or (v.env, v.method) == ("Walker2d-v5", "cmz-sac") and v.runs in (GRID, CMZ_SAC_TRIALS5_9, NO_WARMUP_RUNS))
 

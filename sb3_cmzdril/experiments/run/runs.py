@@ -189,10 +189,10 @@ def _kept_policies(run: ResolvedRun, folder: RunFolder, resume: bool) -> dict[st
         kept[folder.selection_name] = _longest_policy(run, OFFPOLICY_EPOCH_STEPS)
     else:
         kept[folder.selection_name] = LowestDisagreementPolicy()
-    if run.spec.method != "bc" and run.settings.get("keep_longest") and "longest" not in kept:
-        from stable_baselines3 import PPO
-
-        n_steps = run.model_kwargs().get("n_steps", inspect.signature(PPO).parameters["n_steps"].default)
+    if run.spec.method != "bc" and run.settings.get("keep_longest"):  # PPO methods only (spec.py refuses cmz-sac)
+        # the model is not built yet: its rollout length from the YAML, else the learner's default
+        learner, _ = learner_classes(run.spec.method)
+        n_steps = run.model_kwargs().get("n_steps", inspect.signature(learner).parameters["n_steps"].default)
         kept["longest"] = _longest_policy(run, int(n_steps) * run.hp.n_envs)
     average_from = run.settings.get("average_from")
     if average_from is not None and run.spec.method != "bc":
