@@ -182,6 +182,15 @@ def safe_eval(text: str) -> Any:
     return conv(tree.body)
 
 
+def parse_env_kwargs(text: str, option: str = "--env-kwargs") -> dict[str, Any]:
+    """The keyword arguments of ``gym.make`` a command line gives as one expression
+    (``"dict(continuous=True)"`` or ``"{'max_steps': 200}"``), read by :func:`safe_eval`."""
+    kwargs = safe_eval(text)
+    if not isinstance(kwargs, dict):
+        raise UserError(f"{option} must be a dict, got {text!r}")
+    return kwargs
+
+
 # -- loading -------------------------------------------------------------------------------------
 @dataclasses.dataclass
 class Hyperparams:

@@ -133,6 +133,13 @@ def _foreign_config(case: Path) -> Path:
     return out
 
 
+def _pool_recorded_with(ws: Path, case: Path, env_kwargs: dict) -> str:
+    """The workspace pool with a record saying collect-demos made its env with ``env_kwargs``."""
+    shutil.copy(ws / "demos.npz", case / "pool.npz")
+    (case / "pool.json").write_text(json.dumps({"demos": {"env_id": ENV, "env_kwargs": env_kwargs}}))
+    return "pool.npz"
+
+
 @dataclass(frozen=True)
 class Case:
     """argv built from (workspace, this case's folder); ``says``: a regex the error line must match."""
@@ -168,6 +175,11 @@ CASES = [
     Case("collect-demos", "truncated expert zip", lambda ws, c: _collect(ws, c, _damaged_model(ws, c)), "model.zip"),
     Case("collect-demos", "zero episodes", lambda ws, c: _collect(ws, c, _model(ws), "--episodes", "0")),
     Case("collect-demos", "negative seed", lambda ws, c: _collect(ws, c, _model(ws), "--seed", "-3")),
+    Case("collect-demos", "env_kwargs the env does not take",
+         lambda ws, c: _collect(ws, c, _model(ws), "--env-kwargs", "dict(nonsense=1)"),
+         "cannot make Pendulum-v1 with env_kwargs.*nonsense"),
+    Case("collect-demos", "env_kwargs not a dict", lambda ws, c: _collect(ws, c, _model(ws), "--env-kwargs", "[1]"),
+         "--env-kwargs must be a dict"),
     Case("collect-demos", "output exists",
          lambda ws, c: ["collect-demos", "--expert", _model(ws), "--env", ENV, "-o", str(ws / "demos.npz")],
          "demos.npz"),
@@ -190,6 +202,11 @@ CASES = [
     Case("train", "YAML learning_rate nan",
          lambda ws, c: _cmz(ws, c / "out", hyperparams=_yaml(ws, c, "  learning_rate: .nan\n")),
          "learning_rate must be finite, got nan"),
+    Case("train", "demo pool recorded with other env_kwargs than the YAML's",
+         lambda ws, c: _cmz(c, c / "out", demos=_pool_recorded_with(ws, c, {"max_episode_steps": 50, "g": 9.0}),
+                            hyperparams=str(ws / "cmzdril.yml")),
+         r"recorded with env_kwargs \{'max_episode_steps': 50, 'g': 9.0\}, but hyperparameters .* make the env "
+         r"with \{'max_episode_steps': 50\}"),
     Case("train", "demo pool without reset seeds", lambda ws, c: _cmz(ws, c / "out", demos="noseeds.npz"), "seed"),
     Case("train", "-o holds someone's config.json", lambda ws, c: _cmz(ws, _foreign_config(c)), "config.json"),
     Case("train", "-o is an expert folder", lambda ws, c: _cmz(ws, ws / "experts" / ENV), ""),

@@ -374,6 +374,16 @@ def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     assert rec["mean_return"] == pytest.approx(float(np.mean(demos.episode_returns)))
 
 
+def test_collect_demos_makes_the_env_with_env_kwargs_and_records_them(tmp_path):
+    out = tmp_path / "demos.npz"
+    rc = main(["collect-demos", "--expert", "waypoint-reactive", "--env", "sb3_cmzdril:WaypointNav-v0",
+               "--episodes", "2", "--env-kwargs", "dict(max_steps=7)", "-o", str(out)])
+    assert rc == 0
+    # The reactive expert needs far more than 7 steps to reach its goals: the time limit ends both episodes.
+    assert list(Demonstrations.load(out).episode_lengths) == [7, 7]
+    assert pool_provenance(out)["env_kwargs"] == {"max_steps": 7}
+
+
 def test_shipped_files_come_from_the_checkout_or_the_installed_copy(tmp_path, monkeypatch):
     from sb3_cmzdril import shipped
 

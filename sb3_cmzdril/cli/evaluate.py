@@ -52,7 +52,7 @@ def _run_evaluate(args) -> int:
     from sb3_cmzdril.experiments.run.runs import load_evaluation_model
     from sb3_cmzdril.experiments.run.spec import default_demos_path
     from sb3_cmzdril.experts import check_env_id, load_demonstrations
-    from sb3_cmzdril.hyperparams import safe_eval
+    from sb3_cmzdril.hyperparams import parse_env_kwargs
     from sb3_cmzdril.metrics import evaluate_against_expert
     from sb3_cmzdril.metrics.evaluation import make_env
 
@@ -64,9 +64,7 @@ def _run_evaluate(args) -> int:
     # A run folder's config.json knows how the model was trained and evaluated.
     run_config = _run_config(model_path.parent / CONFIG_FILE)
     if args.env_kwargs is not None:
-        env_kwargs = safe_eval(args.env_kwargs)
-        if not isinstance(env_kwargs, dict):
-            raise UserError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
+        env_kwargs = parse_env_kwargs(args.env_kwargs)
     else:
         env_kwargs = run_config.get("env_kwargs") or {}
     make_env(args.env, env_kwargs).close()  # kwargs the env does not take: one line now, not a traceback later

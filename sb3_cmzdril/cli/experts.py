@@ -90,6 +90,12 @@ def add_collect_demos(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (default 0)")
     p.add_argument("-o", "--output", required=True, help="output .npz file")
     p.add_argument(
+        "--env-kwargs",
+        default=None,
+        help='keyword arguments of gym.make, recorded with the pool; the runs that train on it need the same '
+        'env_kwargs in their YAML entry (e.g. "dict(continuous=True)" for LunarLander-v3)',
+    )
+    p.add_argument(
         "--force",
         action="store_true",
         help="replace an existing OUTPUT and its record OUTPUT.json",
@@ -99,8 +105,11 @@ def add_collect_demos(sub) -> None:
 
 def _run_collect_demos(args) -> int:
     from sb3_cmzdril.experts import collect_demos
+    from sb3_cmzdril.hyperparams import parse_env_kwargs
 
-    collect_demos(args.expert, args.env, n_episodes=args.episodes, seed=args.seed, output=args.output, force=args.force)
+    env_kwargs = None if args.env_kwargs is None else parse_env_kwargs(args.env_kwargs)
+    collect_demos(args.expert, args.env, n_episodes=args.episodes, seed=args.seed, output=args.output,
+                  env_kwargs=env_kwargs, force=args.force)
     return 0
 
 

@@ -33,6 +33,7 @@ from sb3_cmzdril.io import (
     versions,
     write_json,
 )
+from sb3_cmzdril.metrics.evaluation import make_env
 
 logger = logging.getLogger(__name__)
 
@@ -171,7 +172,7 @@ def collect_demos(
     check_seed(seed + int(n_episodes) - 1)
     if output is not None:
         _check_demos_output(Path(output), force)
-    env = gym.make(env_id, **(env_kwargs or {}))
+    env = make_env(env_id, env_kwargs)  # kwargs the env does not take: one line, before any file
     try:
         policy, description = resolve_expert(expert, env)
         episodes = [run_episode(policy, env, seed + i) for i in range(int(n_episodes))]

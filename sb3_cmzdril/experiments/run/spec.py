@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations
-from sb3_cmzdril.io import PathLike, portable_path
+from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations, pool_provenance
+from sb3_cmzdril.io import PathLike, jsonable, portable_path
 
 if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -393,8 +393,24 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
 
         check_constructor_kwargs(hp, list(learner_classes(spec.method)))
         _check_reset_seeds(run)
+        _check_pool_env_kwargs(run)
         _preflight(run)
     return run
+
+
+def _check_pool_env_kwargs(run: ResolvedRun) -> None:
+    """Evaluation replays the pool's episodes in the run's env: one made with other env_kwargs than the
+    pool's expert saw would score the policy against episodes of another env."""
+    recorded = pool_provenance(run.spec.demos).get("env_kwargs")
+    if recorded is None:  # a pool with no record of how it was made: nothing to hold the entry to
+        return
+    configured = jsonable(run.hp.env_kwargs or {})
+    if recorded != configured:
+        raise UserError(
+            f"demo pool {run.spec.demos} was recorded with env_kwargs {recorded}, but hyperparameters "
+            f"{run.hp.key!r} in {run.spec.hyperparams} make the env with {configured}: give the entry the pool's "
+            "env_kwargs (each evaluation replays the pool's episodes in the run's env)"
+        )
 
 
 def _check_reset_seeds(run: ResolvedRun) -> None:
