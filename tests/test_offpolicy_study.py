@@ -86,11 +86,17 @@ def test_a_negative_step_cap_is_refused_in_one_line(offpolicy, capsys):
 
 
 def test_the_yaml_entry_gives_the_env_its_kwargs_and_the_run_its_demos(offpolicy, tmp_path):
-    # A hopper that is never healthy: every held-out episode ends at its first step.
+    # A hopper that is never healthy: every held-out episode ends at its first step. The shipped pool's
+    # record names the env it was recorded in, which a run holds its entry to; a copy without the record
+    # lets the run make another env.
     yaml = tmp_path / "outside.yml"
     yaml.write_text("Hopper-v5:\n  env_kwargs: dict(healthy_z_range=(10.0, 20.0))\n  n_demos: 2\n")
-    done = offpolicy.run_trial("t", "Hopper-v5", 0, 60.0, 100, SMALL, tmp_path, "cmd", "last", 0, hyperparams=yaml)
+    pool = tmp_path / "pool" / "demos.npz"
+    pool.parent.mkdir()
+    pool.write_bytes((STUDIES.parent.parent / "experts" / "Hopper-v5" / "demos.npz").read_bytes())
+    done = offpolicy.run_trial("t", "Hopper-v5", 0, 60.0, 100, SMALL, tmp_path, "cmd", "last", 0, demos=pool,
+                               hyperparams=yaml)
     assert done is not None and done["final_evaluation"]["final"]["length_mean"] == 1
     config = json.loads((tmp_path / "t" / "Hopper-v5" / "cmz" / "trial0" / "config.json").read_text())
     assert config["env_kwargs"] == {"healthy_z_range": [10.0, 20.0]}
-    assert len(config["train_episodes"]) == 2 and config["demos"] == "experts/Hopper-v5/demos.npz"
+    assert len(config["train_episodes"]) == 2 and Path(config["demos"]) == pool
