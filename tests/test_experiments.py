@@ -565,15 +565,16 @@ def test_run_experiment_checks_a_spec_made_by_hand_before_writing(tiny_experimen
 
 
 def test_a_pool_is_held_to_the_env_kwargs_it_was_recorded_with(tiny_experiment, tmp_path):
-    # The tiny YAML makes Pendulum-v1 with max_episode_steps=50, as the pool's expert ran.
+    # The tiny YAML makes Pendulum-v1 with max_episode_steps=50 and nothing else.
     pool = tmp_path / "pool.npz"
     pool.write_bytes(tiny_experiment["pool"].read_bytes())
     plan = dict(demos=pool, n_eval_episodes=1, timesteps=128, hyperparams=tiny_experiment["hp"])
     record = tmp_path / "pool.json"
-    record.write_text(json.dumps({"demos": {"env_id": ENV, "env_kwargs": {"max_episode_steps": 50}}}))
-    plan_run(ENV, "cmz", 0, output_dir=tmp_path / "same", **plan)
+    # Another time limit wraps the same env: a quick run on a pool of longer episodes is allowed.
     record.write_text(json.dumps({"demos": {"env_id": ENV, "env_kwargs": {"max_episode_steps": 200}}}))
-    with pytest.raises(ValueError, match=r"recorded with env_kwargs \{'max_episode_steps': 200\}"):
+    plan_run(ENV, "cmz", 0, output_dir=tmp_path / "same", **plan)
+    record.write_text(json.dumps({"demos": {"env_id": ENV, "env_kwargs": {"g": 9.0}}}))
+    with pytest.raises(ValueError, match=r"recorded with env_kwargs \{'g': 9.0\}, .* make the env with \{\}"):
         plan_run(ENV, "cmz", 0, output_dir=tmp_path / "other", **plan)
     assert not (tmp_path / "same").exists() and not (tmp_path / "other").exists()
 

@@ -398,13 +398,25 @@ def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
     return run
 
 
+def _env_own_kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """``kwargs`` without gym.make's own keywords (``max_episode_steps``, ``disable_env_checker``): they
+    wrap the env, a shorter time limit for a quick run say, and leave its dynamics and rewards alone."""
+    import inspect
+
+    import gymnasium as gym
+
+    wrapping = set(inspect.signature(gym.make).parameters) - {"id", "kwargs"}
+    return {k: v for k, v in kwargs.items() if k not in wrapping}
+
+
 def _check_pool_env_kwargs(run: ResolvedRun) -> None:
     """Evaluation replays the pool's episodes in the run's env: one made with other env_kwargs than the
     pool's expert saw would score the policy against episodes of another env."""
     recorded = pool_provenance(run.spec.demos).get("env_kwargs")
-    if recorded is None:  # a pool with no record of how it was made: nothing to hold the entry to
+    if not isinstance(recorded, dict):  # a pool with no record of how it was made: nothing to hold the entry to
         return
-    configured = jsonable(run.hp.env_kwargs or {})
+    recorded = _env_own_kwargs(recorded)
+    configured = _env_own_kwargs(jsonable(run.hp.env_kwargs or {}))
     if recorded != configured:
         raise UserError(
             f"demo pool {run.spec.demos} was recorded with env_kwargs {recorded}, but hyperparameters "
