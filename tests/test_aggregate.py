@@ -67,6 +67,17 @@ def test_a_task_without_all_of_its_methods_trials_is_left_out_and_named(tmp_path
     assert scores.trials["bc"] == (0, 1, 2, 3, 4)  # the other methods keep theirs
 
 
+def test_a_task_without_a_positive_expert_does_not_set_the_trials_the_others_need(tmp_path):
+    # BC on trials 0-4 of both tasks, and on trials 0-9 of a third whose expert returns are negative (Pendulum's
+    # are): that task cannot be scored, so it must not ask trials 5-9 of the two that can.
+    _grid(tmp_path, methods=("bc",))
+    for t in range(10):
+        write_run(tmp_path, "bc", t, [1.0], env="Pendulum-v1", final={"final": [-900.0, -900.0]}, expert=-150.0)
+    scores = agg.score_matrix(final_table(load_runs(tmp_path)))
+    assert scores.trials["bc"] == (0, 1, 2, 3, 4) and scores.tasks["bc"] == TASKS
+    np.testing.assert_allclose(scores.by_method["bc"], _by_hand(0))
+    assert scores.left_out == ("Pendulum-v1 BC: no positive expert mean",)
+
 def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_values(tmp_path):
     result = agg.aggregate(agg.score_matrix(_grid(tmp_path)))
     bc = _by_hand(0).ravel()

@@ -107,19 +107,25 @@ def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
         mine = [r for r in chosen if r.method == method]
         if not mine:
             continue
-        wanted = max((tuple(sorted(r.per_trial("return"))) for r in mine), key=len)
+        scored = {}
         for row in mine:
             by_trial = {run.trial: normalised_score(run.final[row.policy]) for run in row.runs}
-            label = f"{row.env} {METHOD_LABELS[method]}"
+            if np.isfinite(list(by_trial.values())).all():
+                scored[row.env] = by_trial
+            else:
+                left_out.append(f"{row.env} {METHOD_LABELS[method]}: no positive expert mean")
+        if not scored:
+            continue
+        # Only a task that can be scored sets the trials: one without a scale must not crowd out the rest.
+        wanted = max((tuple(sorted(by_trial)) for by_trial in scored.values()), key=len)
+        for env, by_trial in scored.items():
             if not set(wanted) <= set(by_trial):
-                left_out.append(f"{label}: {len(set(by_trial) & set(wanted))} of the {len(wanted)} trials")
+                left_out.append(f"{env} {METHOD_LABELS[method]}: {len(set(by_trial) & set(wanted))} of the "
+                                f"{len(wanted)} trials")
                 continue
             values = [by_trial[t] for t in wanted]
-            if not np.isfinite(values).all():
-                left_out.append(f"{label}: no positive expert mean")
-                continue
             trials[method] = wanted
-            tasks.setdefault(method, []).append(row.env)
+            tasks.setdefault(method, []).append(env)
             columns.setdefault(method, []).append(values)
     if not columns:
         return None
