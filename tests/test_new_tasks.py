@@ -49,6 +49,8 @@ def test_percent_of_expert_and_paired_count_by_hand(root):
     assert f"{sum(ref_pct) / 3:.3g}" in lines["from ref"]
     # Against the grid's BC (120 in every trial): the reference is above it in 2 of 3, the variant in 2 of 2.
     assert "0: 100, 1: 200, 2: 300" in lines["from ref"] and lines["from ref"].endswith("| reference | 2 of 3 | — |")
+    # The mean return over trials beside it, with its interval: the column a task with negative returns reads.
+    assert "| 200 [" in lines["from ref"] and "| Final policy: return [95% CI] |" in text
     # The variant beats the reference in trial 0 (250 > 100), not in trial 1 (150 < 200); trial 2 is not shared.
     assert lines["from var"].endswith("| 1 of 2 | 2 of 2 | — |") and "n/a" in lines["from var"]  # no CI: 2 trials
     assert "| from missing | 0 | no finished runs |" in lines["from missing"]
@@ -104,7 +106,7 @@ def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     text = studies.render(root, _variants("ref", "var"))
     rows = [line.split(" | ") for line in text.splitlines() if line.startswith("| from")]
     lines = {cells[0].strip("| "): cells for cells in rows}
-    assert lines["from var"][6] == "2.5" and lines["from ref"][6] == "—"
+    assert lines["from var"][7] == "2.5" and lines["from ref"][7] == "—"
     done = root / "ref" / ENV / "cmz" / "trial1" / "done.json"
     done.write_text(json.dumps({**json.loads(done.read_text()), "cpu_time_s": 600.0}))
     text = studies.render(root, _variants("ref", "var"))

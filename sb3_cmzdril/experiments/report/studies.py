@@ -271,7 +271,7 @@ def ablation_markdown(
         for variant, row in zip(variants, rows, strict=True):
             final, lowest = row[variant.policy], row["lowest_u"] or row["longest"]
             if final is None:
-                body.append([variant.label, "0", "no finished runs"] + [""] * 7)
+                body.append([variant.label, "0", "no finished runs"] + [""] * 8)
                 continue
             against = ["—" if m == variant.method or b is None else above_reference(final, b)
                        for m, b in baselines.items()]
@@ -280,6 +280,7 @@ def ablation_markdown(
                 variant.label,
                 str(final.n_trials),
                 fmt_ci(*final.stat("pct_of_expert")),
+                fmt_ci(*final.stat("return")),
                 per_trial,
                 "—" if lowest is None else fmt_ci(*lowest.stat("pct_of_expert")) + chosen_against(lowest, baselines),
                 fmt(window_return(final)),
@@ -288,7 +289,8 @@ def ablation_markdown(
                 *against,
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
-            ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return by trial",
+            ["Variant", "Trials", "Final policy: % of expert [95% CI]", "Final policy: return [95% CI]",
+             "Final policy: return by trial",
              "Lowest-u (or longest-episodes) policy: % of expert (above BC, DRIL: trials)", "Table I window return",
              "CPU minutes per run (median)",
              "Final above the reference (trials)",
