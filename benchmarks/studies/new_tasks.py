@@ -20,6 +20,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from sb3_cmzdril.experiments.report.records import METHOD_LABELS
 from sb3_cmzdril.experiments.report.studies import GRID, AcrossTasks, CostCurves, RolloutTable, Sweep, Variant, render
 from sb3_cmzdril.io import atomic_write_text
 
@@ -187,6 +188,10 @@ CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
 #: PPO's CMZ-DRIL with the absorbing state charged at the u of the observation the episode ended in
+#: PPO's CMZ-DRIL with u on the members' actions as they are: the expert of WaypointNav-v0, LunarLander-v3 and
+#: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
+PPO_UNCLIPPED = "--set disagreement=std_unclipped"
+PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
 PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
 PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
                       "`absorbing_score: terminal`)")
@@ -221,10 +226,10 @@ def offpolicy_command(name: str, env: str, sets: str) -> str:
 
 
 def trial_set_rows(env: str, label: str, runs: str, made_by: str,
-                   firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
-    """A variant of CMZ-DRIL as a row per five trials from each of ``firsts``: the tuning trials 0-4, the
-    confirmation trials 5-9."""
-    return tuple(Variant(env, "cmz", f"{label}: trials {first}-{first + 4}", runs, made_by,
+                   firsts: tuple[int, ...] = (0, 5), method: str = "cmz") -> tuple[Variant, ...]:
+    """A variant of ``method`` (CMZ-DRIL unless said) as a row per five trials from each of ``firsts``: the
+    tuning trials 0-4, the confirmation trials 5-9."""
+    return tuple(Variant(env, method, f"{label}: trials {first}-{first + 4}", runs, made_by,
                          trials=tuple(range(first, first + 5)))
                  for first in firsts)
 
@@ -425,6 +430,46 @@ def entry_others(env: str) -> tuple[Variant, ...]:
     )
 
 
+#: Pendulum-v1, a task nobody here tuned for where cloning one episode fails (benchmarks/studies/untuned_pendulum.sh):
+#: the package defaults in results/untuned, the zoo's PPO settings for the task with and without the unclipped u
+PENDULUM = "Pendulum-v1"
+PENDULUM_STUDY = "bash benchmarks/studies/untuned_pendulum.sh"
+PENDULUM_ZOO_PPO = ("--set n_envs=4 --set n_steps=1024 --set gamma=0.9 --set learning_rate=1e-3 --set use_sde=true "
+                    "--set sde_sample_freq=4")
+PENDULUM_RUN = ("--env Pendulum-v1 --timesteps 100000 --eval-every 5 --workers 2 --no-progress "
+                "--demos-dir results/untuned")
+PENDULUM_ZOO_LABEL = ("the zoo's PPO settings for Pendulum-v1 (4 envs x 1024 steps, gamma 0.9, learning rate "
+                      "1e-3, gSDE; hyperparams/ppo.yml of rl-baselines3-zoo)")
+PENDULUM_UNCLIPPED_LABEL = f"the same, {PPO_UNCLIPPED_LABEL}"
+
+
+def pendulum_rows(method: str, label: str, name: str, sets: str, methods: str) -> tuple[Variant, ...]:
+    """``method``'s runs of a Pendulum-v1 variant in results/tuning/NAME (made with ``--methods methods``), a row
+    per five trials."""
+    made_by = (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py {name} {sets} -- --methods {methods} "
+               f"--trials 0-4 (then 5-9) {PENDULUM_RUN}")
+    return trial_set_rows(PENDULUM, f"{METHOD_LABELS[method]}, {label}", f"results/tuning/{name}", made_by,
+                          method=method)
+
+
+def pendulum_defaults(method: str, trials: str) -> Variant:
+    """``method``'s runs of Pendulum-v1 with the package defaults (its `default` entry), results/untuned."""
+    return Variant(PENDULUM, method, f"{METHOD_LABELS[method]}, package defaults (the `default` entry)",
+                   "results/untuned", f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {method} --trials {trials} "
+                   f"{PENDULUM_RUN} -o results/untuned")
+
+
+PENDULUM_ROWS: tuple[Variant, ...] = (
+    pendulum_defaults("bc", "0-9"),
+    pendulum_defaults("cmz", "0-4"),
+    pendulum_defaults("env", "0-4"),
+    *(row for method in ("bc", "cmz", "env")
+      for row in pendulum_rows(method, PENDULUM_ZOO_LABEL, "P-zoo-ppo", PENDULUM_ZOO_PPO, "bc,cmz,env")),
+    *(row for method in ("cmz", "dril")
+      for row in pendulum_rows(method, PENDULUM_UNCLIPPED_LABEL, "P-zoo-ppo-unclipped",
+                               f"{PENDULUM_ZOO_PPO} {PPO_UNCLIPPED}", "cmz,dril")),
+)
+
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
     *entry_rows("Walker2d-v5", walker_entry("cmz", "0-4", "results/runs") + "; trials 0-1 at commit a3f38d8, "
@@ -545,6 +590,8 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
     *tuning_and_confirmation(SAC_UNCLIPPED_LABEL, "WN-sac-64-clip98-abs-terminal-unclipped", CLIP_TERMINAL_UNCLIPPED,
                              "WaypointNav-v0"),
+    Variant("WaypointNav-v0", "cmz", PPO_UNCLIPPED_LABEL, "results/tuning/WN-unclipped",
+            tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4") + " --no-progress"),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
     cmz_confirmation("LunarLander-v3"),
@@ -557,6 +604,10 @@ ABLATIONS: tuple[Variant, ...] = (
         f"python benchmarks/studies/tune.py LL-normrew --base benchmarks/studies/outside_env.yml {NORMREW} -- --env "
         "LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-9 --eval-every 5 --workers 2 "
         "--no-progress"),
+    Variant("LunarLander-v3", "cmz", f"{PPO_UNCLIPPED_LABEL}, 3 demonstrations", "results/tuning/LL-unclipped",
+            f"python benchmarks/studies/tune.py LL-unclipped --base benchmarks/studies/outside_env.yml {PPO_UNCLIPPED} "
+            "-- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-4 --eval-every 5 "
+            "--workers 2 --no-progress"),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
             offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
     Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
@@ -568,6 +619,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/offpolicy/LL-sac-64-clip98-abs-terminal-unclipped-warmup10k",
             offpolicy_command("LL-sac-64-clip98-abs-terminal-unclipped-warmup10k", "LunarLander-v3",
                               f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED} {WARMUP}")),
+    *PENDULUM_ROWS,
 )
 
 

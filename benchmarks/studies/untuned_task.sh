@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# A task nobody here tuned for, run as a new user would: a published RL Zoo agent records the demo pool,
+# Tasks nobody here tuned for, run as a new user would: a published RL Zoo agent records the demo pool,
 # the grid runs with the package defaults (hyperparams/cmzdril.yml has no entry for the env, so every
-# run takes its `default` entry), and the report goes to docs/untuned/. Resumable: rerun it to continue;
-# finished runs are skipped, an existing pool is kept.
+# run takes its `default` entry), and the report goes to docs/untuned/. BipedalWalker-v3 here;
+# Pendulum-v1 by benchmarks/studies/untuned_pendulum.sh, which this script calls before the report.
+# Resumable: rerun it to continue; finished runs are skipped, an existing pool is kept.
 #
 #   bash benchmarks/studies/untuned_task.sh      # ZOO=path/to/rl-trained-agents if the clone is elsewhere
 #
@@ -29,5 +30,7 @@ $cli benchmark --env "$env_id" --methods bc,cmz,env,dril --trials 5 --timesteps 
 # The off-policy method, one trial (the recorded command asked for trials 0-2 and was stopped after trial 0 for time).
 $cli benchmark --env "$env_id" --methods cmz-sac --trials 0 --eval-every 5 --workers 1 --no-progress \
     --demos-dir "$runs" -o "$runs"
-$cli report "$runs" -o docs/untuned --no-paper --label "$env_id, the package defaults" \
+# Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
+bash benchmarks/studies/untuned_pendulum.sh
+$cli report "$runs" -o docs/untuned --no-paper --label "tasks nobody here tuned for, the package defaults" \
     --discussion docs/untuned_discussion.md --force

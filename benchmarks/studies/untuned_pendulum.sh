@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# A second task nobody here tuned for, one where cloning fails: Pendulum-v1. The demo pool comes from a
+# published RL Zoo agent as a new user would record it; the runs are
+#
+#   1. the package defaults (hyperparams/cmzdril.yml has no Pendulum-v1 entry: its `default` entry),
+#      results/untuned (BC on trials 0-9, CMZ-DRIL and PPO on the env's reward on trials 0-4);
+#   2. the zoo's tuned PPO settings for Pendulum-v1 (rl-baselines3-zoo hyperparams/ppo.yml, as the
+#      agent's own config.yml records them: 4 envs x 1024 steps, gamma 0.9, learning rate 1e-3, gSDE
+#      resampled every 4 steps; the rest of that entry equals the package's) with everything else of the
+#      `default` entry, results/tuning/P-zoo-ppo;
+#   3. the same with the ensemble's disagreement taken on its members' actions unclipped
+#      (`disagreement: std_unclipped`), results/tuning/P-zoo-ppo-unclipped.
+#
+# Every run has the zoo's budget for the task, 100,000 steps. Resumable: rerun it to continue; finished
+# runs are skipped, an existing pool is kept.
+#
+#   ZOO=path/to/rl-trained-agents bash benchmarks/studies/untuned_pendulum.sh
+#
+# ZOO (default: rl-trained-agents in the repository root) is a clone of
+# https://github.com/DLR-RM/rl-trained-agents; the pool was recorded from commit
+# cd35bde610f4045bf2e0731c8f4c88d22df8fc85, and only the pool needs it. The expert is the zoo's A2C agent
+# (-146 +/- 98 over the pool's 30 deterministic episodes; its PPO agent scored -165 +/- 113 and its ARS
+# agent -182 +/- 135 over the same seeds). A PPO run takes 2-4 CPU-minutes on a 2-core machine.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+zoo=${ZOO:-rl-trained-agents}
+env_id=Pendulum-v1
+untuned=results/untuned
+workers=${WORKERS:-2}
+cli=${SB3_CMZDRIL:-sb3-cmzdril}
+pool=$untuned/$env_id/demos.npz
+if [ ! -f "$pool" ]; then
+    $cli collect-demos --expert "$zoo/a2c/${env_id}_1" --env "$env_id" --episodes 30 --seed 0 -o "$pool"
+fi
+common=(--env "$env_id" --timesteps 100000 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned")
+zoo_ppo=(--set n_envs=4 --set n_steps=1024 --set gamma=0.9 --set learning_rate=1e-3 --set use_sde=true
+         --set sde_sample_freq=4)
+for trials in 0-4 5-9; do
+    python benchmarks/studies/tune.py P-zoo-ppo "${zoo_ppo[@]}" -- --methods bc,cmz,env --trials "$trials" "${common[@]}"
+    python benchmarks/studies/tune.py P-zoo-ppo-unclipped "${zoo_ppo[@]}" --set disagreement=std_unclipped \
+        -- --methods cmz,dril --trials "$trials" "${common[@]}"
+    if [ "$trials" = 0-4 ]; then
+        $cli benchmark --methods bc,cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
+    fi
+done
+# The package's BC on the confirmation trials too (seconds a run): the clone every row is paired with.
+$cli benchmark --methods bc --trials 5-9 "${common[@]}" -o "$untuned"
