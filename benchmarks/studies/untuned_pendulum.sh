@@ -21,17 +21,9 @@
 # cd35bde610f4045bf2e0731c8f4c88d22df8fc85, and only the pool needs it. The expert is the zoo's A2C agent
 # (-146 +/- 98 over the pool's 30 deterministic episodes; its PPO agent scored -165 +/- 113 and its ARS
 # agent -182 +/- 135 over the same seeds). A PPO run takes 2-4 CPU-minutes on a 2-core machine.
-set -euo pipefail
-cd "$(dirname "$0")/../.."
-zoo=${ZOO:-rl-trained-agents}
+source "$(dirname "$0")/untuned_common.sh"
 env_id=Pendulum-v1
-untuned=results/untuned
-workers=${WORKERS:-2}
-cli=${SB3_CMZDRIL:-sb3-cmzdril}
-pool=$untuned/$env_id/demos.npz
-if [ ! -f "$pool" ]; then
-    $cli collect-demos --expert "$zoo/a2c/${env_id}_1" --env "$env_id" --episodes 30 --seed 0 -o "$pool"
-fi
+record_pool "$env_id"
 common=(--env "$env_id" --timesteps 100000 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned")
 zoo_ppo=(--set n_envs=4 --set n_steps=1024 --set gamma=0.9 --set learning_rate=1e-3 --set use_sde=true
          --set sde_sample_freq=4)

@@ -14,23 +14,15 @@
 # file for its SAC, TD3 and TQC agents of this env, and its PPO and TRPO agents scored 205 +/- 133 and
 # 213 +/- 132 over the same episodes (docs/untuned_discussion.md). BipedalWalker-v3 needs Box2D
 # (pip install "gymnasium[box2d]"). About 12 CPU-minutes a PPO run on a 2-core machine, 2 at a time.
-set -euo pipefail
-cd "$(dirname "$0")/../.."
-zoo=${ZOO:-rl-trained-agents}
+source "$(dirname "$0")/untuned_common.sh"
 env_id=BipedalWalker-v3
-runs=results/untuned
-workers=${WORKERS:-2}
-cli=${SB3_CMZDRIL:-sb3-cmzdril}
-pool=$runs/$env_id/demos.npz
-if [ ! -f "$pool" ]; then
-    $cli collect-demos --expert "$zoo/a2c/${env_id}_1" --env "$env_id" --episodes 30 --seed 0 -o "$pool"
-fi
+record_pool "$env_id"
 $cli benchmark --env "$env_id" --methods bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$runs" -o "$runs"
+    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # The off-policy method, one trial (the recorded command asked for trials 0-2 and was stopped after trial 0 for time).
 $cli benchmark --env "$env_id" --methods cmz-sac --trials 0 --eval-every 5 --workers 1 --no-progress \
-    --demos-dir "$runs" -o "$runs"
+    --demos-dir "$untuned" -o "$untuned"
 # Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
 bash benchmarks/studies/untuned_pendulum.sh
-$cli report "$runs" -o docs/untuned --no-paper --label "tasks nobody here tuned for, the package defaults" \
+$cli report "$untuned" -o docs/untuned --no-paper --label "tasks nobody here tuned for, the package defaults" \
     --discussion docs/untuned_discussion.md --force

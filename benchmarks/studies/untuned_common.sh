@@ -1,0 +1,17 @@
+# Sourced by the studies of tasks nobody here tuned for (untuned_task.sh, untuned_pendulum.sh): the
+# repository root, the command, the runs folder, and the demo pool of a published RL Zoo agent.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/../.."
+zoo=${ZOO:-rl-trained-agents}
+untuned=results/untuned
+workers=${WORKERS:-2}
+cli=${SB3_CMZDRIL:-sb3-cmzdril}
+
+# record_pool ENV_ID: the zoo's A2C agent's 30 deterministic episodes (reset seeds 0-29) into
+# results/untuned/ENV_ID/demos.npz; an existing pool is kept.
+record_pool() {
+    local pool=$untuned/$1/demos.npz
+    if [ ! -f "$pool" ]; then
+        $cli collect-demos --expert "$zoo/a2c/${1}_1" --env "$1" --episodes 30 --seed 0 -o "$pool"
+    fi
+}
