@@ -78,6 +78,7 @@ def test_a_task_without_a_positive_expert_does_not_set_the_trials_the_others_nee
     np.testing.assert_allclose(scores.by_method["bc"], _by_hand(0))
     assert scores.left_out == ("Pendulum-v1 BC: no positive expert mean",)
 
+
 def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_values(tmp_path):
     result = agg.aggregate(agg.score_matrix(_grid(tmp_path)))
     bc = _by_hand(0).ravel()

@@ -187,11 +187,11 @@ SAC_UNCLIPPED_LABEL = ("the same, with u on the ensemble members' actions unclip
 CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
-#: PPO's CMZ-DRIL with the absorbing state charged at the u of the observation the episode ended in
 #: PPO's CMZ-DRIL with u on the members' actions as they are: the expert of WaypointNav-v0, LunarLander-v3 and
 #: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
 PPO_UNCLIPPED = "--set disagreement=std_unclipped"
 PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
+#: PPO's CMZ-DRIL with the absorbing state charged at the u of the observation the episode ended in
 PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
 PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
                       "`absorbing_score: terminal`)")
@@ -452,17 +452,18 @@ def pendulum_rows(method: str, label: str, name: str, sets: str, methods: str) -
                           method=method)
 
 
-def pendulum_defaults(method: str, trials: str) -> Variant:
-    """``method``'s runs of Pendulum-v1 with the package defaults (its `default` entry), results/untuned."""
+def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
+    """``method``'s runs of Pendulum-v1 with the package defaults (its `default` entry), results/untuned, made
+    with ``--methods methods --trials trials``."""
     return Variant(PENDULUM, method, f"{METHOD_LABELS[method]}, package defaults (the `default` entry)",
-                   "results/untuned", f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {method} --trials {trials} "
+                   "results/untuned", f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {methods} --trials {trials} "
                    f"{PENDULUM_RUN} -o results/untuned")
 
 
 PENDULUM_ROWS: tuple[Variant, ...] = (
-    pendulum_defaults("bc", "0-9"),
-    pendulum_defaults("cmz", "0-4"),
-    pendulum_defaults("env", "0-4"),
+    pendulum_defaults("bc", "bc", "0-9"),
+    pendulum_defaults("cmz", "cmz,env", "0-4"),
+    pendulum_defaults("env", "cmz,env", "0-4"),
     *(row for method in ("bc", "cmz", "env")
       for row in pendulum_rows(method, PENDULUM_ZOO_LABEL, "P-zoo-ppo", PENDULUM_ZOO_PPO, "bc,cmz,env")),
     *(row for method in ("cmz", "dril")
