@@ -88,8 +88,8 @@ class CMZDRIL(PPO):
         statistic of DRIL's threshold), so that every state beyond it costs the same and a few
         far-off states cannot dominate the reward (``CMZReward(u_max=...)``); None (the paper) does
         not clip.
-    :param disagreement: ``"std"``, ``"quadratic"`` or ``"std_unclipped"`` (Box actions; see
-        :mod:`sb3_cmzdril.ensemble`).
+    :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"``
+        (unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members (paper/DRIL: 5).
     :param ensemble_hidden: hidden layer widths of each member.
     :param ensemble_epochs: epochs of ensemble fitting.

@@ -122,8 +122,8 @@ class CMZDRILSAC(SAC):
     :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (None:
         no clip). Clipped, the reward is bounded as DRIL's is, and so is the absorbing state's value
         (the reward at the highest u seen, for ever): unclipped, one far-off state sets it.
-    :param disagreement: ``"std"``, ``"quadratic"`` or ``"std_unclipped"`` (Box actions; see
-        :mod:`sb3_cmzdril.ensemble`).
+    :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"``
+        (unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members.
     :param ensemble_hidden: hidden layer widths of each member.
     :param ensemble_epochs: epochs of ensemble fitting.

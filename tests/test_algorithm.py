@@ -433,6 +433,25 @@ def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(
     assert loaded.reward_rule.u_max == model.cmz_u_max
 
 
+def test_auto_disagreement_chooses_from_the_demonstrations_and_survives_save_load(pendulum_demos, tmp_path):
+    # A bang-bang expert (every action on a bound) gets u on the members' unclipped actions.
+    bang_bang = Demonstrations(pendulum_demos.observations, np.where(pendulum_demos.actions >= 0, 2.0, -2.0),
+                               pendulum_demos.episode_lengths)
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=bang_bang, disagreement="auto", **TINY)
+    model.pretrain()
+    assert model.ensemble.disagreement_form == "std_unclipped"
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRIL.load(tmp_path / "m.zip")
+    assert loaded.disagreement == "auto" and loaded.ensemble.disagreement_form == "std_unclipped"
+    far = pendulum_demos.observations[:4] * 50.0
+    np.testing.assert_array_equal(loaded.ensemble.disagreement(far), model.ensemble.disagreement(far))
+    inside = Demonstrations(pendulum_demos.observations, np.clip(pendulum_demos.actions, -1.9, 1.9),
+                            pendulum_demos.episode_lengths)
+    smooth = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=inside, disagreement="auto", **TINY)
+    smooth.pretrain()
+    assert smooth.ensemble.disagreement_form == "std"
+
+
 def test_cmz_clip_at_zero_disagreement_names_the_option(pendulum_demos, monkeypatch):
     # an ensemble agreeing exactly on most demo steps puts the quantile at 0: every state would score alike
     monkeypatch.setattr("sb3_cmzdril.imitation.quantile_of_disagreement", lambda *args: 0.0)

@@ -88,6 +88,45 @@ def test_members_past_a_bound_agree_when_clipped_and_not_unclipped(linear_demos,
     assert np.all(unclipped.disagreement(far) > 0.1)
 
 
+def _on_bound(linear_demos: Demonstrations, n_entries: int) -> Demonstrations:
+    """The demos in (-1, 1) with the first ``n_entries`` action entries set to a bound."""
+    actions = np.clip(linear_demos.actions, -0.99, 0.99).copy()
+    flat = actions.reshape(-1)
+    flat[:n_entries] = np.where(np.arange(n_entries) % 2 == 0, 1.0, -1.0)
+    return Demonstrations(linear_demos.observations, actions, [200, 200])
+
+
+@pytest.mark.parametrize("n_entries, form", [(0, "std"), (7, "std"), (8, "std_unclipped"), (800, "std_unclipped")])
+def test_auto_leaves_actions_unclipped_from_one_percent_of_entries_on_a_bound(linear_demos, n_entries, form):
+    # 400 steps x 2 dimensions: 8 entries are 1%.
+    ens = BCEnsemble(OBS, NARROW, 3, (8,), disagreement="auto", seed=0)
+    assert ens.disagreement_form == "std"  # before fit() has seen the demonstrations
+    ens.fit(_on_bound(linear_demos, n_entries), n_epochs=1)
+    assert ens.disagreement_form == form
+    assert f"disagreement='auto' (-> '{form}')" in repr(ens)
+
+
+def test_auto_scores_as_the_form_it_chose_and_keeps_it_through_save_and_load(linear_demos, tmp_path):
+    saturated = Demonstrations(linear_demos.observations, np.clip(3.0 * linear_demos.actions, -1.0, 1.0), [200, 200])
+    auto, unclipped = (BCEnsemble(OBS, NARROW, 4, (16,), disagreement=form, seed=2).fit(saturated, n_epochs=5)
+                       for form in ("auto", "std_unclipped"))
+    far = np.tile(np.array([[30.0, -30.0, 30.0]], np.float32), (8, 1))
+    np.testing.assert_array_equal(auto.disagreement(far), unclipped.disagreement(far))
+    auto.save(tmp_path / "auto.pt")
+    back = BCEnsemble.load(tmp_path / "auto.pt")
+    assert (back.requested_disagreement, back.disagreement_form) == ("auto", "std_unclipped")
+    np.testing.assert_array_equal(back.disagreement(far), unclipped.disagreement(far))
+    fresh = BCEnsemble(OBS, NARROW, 4, (16,), disagreement="auto", seed=2)
+    fresh.load_state_dict(auto.state_dict())
+    assert fresh.disagreement_form == "std_unclipped"
+
+
+def test_auto_is_the_std_form_for_discrete_actions(cartpole_demos):
+    # Its actions are 0 and 1, the first and last of the space: "on a bound" means a Box's bounds only.
+    ens = BCEnsemble(spaces.Box(-np.inf, np.inf, (4,), np.float32), spaces.Discrete(2), 3, (8,), disagreement="auto")
+    assert ens.fit(cartpole_demos, n_epochs=1).disagreement_form == "std"
+
+
 def test_the_unclipped_form_needs_box_actions():
     with pytest.raises(ValueError, match="disagreement='std_unclipped' needs Box actions"):
         BCEnsemble(OBS, spaces.Discrete(3), disagreement="std_unclipped")
