@@ -76,8 +76,10 @@ from sb3_cmzdril.spaces import (
 )
 
 DISAGREEMENT_FORMS = ("std", "quadratic", "std_unclipped", "auto")
-#: ``disagreement="auto"`` takes the unclipped form from this share of action entries on a bound up
-#: (the pools of the clipped experts measured hold 4-57%, the SAC and TQC experts' pools none).
+#: ``disagreement="auto"`` takes the unclipped form from this share of action entries on a bound up: enough
+#: for the members to learn to push past the bound, and far above what float32's rounding of a tanh
+#: gives a SAC expert (benchmarks/studies/bound_share.py: one episode of the clipping experts at hand holds
+#: 0.5-57%, the SAC and TQC experts' pools none).
 AUTO_UNCLIPPED_SHARE = 0.01
 # Up to this batch size numpy (no dispatch overhead) is faster; above it torch's batched matmul
 # is (numpy's float32 matmul ran at ~1 GFLOP/s here: 40 ms per layer for 2048 observations,
@@ -327,14 +329,7 @@ class BCEnsemble(nn.Module):
         return self
 
     def _holds_a_bound(self, actions: np.ndarray) -> bool:
-        """Whether at least AUTO_UNCLIPPED_SHARE of the action entries lie on a bound (Box only)."""
-        if self.action_kind != "box" or not len(actions):
-            return False
-        # Exactly on it, in the space's float32: a clipping expert lands there; a tanh-squashed one
-        # only where float32 rounds tanh to 1.
-        a = np.asarray(actions, np.float32).reshape(len(actions), -1)
-        on = (a == self.action_low.cpu().numpy()) | (a == self.action_high.cpu().numpy())
-        return bool(on.mean() >= AUTO_UNCLIPPED_SHARE)
+        return share_on_bound(actions, self.action_space) >= AUTO_UNCLIPPED_SHARE
 
     def _resolve_auto(self) -> None:
         if self.requested_disagreement == "auto":
@@ -559,6 +554,19 @@ class BCEnsemble(nn.Module):
             f"disagreement={self.requested_disagreement!r}"
             + (f" (-> {self.disagreement_form!r})" if self.requested_disagreement == "auto" else "")
         )
+
+
+def share_on_bound(actions: np.ndarray, action_space: spaces.Space) -> float:
+    """The share of the entries of ``actions`` that sit exactly on a bound of a Box ``action_space`` (0 for
+    any other space, and for no actions): what ``disagreement="auto"`` reads."""
+    if not isinstance(action_space, spaces.Box) or not len(actions):
+        return 0.0
+    # Exactly on it, in float32: a clipping expert lands there; a tanh-squashed one only where float32
+    # rounds tanh to 1. An unbounded side (inf) is never met.
+    a = np.asarray(actions, np.float32).reshape(len(actions), -1)
+    low = np.asarray(action_space.low, np.float32).reshape(-1)
+    high = np.asarray(action_space.high, np.float32).reshape(-1)
+    return float(np.mean((a == low) | (a == high)))
 
 
 def _config_spaces(cfg: dict[str, Any]) -> tuple[spaces.Space, spaces.Space]:

@@ -7,7 +7,7 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement, share_on_bound
 
 OBS = spaces.Box(-np.inf, np.inf, (3,), np.float32)
 # Wide bounds: clipping would flatten members' predictions far from the data and hide disagreement.
@@ -119,6 +119,14 @@ def test_auto_scores_as_the_form_it_chose_and_keeps_it_through_save_and_load(lin
     fresh = BCEnsemble(OBS, NARROW, 4, (16,), disagreement="auto", seed=2)
     fresh.load_state_dict(auto.state_dict())
     assert fresh.disagreement_form == "std_unclipped"
+
+
+def test_share_on_bound_counts_entries_exactly_on_a_finite_bound():
+    half_open = spaces.Box(np.array([-1.0, -np.inf], np.float32), np.array([1.0, 2.0], np.float32))
+    actions = np.array([[1.0, 2.0], [-1.0, -5.0], [0.999999, 1e30], [0.0, 2.0 - 1e-6]], np.float32)
+    assert share_on_bound(actions, half_open) == 3 / 8  # 0.999999 and 2 - 1e-6 are off it in float32
+    assert share_on_bound(actions[:0], half_open) == 0.0
+    assert share_on_bound(np.array([0, 2, 2]), spaces.Discrete(3)) == 0.0
 
 
 def test_auto_is_the_std_form_for_discrete_actions(cartpole_demos):
