@@ -84,6 +84,24 @@ def test_a_variant_limited_to_some_trials_counts_only_those(root):
     assert "| from ref, trial 7 | 0 | no finished runs |" in lines["from ref, trial 7"]
 
 
+def test_a_confirmation_row_of_the_reference_pairs_the_variants_on_its_trials(root):
+    # The reference's trials 5-6 live in another folder (90, 210); the variant's trials 5-6 (100, 200) are
+    # above it in 1 of 2; without the extension they would share no trial with the reference.
+    for trial, (theirs, mine) in zip((5, 6), ((90.0, 100.0), (210.0, 200.0)), strict=True):
+        write_run(root / "ref5", "cmz", trial, [1.0], env=ENV, final={"final": [theirs] * 2})
+        write_run(root / "var5", "cmz", trial, [1.0], env=ENV, final={"final": [mine] * 2})
+    confirmation = studies.Variant(ENV, "cmz", "ref, trials 5-6", "ref5", "pytest", extends_reference=True)
+    variant = studies.Variant(ENV, "cmz", "var, trials 5-6", "var5", "pytest")
+    text = studies.render(root, (*_variants("ref"), confirmation, variant))
+    lines = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
+    assert lines["ref, trials 5-6"].endswith("| reference | 0 of 0 | — |")
+    assert lines["var, trials 5-6"].endswith("| 1 of 2 | 0 of 0 | — |")
+    plain = studies.render(root, (*_variants("ref"), studies.Variant(ENV, "cmz", "ref, trials 5-6", "ref5", "pytest"),
+                                  variant))
+    assert next(line for line in plain.splitlines() if line.startswith("| var, trials 5-6")).endswith(
+        "| 0 of 0 | 0 of 0 | — |")
+
+
 def test_the_reward_free_choice_is_paired_with_bc_and_dril_by_hand(root):
     # The variant's lowest-u policies: 130 and 90 (trials 0-1); the grid's BC 120 in every trial, its DRIL
     # 100 (trial 0) and 80 (trial 1): the choice is above BC in 1 of 2 and above DRIL in 2 of 2.

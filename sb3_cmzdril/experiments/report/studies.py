@@ -63,6 +63,9 @@ class Variant:
     trials: tuple[int, ...] | None = None
     #: the policy an ablation row shows as its final one ("averaged": the same runs' averaged policy)
     policy: str = "final"
+    #: more trials of the env's reference (its first variant), e.g. the confirmation trials 5-9: every
+    #: other row of the env is paired with the reference's runs on the trials it has, these included
+    extends_reference: bool = False
 
 
 
@@ -228,11 +231,23 @@ def above_reference(row: FinalRow, reference: FinalRow) -> str:
     return f"{sum(mine[t] > theirs[t] for t in shared)} of {len(shared)}"
 
 
-def paired_cell(row: FinalRow, reference: FinalRow | None) -> str:
-    """A variant's paired count against its env's reference: "reference" for the reference itself."""
-    if row is reference:
+def paired_cell(row: FinalRow, reference: FinalRow | None, is_reference: bool) -> str:
+    """A variant's paired count against its env's reference: "reference" for the reference's own rows."""
+    if is_reference:
         return "reference"
     return "no reference runs" if reference is None else above_reference(row, reference)
+
+
+def reference_row(variants: list[Variant], rows: list[dict[str, FinalRow | None]]) -> FinalRow | None:
+    """The env's reference: its first variant's runs, with the trials of the variants that extend it."""
+    runs: dict[int, RunRecord] = {}
+    for variant, row in zip(variants, rows, strict=True):
+        final = row[variant.policy]
+        if final is not None and (variant is variants[0] or variant.extends_reference):
+            for run in final.runs:
+                runs.setdefault(run.trial, run)
+    first = variants[0]
+    return FinalRow(first.env, first.method, "final", [runs[t] for t in sorted(runs)]) if runs else None
 
 
 def chosen_against(chosen: FinalRow, baselines: dict[str, FinalRow | None]) -> str:
@@ -265,7 +280,7 @@ def ablation_markdown(
     for env in dict.fromkeys(v.env for v in ablations):
         variants = [v for v in ablations if v.env == env]
         rows = [variant_rows(v, root, skipped) for v in variants]
-        reference = rows[0]["final"]
+        reference = reference_row(variants, rows)
         baselines = {m: baseline_row(env, m, grid, root) for m in ("bc", "dril")}
         body = []
         for variant, row in zip(variants, rows, strict=True):
@@ -285,7 +300,7 @@ def ablation_markdown(
                 "—" if lowest is None else fmt_ci(*lowest.stat("pct_of_expert")) + chosen_against(lowest, baselines),
                 fmt(window_return(final)),
                 cpu_minutes(final),
-                paired_cell(final, reference),
+                paired_cell(final, reference, variant is variants[0] or variant.extends_reference),
                 *against,
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
