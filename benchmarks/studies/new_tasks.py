@@ -105,7 +105,9 @@ OUTSIDE_TRIALS5_9 = "results/outside_env_trials5-9"
 OUTSIDE_TRIALS5_9_COMMAND = ("sb3-cmzdril benchmark --env LunarLander-v3 --methods bc,dril,cmz --trials 5-9 "
                              "--eval-every 5 --workers 2 --no-progress --hyperparams "
                              f"benchmarks/studies/outside_env.yml --demos-dir {OUTSIDE} -o {OUTSIDE_TRIALS5_9}")
-BASELINES = (GRID, BC_TRIALS10, DRIL_TRIALS5_9, CMZ_TRIALS5_9, OUTSIDE, OUTSIDE_TRIALS5_9)
+#: the tasks nobody here tuned for (benchmarks/studies/untuned_task.sh): their BC and DRIL with the package defaults
+UNTUNED = "results/untuned"
+BASELINES = (GRID, BC_TRIALS10, DRIL_TRIALS5_9, CMZ_TRIALS5_9, OUTSIDE, OUTSIDE_TRIALS5_9, UNTUNED)
 CONFIRMATION_TRIALS = (5, 6, 7, 8, 9)
 
 
@@ -124,7 +126,7 @@ def cmz_confirmation(env: str) -> Variant:
     """The grid's CMZ-DRIL (package defaults) on ``env``'s confirmation trials 5-9."""
     demos = ", 3 demonstrations" if env == "LunarLander-v3" else ""
     return Variant(env, "cmz", f"package defaults{demos}: trials 5-9 (the confirmation)",
-                   *confirmation_runs(env, "cmz"), trials=CONFIRMATION_TRIALS)
+                   *confirmation_runs(env, "cmz"), trials=CONFIRMATION_TRIALS, extends_reference=True)
 
 
 def bc_confirmation(env: str) -> Variant:
@@ -341,9 +343,10 @@ def critic_warmup(env: str, trials: tuple[int, ...], named_trials: str, note: st
     return sac_tuning(env, CRITIC_WARMUP_RUNS[env], WARMUP, CRITIC_WARMUP_LABEL, trials, named_trials, note, workers)
 
 
-def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers: int = 2, eval_every: int = 5) -> str:
+def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers: int = 2, eval_every: int = 5,
+                 methods: str = "cmz") -> str:
     """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
-    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods cmz --trials {trials} "
+    return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods {methods} --trials {trials} "
             f"--timesteps 300000 --eval-every {eval_every} --workers {workers}")
 
 
@@ -456,8 +459,8 @@ def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
     """``method``'s runs of Pendulum-v1 with the package defaults (its `default` entry), results/untuned, made
     with ``--methods methods --trials trials``."""
     return Variant(PENDULUM, method, f"{METHOD_LABELS[method]}, package defaults (the `default` entry)",
-                   "results/untuned", f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {methods} --trials {trials} "
-                   f"{PENDULUM_RUN} -o results/untuned")
+                   UNTUNED, f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {methods} --trials {trials} "
+                   f"{PENDULUM_RUN} -o {UNTUNED}")
 
 
 PENDULUM_ROWS: tuple[Variant, ...] = (
@@ -469,6 +472,19 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
     *(row for method in ("cmz", "dril")
       for row in pendulum_rows(method, PENDULUM_UNCLIPPED_LABEL, "P-zoo-ppo-unclipped",
                                f"{PENDULUM_ZOO_PPO} {PPO_UNCLIPPED}", "cmz,dril")),
+)
+
+#: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's
+#: A2C) holds a bound in over half its action entries, so the unclipped u is what `disagreement: auto` would take
+BIPEDAL = "BipedalWalker-v3"
+BIPEDAL_ROWS: tuple[Variant, ...] = (
+    Variant(BIPEDAL, "cmz", "package defaults (the `default` entry)", UNTUNED,
+            "bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env BipedalWalker-v3 --methods "
+            "bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir "
+            f"{UNTUNED} -o {UNTUNED}"),
+    *tuning_rows(BIPEDAL, PPO_UNCLIPPED_LABEL, "BW-unclipped",
+                 tune_command("BW-unclipped", PPO_UNCLIPPED, BIPEDAL, trials="0-4")
+                 + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,)),
 )
 
 #: The variants, reference first per env. Add a variant by adding a line.
@@ -591,8 +607,12 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
     *tuning_and_confirmation(SAC_UNCLIPPED_LABEL, "WN-sac-64-clip98-abs-terminal-unclipped", CLIP_TERMINAL_UNCLIPPED,
                              "WaypointNav-v0"),
-    Variant("WaypointNav-v0", "cmz", PPO_UNCLIPPED_LABEL, "results/tuning/WN-unclipped",
-            tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4") + " --no-progress"),
+    *tuning_rows("WaypointNav-v0", PPO_UNCLIPPED_LABEL, "WN-unclipped",
+                 tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4")
+                 + " --no-progress (trials 5-9: the same with --trials 5-9)"),
+    *trial_set_rows("WaypointNav-v0", f"DRIL, {PPO_UNCLIPPED_LABEL}", "results/tuning/WN-unclipped",
+                    tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4", methods="dril")
+                    + " --no-progress", firsts=(0,), method="dril"),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
     cmz_confirmation("LunarLander-v3"),
@@ -605,10 +625,10 @@ ABLATIONS: tuple[Variant, ...] = (
         f"python benchmarks/studies/tune.py LL-normrew --base benchmarks/studies/outside_env.yml {NORMREW} -- --env "
         "LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-9 --eval-every 5 --workers 2 "
         "--no-progress"),
-    Variant("LunarLander-v3", "cmz", f"{PPO_UNCLIPPED_LABEL}, 3 demonstrations", "results/tuning/LL-unclipped",
-            f"python benchmarks/studies/tune.py LL-unclipped --base benchmarks/studies/outside_env.yml {PPO_UNCLIPPED} "
-            "-- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-4 --eval-every 5 "
-            "--workers 2 --no-progress"),
+    *tuning_rows("LunarLander-v3", f"{PPO_UNCLIPPED_LABEL}, 3 demonstrations", "LL-unclipped",
+                 f"python benchmarks/studies/tune.py LL-unclipped --base benchmarks/studies/outside_env.yml "
+                 f"{PPO_UNCLIPPED} -- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-4 "
+                 "--eval-every 5 --workers 2 --no-progress (trials 5-9: the same with --trials 5-9)"),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
             offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
     Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
@@ -620,6 +640,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/offpolicy/LL-sac-64-clip98-abs-terminal-unclipped-warmup10k",
             offpolicy_command("LL-sac-64-clip98-abs-terminal-unclipped-warmup10k", "LunarLander-v3",
                               f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED} {WARMUP}")),
+    *BIPEDAL_ROWS,
     *PENDULUM_ROWS,
 )
 
