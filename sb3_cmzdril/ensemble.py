@@ -323,13 +323,11 @@ class BCEnsemble(nn.Module):
         with th.no_grad():
             self.fitted.fill_(1.0)
             if self.requested_disagreement == "auto":
-                self.unclipped.fill_(float(self._holds_a_bound(demos.actions)))
+                chosen = auto_disagreement_form(demos.actions, self.action_space)
+                self.unclipped.fill_(float(chosen == "std_unclipped"))
         self._resolve_auto()
         self._np_cache = None
         return self
-
-    def _holds_a_bound(self, actions: np.ndarray) -> bool:
-        return share_on_bound(actions, self.action_space) >= AUTO_UNCLIPPED_SHARE
 
     def _resolve_auto(self) -> None:
         if self.requested_disagreement == "auto":
@@ -567,6 +565,11 @@ def share_on_bound(actions: np.ndarray, action_space: spaces.Space) -> float:
     low = np.asarray(action_space.low, np.float32).reshape(-1)
     high = np.asarray(action_space.high, np.float32).reshape(-1)
     return float(np.mean((a == low) | (a == high)))
+
+
+def auto_disagreement_form(actions: np.ndarray, action_space: spaces.Space) -> str:
+    """The form ``disagreement="auto"`` takes for demonstrations with these ``actions``."""
+    return "std_unclipped" if share_on_bound(actions, action_space) >= AUTO_UNCLIPPED_SHARE else "std"
 
 
 def _config_spaces(cfg: dict[str, Any]) -> tuple[spaces.Space, spaces.Space]:

@@ -24,14 +24,10 @@ import gymnasium as gym
 
 from sb3_cmzdril.cli.experiment import trial_indices
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, share_on_bound
+from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, auto_disagreement_form, share_on_bound
 from sb3_cmzdril.experiments.run.runs import check_env_id, default_demos_path, load_run_hyperparams, split_episodes
 
 MUJOCO_AND_GRID = "HalfCheetah-v5,Hopper-v5,Walker2d-v5,Swimmer-v5,sb3_cmzdril:WaypointNav-v0"
-
-
-def auto_form(share: float) -> str:
-    return "std_unclipped" if share >= AUTO_UNCLIPPED_SHARE else "std"
 
 
 def describe(env_id: str, trials: list[int], hyperparams: str, demos_dir: str) -> str:
@@ -48,9 +44,10 @@ def describe(env_id: str, trials: list[int], hyperparams: str, demos_dir: str) -
     n_demos = int(settings.get("n_demos", 1))
     for trial in trials:
         train_idx, _ = split_episodes(pool.n_episodes, n_demos, 5, trial)
-        share = share_on_bound(pool.select(train_idx).actions, space)
-        lines.append(f"  trial {trial}: {n_demos} training episode(s) {list(train_idx)}, {share:.2%} on a bound, "
-                     f"disagreement='auto' takes {auto_form(share)!r}")
+        actions = pool.select(train_idx).actions
+        lines.append(f"  trial {trial}: {n_demos} training episode(s) {list(train_idx)}, "
+                     f"{share_on_bound(actions, space):.2%} on a bound, "
+                     f"disagreement='auto' takes {auto_disagreement_form(actions, space)!r}")
     return "\n".join(lines)
 
 

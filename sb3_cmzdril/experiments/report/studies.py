@@ -238,16 +238,13 @@ def paired_cell(row: FinalRow, reference: FinalRow | None, is_reference: bool) -
     return "no reference runs" if reference is None else above_reference(row, reference)
 
 
-def reference_row(variants: list[Variant], rows: list[dict[str, FinalRow | None]]) -> FinalRow | None:
-    """The env's reference: its first variant's runs, with the trials of the variants that extend it."""
+def merged_row(env: str, method: str, parts: list[FinalRow | None]) -> FinalRow | None:
+    """The runs of ``parts`` as one final row, merged by trial: a trial comes from the first part that has it."""
     runs: dict[int, RunRecord] = {}
-    for variant, row in zip(variants, rows, strict=True):
-        final = row[variant.policy]
-        if final is not None and (variant is variants[0] or variant.extends_reference):
-            for run in final.runs:
-                runs.setdefault(run.trial, run)
-    first = variants[0]
-    return FinalRow(first.env, first.method, "final", [runs[t] for t in sorted(runs)]) if runs else None
+    for part in parts:
+        for run in [] if part is None else part.runs:
+            runs.setdefault(run.trial, run)
+    return FinalRow(env, method, "final", [runs[t] for t in sorted(runs)]) if runs else None
 
 
 def chosen_against(chosen: FinalRow, baselines: dict[str, FinalRow | None]) -> str:
@@ -261,12 +258,8 @@ def chosen_against(chosen: FinalRow, baselines: dict[str, FinalRow | None]) -> s
 def baseline_row(env: str, method: str, folders: tuple[str, ...], root: Path) -> FinalRow | None:
     """The final rows of ``method`` in ``folders``, merged by trial: a trial comes from the first
     folder that has it (the published grid first; later folders add trials it lacks)."""
-    runs: dict[int, RunRecord] = {}
-    for folder in folders:
-        row = variant_rows(Variant(env, method, method, folder, ""), root, [])["final"]
-        for run in [] if row is None else row.runs:
-            runs.setdefault(run.trial, run)
-    return FinalRow(env, method, "final", [runs[t] for t in sorted(runs)]) if runs else None
+    return merged_row(env, method, [variant_rows(Variant(env, method, method, folder, ""), root, [])["final"]
+                                    for folder in folders])
 
 
 def ablation_markdown(
@@ -280,10 +273,13 @@ def ablation_markdown(
     for env in dict.fromkeys(v.env for v in ablations):
         variants = [v for v in ablations if v.env == env]
         rows = [variant_rows(v, root, skipped) for v in variants]
-        reference = reference_row(variants, rows)
+        is_reference = [i == 0 or v.extends_reference for i, v in enumerate(variants)]
+        # The reference: the first variant's runs, with the trials of the variants that extend it.
+        reference = merged_row(env, variants[0].method, [row[v.policy] for v, row, ref
+                                                         in zip(variants, rows, is_reference, strict=True) if ref])
         baselines = {m: baseline_row(env, m, grid, root) for m in ("bc", "dril")}
         body = []
-        for variant, row in zip(variants, rows, strict=True):
+        for variant, row, own in zip(variants, rows, is_reference, strict=True):
             final, lowest = row[variant.policy], row["lowest_u"] or row["longest"]
             if final is None:
                 body.append([variant.label, "0", "no finished runs"] + [""] * 8)
@@ -300,7 +296,7 @@ def ablation_markdown(
                 "—" if lowest is None else fmt_ci(*lowest.stat("pct_of_expert")) + chosen_against(lowest, baselines),
                 fmt(window_return(final)),
                 cpu_minutes(final),
-                paired_cell(final, reference, variant is variants[0] or variant.extends_reference),
+                paired_cell(final, reference, own),
                 *against,
             ])
         parts.append(f"### {env}, {METHOD_LABELS[variants[0].method]}\n\n" + md_table(
