@@ -595,6 +595,20 @@ def test_a_published_run_folder_is_still_the_same_run():
         check_finished(dataclasses.replace(spec, seed=1))
 
 
+def test_an_env_id_with_its_module_prefix_names_the_same_run(tmp_path):
+    """gymnasium's ``module:Env-v0`` is ``Env-v0`` once the module is imported: a run asked either way is the
+    run in the folder; another env id, or another run's identity, still refuses."""
+    from sb3_cmzdril.experiments.run.run_folder import check_same_run
+
+    saved = {"env_id": "WaypointNav-v0", "method": "cmz", "seed": 3}
+    check_same_run(tmp_path, saved, {**saved, "env_id": "sb3_cmzdril:WaypointNav-v0"})
+    check_same_run(tmp_path, {**saved, "env_id": "sb3_cmzdril:WaypointNav-v0"}, saved)
+    with pytest.raises(ValueError, match="env_id: 'WaypointNav-v0' there, 'sb3_cmzdril:Other-v0' now"):
+        check_same_run(tmp_path, saved, {**saved, "env_id": "sb3_cmzdril:Other-v0"})
+    with pytest.raises(ValueError, match="seed: 3 there, 4 now"):
+        check_same_run(tmp_path, saved, {**saved, "env_id": "sb3_cmzdril:WaypointNav-v0", "seed": 4})
+
+
 def test_grid_module_names():
     assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz", "cmz-sac")
     assert grid.parse_list("cmz, bc,cmz,,") == ["cmz", "bc"]

@@ -324,11 +324,22 @@ def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(jsonable(dict(config))))
 
 
+def _identity_value(key: str, value: Any) -> Any:
+    if key == "env_id" and isinstance(value, str):
+        return value.rpartition(":")[2]
+    return value
+
+
 def check_same_run(
     out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run"
 ) -> None:
-    """ValueError naming each identity entry in which the folder's run and the asked one differ."""
-    differing = [k for k in _IDENTITY_KEYS if k in saved and saved.get(k) != fresh.get(k)]
+    """ValueError naming each identity entry in which the folder's run and the asked one differ.
+
+    An env id is compared without its ``module:`` prefix: gymnasium's ``module:Env-v0`` imports the module
+    and makes ``Env-v0``, the same env as ``Env-v0`` made after that import.
+    """
+    differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved.get(k))
+                 != _identity_value(k, fresh.get(k))]
     if differing:
         diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
         raise UserError(
