@@ -28,23 +28,33 @@ ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python benchmarks/studies/new_tasks.py --force"
 #: the BC and DRIL runs every ablation is paired with: the published grid (trials 0-4), then trials 5-9 for
 #: the confirmation of the variants (BC on the four MuJoCo tasks and WaypointNav-v0 by :func:`bc_trials10_command`,
-#: whose trials 0-4 repeat the grid's exactly; DRIL on the four MuJoCo tasks by :data:`DRIL_TRIALS5_9_COMMANDS`)
+#: whose trials 0-4 repeat the grid's exactly; DRIL on the four MuJoCo tasks and WaypointNav-v0 by
+#: :data:`DRIL_TRIALS5_9_COMMANDS`)
 DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
 NORMREW_LABEL = "reward normalisation (VecNormalize norm_reward)"
 ABS_NORMREW = "--set absorbing=auto " + NORMREW
+#: PPO's CMZ-DRIL with u on the members' actions as they are: the expert of WaypointNav-v0, LunarLander-v3 and
+#: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
+PPO_UNCLIPPED = "--set disagreement=std_unclipped"
+PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
 #: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
-#: reward normalisation, HalfCheetah-v5's reward normalisation): the tune.py runs folder and its --set flags. Their
-#: runs of every method were made by that command and moved into the grid's folders when it became the entry.
-ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew", ABS_NORMREW), "HalfCheetah-v5": ("HC-normrew", NORMREW)}
+#: reward normalisation, HalfCheetah-v5's reward normalisation, WaypointNav-v0's unclipped u): the tune.py runs
+#: folder and its --set flags. Their runs of every method were made by that command and moved into the grid's
+#: folders when it became the entry.
+ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew", ABS_NORMREW), "HalfCheetah-v5": ("HC-normrew", NORMREW),
+                  "WaypointNav-v0": ("WN-unclipped", PPO_UNCLIPPED)}
 #: where those tasks' runs of the entry before moved: the grid's trials 0-4, then trials 5-9 (and BC's trials 0-9)
 ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"),
-                "HalfCheetah-v5": ("results/tuning/HC-no-normrew", "results/tuning/HC-no-normrew-trials5-9")}
+                "HalfCheetah-v5": ("results/tuning/HC-no-normrew", "results/tuning/HC-no-normrew-trials5-9"),
+                "WaypointNav-v0": ("results/tuning/WN-clipped", "results/tuning/WN-clipped-trials5-9")}
 WALKER_BEFORE, WALKER_BEFORE_TRIALS5_9 = ENTRY_BEFORE["Walker2d-v5"]
 #: what each entry is, as its rows name it
-ENTRY_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation", "HalfCheetah-v5": "reward normalisation"}
+ENTRY_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation", "HalfCheetah-v5": "reward normalisation",
+                "WaypointNav-v0": "u on the ensemble members' actions unclipped"}
 BEFORE_LABELS = {"Walker2d-v5": "no absorbing state, no reward normalisation",
-                 "HalfCheetah-v5": "no reward normalisation"}
+                 "HalfCheetah-v5": "no reward normalisation",
+                 "WaypointNav-v0": "u on the members' actions clipped to the action bounds"}
 
 
 #: the grid's other RL methods on those tasks, whose rows the entry changed too
@@ -63,7 +73,7 @@ def walker_entry(methods: str, trials: str, moved_to: str) -> str:
     return entry_command("Walker2d-v5", methods, trials, f"moved to {moved_to}")
 
 
-#: where HalfCheetah-v5's runs of DRIL's and BC's trials 0-9, one command each, went
+#: where the runs of trials 0-9 of one command (HalfCheetah-v5's DRIL and BC, WaypointNav-v0's BC) went
 CHEETAH_TEN = "trials 0-4 moved to results/runs, 5-9 to {}"
 
 
@@ -80,11 +90,12 @@ DRIL_TRIALS5_9_COMMANDS = {
     "HalfCheetah-v5": entry_command("HalfCheetah-v5", "dril", "0-9", CHEETAH_TEN.format(DRIL_TRIALS5_9)),
     "Hopper-v5": dril_trials5_9_grid("Hopper-v5"),
     "Swimmer-v5": DRIL_TRIALS5_9_GRID,
+    "WaypointNav-v0": entry_command("WaypointNav-v0", "dril", "5-9", f"moved to {DRIL_TRIALS5_9}"),
 }
 OUTSIDE = "results/outside_env"  # LunarLander-v3's BC, CMZ-DRIL and no reward
 OUTSIDE_MADE_BY = "python benchmarks/studies/outside_env.py"
 BC_TRIALS10 = "results/runs_bc_trials10"
-#: the grid's CMZ-DRIL on the confirmation trials 5-9, and WaypointNav-v0's DRIL there
+#: the grid's CMZ-DRIL on the confirmation trials 5-9
 CMZ_TRIALS5_9 = "results/runs_cmz_trials5-9"
 #: the command that made Hopper-v5's runs there, and the entry before's of Walker2d-v5 and HalfCheetah-v5
 CMZ_TRIALS5_9_GRID = ("sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfCheetah-v5 --methods cmz --trials 5-9 "
@@ -96,10 +107,11 @@ CMZ_TRIALS5_9_COMMANDS = {
     "Swimmer-v5": ("sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz --trials 5-9 --timesteps 300000 "
                    "--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
                    f"-o {CMZ_TRIALS5_9}"),
-    "WaypointNav-v0": ("sb3-cmzdril benchmark --env sb3_cmzdril:WaypointNav-v0 --methods cmz,dril --trials 5-9 "
-                       "--timesteps 300000 --eval-every 1 --workers 2 --no-progress --hyperparams "
-                       f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9}"),
 }
+#: the command behind WaypointNav-v0's CMZ-DRIL and DRIL on trials 5-9 with the entry before
+WAYPOINT_TRIALS5_9_BEFORE = ("sb3-cmzdril benchmark --env sb3_cmzdril:WaypointNav-v0 --methods cmz,dril --trials 5-9 "
+                             "--timesteps 300000 --eval-every 1 --workers 2 --no-progress --hyperparams "
+                             f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9} (moved here)")
 #: LunarLander-v3's BC, DRIL and CMZ-DRIL on the confirmation trials 5-9, as the outside-env study ran trials 0-4
 OUTSIDE_TRIALS5_9 = "results/outside_env_trials5-9"
 OUTSIDE_TRIALS5_9_COMMAND = ("sb3-cmzdril benchmark --env LunarLander-v3 --methods bc,dril,cmz --trials 5-9 "
@@ -140,11 +152,11 @@ def dril_confirmation(env: str) -> Variant:
 
 
 def bc_trials10_command(env: str) -> str:
-    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10` (Walker2d-v5's and
-    HalfCheetah-v5's: 5-9, their trials 0-4 being the grid's)."""
+    """The command that made an env's BC runs of trials 0-9 in :data:`BC_TRIALS10` (Walker2d-v5's,
+    HalfCheetah-v5's and WaypointNav-v0's: 5-9, their trials 0-4 being the grid's)."""
     if env == "Walker2d-v5":
         return walker_entry("bc", "5-9", BC_TRIALS10)
-    if env == "HalfCheetah-v5":
+    if env in ENTRY_VARIANTS:
         return entry_command(env, "bc", "0-9", CHEETAH_TEN.format(BC_TRIALS10))
     return (f"sb3-cmzdril benchmark --env {env} --methods bc --trials 10 --timesteps 300000 --eval-every 5 "
             f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
@@ -189,10 +201,6 @@ SAC_UNCLIPPED_LABEL = ("the same, with u on the ensemble members' actions unclip
 CLONE = "--max-timesteps 0"
 CLONE_LABEL = ("CMZDRILSAC's clone alone: its actor after pretraining (64x64 ReLU, tanh-squashed, squared error on "
                "the demo's actions), no SAC step (`--max-timesteps 0`)")
-#: PPO's CMZ-DRIL with u on the members' actions as they are: the expert of WaypointNav-v0, LunarLander-v3 and
-#: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
-PPO_UNCLIPPED = "--set disagreement=std_unclipped"
-PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
 #: PPO's CMZ-DRIL with the absorbing state charged at the u of the observation the episode ended in
 PPO_TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
 PPO_TERMINAL_LABEL = ("absorbing state at the u of the observation the episode ended in (`absorbing: true`, "
@@ -397,7 +405,8 @@ def longest_rows(env: str, name: str, firsts: tuple[int, ...] = (0, 5)) -> tuple
                         command_trials="0-4", note=LONGEST_THEN if 5 in firsts else "")
 
 
-def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant, ...]:
+def entry_rows(env: str, cmz_made_by: str, before_made_by: str,
+               before_trials5_9_made_by: str = f"{CMZ_TRIALS5_9_GRID} (moved here)") -> tuple[Variant, ...]:
     """The rows of a task whose entry in hyperparams/cmzdril.yml changed (:data:`ENTRY_VARIANTS`): CMZ-DRIL with
     the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets."""
     before, before_trials5_9 = ENTRY_BEFORE[env]
@@ -406,17 +415,18 @@ def entry_rows(env: str, cmz_made_by: str, before_made_by: str) -> tuple[Variant
         Variant(env, "cmz", f"package defaults ({env}'s entry: {ENTRY_LABELS[env]})", "results/runs", cmz_made_by),
         cmz_confirmation(env),
         Variant(env, "cmz", f"{label}: trials 0-4", before, before_made_by),
-        Variant(env, "cmz", f"{label}: trials 5-9", before_trials5_9, f"{CMZ_TRIALS5_9_GRID} (moved here)"),
+        Variant(env, "cmz", f"{label}: trials 5-9", before_trials5_9, before_trials5_9_made_by),
     )
 
 
 def grid_entry_command(env: str, method: str) -> str:
     """The command behind ``env``'s grid runs (trials 0-4) of ``method`` with its entry."""
-    if env == "HalfCheetah-v5":
-        if method == "dril":
-            return DRIL_TRIALS5_9_COMMANDS[env]
-        return entry_command(env, "env,zero", "0-4", "moved to results/runs")
-    return walker_entry(method, "0-4", "results/runs")
+    if env == "Walker2d-v5":
+        return walker_entry(method, "0-4", "results/runs")
+    if env == "HalfCheetah-v5" and method == "dril":
+        return DRIL_TRIALS5_9_COMMANDS[env]
+    # PPO on the env's reward and with none were one command
+    return entry_command(env, "env,zero" if method in ("env", "zero") else method, "0-4", "moved to results/runs")
 
 
 def entry_others(env: str) -> tuple[Variant, ...]:
@@ -592,14 +602,14 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_rows("Swimmer-v5", NORMREW_LABEL, "S-normrew",
                  tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9") + " --no-progress"),
     *averaged_rows("Swimmer-v5", "S-avg75", firsts=(0,), command_trials="0-4"),
-    Variant("WaypointNav-v0", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
-    cmz_confirmation("WaypointNav-v0"),
-    bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    *tuning_rows("WaypointNav-v0", NORMREW_LABEL, "WN-normrew",
+    *entry_rows("WaypointNav-v0", entry_command("WaypointNav-v0", "cmz", "0-4", "moved to results/runs"),
+                f"{GRID_MADE_BY} (moved here)", WAYPOINT_TRIALS5_9_BEFORE),
+    bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1, before=True),
+    *tuning_rows("WaypointNav-v0", f"{NORMREW_LABEL}, with the entry before", "WN-normrew",
                  tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
                  + " --no-progress (trials 5-9: the same with --trials 5-9)"),
     *averaged_rows("WaypointNav-v0", "WN-avg75", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    Variant("WaypointNav-v0", "cmz", PPO_TERMINAL_LABEL, "results/tuning/WN-abs-terminal",
+    Variant("WaypointNav-v0", "cmz", f"{PPO_TERMINAL_LABEL}, with the entry before", "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
             offpolicy_command("WN-sac-64-clip98-auto", "WaypointNav-v0", CLIP_AUTO)),
@@ -607,12 +617,9 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
     *tuning_and_confirmation(SAC_UNCLIPPED_LABEL, "WN-sac-64-clip98-abs-terminal-unclipped", CLIP_TERMINAL_UNCLIPPED,
                              "WaypointNav-v0"),
-    *tuning_rows("WaypointNav-v0", PPO_UNCLIPPED_LABEL, "WN-unclipped",
-                 tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4")
-                 + " --no-progress (trials 5-9: the same with --trials 5-9)"),
-    *trial_set_rows("WaypointNav-v0", f"DRIL, {PPO_UNCLIPPED_LABEL}", "results/tuning/WN-unclipped",
-                    tune_command("WN-unclipped", PPO_UNCLIPPED, "WaypointNav-v0", trials="0-4", methods="dril")
-                    + " --no-progress", firsts=(0,), method="dril"),
+    *entry_others("WaypointNav-v0"),
+    Variant("WaypointNav-v0", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["WaypointNav-v0"][1],
+            WAYPOINT_TRIALS5_9_BEFORE, trials=CONFIRMATION_TRIALS),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
     cmz_confirmation("LunarLander-v3"),
@@ -866,7 +873,7 @@ ACROSS_PACKAGE_SAC = AcrossTasks(
         ("sac", "CMZ-DRIL (SAC), `cmz-sac`", tuple(package_cmz_sac_confirmation(env)
                                                     for env in PACKAGE_SAC_TASKS)),
         ("bc", "BC", tuple(bc_confirmation(env) for env in PACKAGE_SAC_TASKS)),
-        ("dril", "DRIL", tuple(dril_confirmation(env) for env in DRIL_TRIALS5_9_COMMANDS)),
+        ("dril", "DRIL", tuple(dril_confirmation(env) for env in PACKAGE_SAC_TASKS)),
     ),
     pairs=(("sac", "bc"), ("sac", "dril")),
     figure="new_tasks_across_package_sac_trials5-9.png",

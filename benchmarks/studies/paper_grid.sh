@@ -13,6 +13,11 @@
 # then DRIL and the env-reward bound. The MuJoCo envs evaluate every 5 PPO updates (a 5 x 1000-step
 # evaluation costs more than a training epoch there), WaypointNav-v0 after every update; each run ends
 # with a final evaluation of every pool episode it did not train on.
+#
+# Where a task's entry in hyperparams/cmzdril.yml changed after this grid ran (HalfCheetah-v5,
+# Walker2d-v5, WaypointNav-v0), its runs in results/runs are the ones the entry's study made (its
+# commands are in docs/new_tasks.md; WaypointNav-v0's evaluate every 5 updates); rerunning this
+# script skips them as finished.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 workers=${WORKERS:-2}
