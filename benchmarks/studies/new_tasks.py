@@ -636,6 +636,11 @@ ABLATIONS: tuple[Variant, ...] = (
                  f"python benchmarks/studies/tune.py LL-unclipped --base benchmarks/studies/outside_env.yml "
                  f"{PPO_UNCLIPPED} -- --env LunarLander-v3 --demos-dir results/outside_env --methods cmz --trials 0-4 "
                  "--eval-every 5 --workers 2 --no-progress (trials 5-9: the same with --trials 5-9)"),
+    *trial_set_rows("LunarLander-v3", f"DRIL, {PPO_UNCLIPPED_LABEL}, 3 demonstrations", "results/tuning/LL-unclipped",
+                    f"python benchmarks/studies/tune.py LL-unclipped --base benchmarks/studies/outside_env.yml "
+                    f"{PPO_UNCLIPPED} -- --env LunarLander-v3 --demos-dir results/outside_env --methods dril --trials "
+                    "0-4 --eval-every 5 --workers 2 --no-progress (trials 5-9: the same with --trials 5-9)",
+                    method="dril"),
     Variant("LunarLander-v3", "cmz", SAC_AUTO_LABEL, "results/offpolicy/LL-sac-64-clip98-auto",
             offpolicy_command("LL-sac-64-clip98-auto", "LunarLander-v3", f"{LUNAR_DATA} {CLIP_AUTO}")),
     Variant("LunarLander-v3", "cmz", SAC_TERMINAL_LABEL, "results/offpolicy/LL-sac-64-clip98-abs-terminal",
