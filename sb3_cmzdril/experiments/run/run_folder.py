@@ -325,9 +325,7 @@ def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _identity_value(key: str, value: Any) -> Any:
-    if key == "env_id" and isinstance(value, str):
-        return value.rpartition(":")[2]
-    return value
+    return env_name(value) if key == "env_id" and isinstance(value, str) else value
 
 
 def check_same_run(
