@@ -74,7 +74,7 @@ def walker_entry(methods: str, trials: str, moved_to: str) -> str:
 
 
 #: where the runs of trials 0-9 of one command (HalfCheetah-v5's DRIL and BC, WaypointNav-v0's BC) went
-CHEETAH_TEN = "trials 0-4 moved to results/runs, 5-9 to {}"
+TEN_SPLIT = "trials 0-4 moved to results/runs, 5-9 to {}"
 
 
 def dril_trials5_9_grid(envs: str) -> str:
@@ -87,7 +87,7 @@ def dril_trials5_9_grid(envs: str) -> str:
 DRIL_TRIALS5_9_GRID = dril_trials5_9_grid("HalfCheetah-v5,Swimmer-v5")
 DRIL_TRIALS5_9_COMMANDS = {
     "Walker2d-v5": walker_entry("dril", "5-9", DRIL_TRIALS5_9),
-    "HalfCheetah-v5": entry_command("HalfCheetah-v5", "dril", "0-9", CHEETAH_TEN.format(DRIL_TRIALS5_9)),
+    "HalfCheetah-v5": entry_command("HalfCheetah-v5", "dril", "0-9", TEN_SPLIT.format(DRIL_TRIALS5_9)),
     "Hopper-v5": dril_trials5_9_grid("Hopper-v5"),
     "Swimmer-v5": DRIL_TRIALS5_9_GRID,
     "WaypointNav-v0": entry_command("WaypointNav-v0", "dril", "5-9", f"moved to {DRIL_TRIALS5_9}"),
@@ -157,7 +157,7 @@ def bc_trials10_command(env: str) -> str:
     if env == "Walker2d-v5":
         return walker_entry("bc", "5-9", BC_TRIALS10)
     if env in ENTRY_VARIANTS:
-        return entry_command(env, "bc", "0-9", CHEETAH_TEN.format(BC_TRIALS10))
+        return entry_command(env, "bc", "0-9", TEN_SPLIT.format(BC_TRIALS10))
     return (f"sb3-cmzdril benchmark --env {env} --methods bc --trials 10 --timesteps 300000 --eval-every 5 "
             f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
 
