@@ -10,11 +10,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3 import SAC
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from helpers import TINY_SAC
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experts import collect_demos, load_expert_model
+from sb3_cmzdril.experts.adapters import PaddedObservationExpert
 from sb3_cmzdril.experts.loading import NormalizedObservationExpert, resolve_expert
 from sb3_cmzdril.extras import MissingExtraError
 
@@ -84,8 +86,10 @@ def test_tqc_is_recognised_from_the_zip_not_its_name(tmp_path, monkeypatch):
         load_expert_model(path)
 
 
-def _zoo_folder(root: Path, model, env_name="Pendulum-v0", config="- - - normalize\n    - true\n") -> Path:
-    """The zoo's layout: ``<algo>/<Env>_1/<Env>.zip`` and ``<Env>/{config,args}.yml, vecnormalize.pkl``."""
+def _zoo_folder(root: Path, model, env_name="Pendulum-v0", config="- - - normalize\n    - true\n",
+                mean=(0.5, -0.5, 1.0), var=(4.0, 0.25, 9.0)) -> Path:
+    """The zoo's layout: ``<algo>/<Env>_1/<Env>.zip`` and ``<Env>/{config,args}.yml, vecnormalize.pkl``
+    (its statistics ``mean`` and ``var``)."""
     folder = root / "sac" / f"{env_name}_1"
     (folder / env_name).mkdir(parents=True)
     model.save(folder / f"{env_name}.zip")
@@ -93,8 +97,8 @@ def _zoo_folder(root: Path, model, env_name="Pendulum-v0", config="- - - normali
     (folder / env_name / "config.yml").write_text(header + config + "  - - policy\n    - MlpPolicy\n")
     (folder / env_name / "args.yml").write_text(header + f"- - - algo\n    - sac\n  - - env\n    - {env_name}\n")
     stats = VecNormalize(DummyVecEnv([lambda: gym.make(ENV)]), norm_reward=False)
-    stats.obs_rms.mean = np.array([0.5, -0.5, 1.0])
-    stats.obs_rms.var = np.array([4.0, 0.25, 9.0])
+    stats.obs_rms = RunningMeanStd(shape=(len(mean),))
+    stats.obs_rms.mean, stats.obs_rms.var = np.array(mean, dtype=np.float64), np.array(var, dtype=np.float64)
     stats.save(folder / env_name / "vecnormalize.pkl")
     return folder
 
@@ -153,6 +157,55 @@ def test_zoo_settings_we_do_not_reproduce_and_non_models_are_one_line_errors(sac
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and str(path) in err and problem in err
         assert not out.exists()
+
+
+class _AntV3Spaces(gym.Env):
+    """Only the spaces of gym's Ant-v3 (111 observations, 8 torques): what the zoo's Ant agents were built on."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (111,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (8,), np.float32)
+
+
+@pytest.fixture(scope="module")
+def ant_v3_agent():
+    return SAC("MlpPolicy", _AntV3Spaces(), **TINY)
+
+
+def test_a_zoo_ant_v3_agent_acts_on_ant_v5_with_its_zero_contact_inputs(ant_v3_agent, tmp_path):
+    """Ant-v3 agents saw 27 body inputs and 84 contact forces that were zeros in their training; on
+    Ant-v5 (105 or 27 observations) they get the 27 and 84 zeros, and the pool records the env's own."""
+    mean, var = np.r_[np.linspace(-1, 1, 27), np.zeros(84)], np.r_[np.linspace(0.5, 2, 27), np.full(84, 1e-9)]
+    folder = _zoo_folder(tmp_path, ant_v3_agent, env_name="Ant-v3", mean=mean, var=var)
+    for kwargs, size in [({}, 105), ({"include_cfrc_ext_in_observation": False}, 27)]:
+        env = gym.make("Ant-v5", **kwargs)
+        with pytest.warns(UserWarning, match=r"it gets the first 27 of the env's observation followed by 84 zeros.*"
+                                             r"its saved statistics show they never moved"):
+            expert = load_expert_model(folder, env=env)
+        assert isinstance(expert, PaddedObservationExpert)
+        observations = np.stack([env.reset(seed=seed)[0] for seed in range(3)])
+        assert observations.shape == (3, size)
+        inputs = np.c_[observations[:, :27], np.zeros((3, 84))]
+        normalised = np.clip((inputs - mean) / np.sqrt(var + 1e-8), -10, 10)
+        np.testing.assert_allclose(_actions(expert, observations), _actions(ant_v3_agent, normalised), rtol=1e-5)
+        np.testing.assert_allclose(expert.predict(observations, deterministic=True)[0],
+                                   _actions(ant_v3_agent, normalised), rtol=1e-5)  # a batch as well
+    with pytest.warns(UserWarning):
+        demos = collect_demos(folder, "Ant-v5", n_episodes=1, seed=0, verbose=False,
+                              env_kwargs={"max_episode_steps": 20})
+    assert demos.observations.shape[1] == 105
+
+
+def test_an_ant_v3_agent_whose_contact_inputs_moved_or_another_layout_is_refused(ant_v3_agent, tmp_path):
+    moved = _zoo_folder(tmp_path / "moved", ant_v3_agent, env_name="Ant-v3", mean=np.zeros(111), var=np.full(111, 0.3))
+    with pytest.raises(ValueError, match=r"its observations 27-110 were not all zeros in training"):
+        load_expert_model(moved, env=gym.make("Ant-v5"))
+    ant = _zoo_folder(tmp_path / "ant", ant_v3_agent, env_name="Ant-v3", mean=np.zeros(111), var=np.zeros(111))
+    with pytest.raises(ValueError, match=r"has observation_space Box.*\(111,\).*the env has Box.*\(107,\)"):
+        load_expert_model(ant, env=gym.make("Ant-v5", exclude_current_positions_from_observation=False))
+    plain = tmp_path / "plain" / "ant.zip"  # no zoo files: the env it was trained on is unknown
+    ant_v3_agent.save(plain)
+    with pytest.raises(ValueError, match=r"has observation_space Box.*\(111,\).*the env has Box.*\(105,\)"):
+        load_expert_model(plain, env=gym.make("Ant-v5"))
 
 
 def test_shipped_experts_by_env_id():

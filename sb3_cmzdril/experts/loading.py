@@ -45,6 +45,7 @@ import numpy as np
 import yaml
 
 from sb3_cmzdril.errors import MissingFileError, UserError
+from sb3_cmzdril.experts.adapters import PaddedLayout, PaddedObservationExpert, check_padding_was_zeros, padded_layout
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS
 from sb3_cmzdril.io import PathLike
 
@@ -167,9 +168,11 @@ def _unpicklable(item: Any) -> Exception | None:
     return None
 
 
-def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | None) -> dict[str, Any]:
+def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | None,
+                             layout: PaddedLayout | None = None) -> dict[str, Any]:
     """``custom_objects`` for ``load``: constant schedules, the env's spaces where the zip's pickled
-    ones do not unpickle here, and None for any other training state that does not."""
+    ones do not unpickle here (the observation space ``layout`` pads them to, with one), and None for
+    any other training state that does not."""
     custom: dict[str, Any] = {key: (lambda _: 0.0) for key in _SCHEDULES if key in data}
     if "learning_rate" in custom:
         custom["learning_rate"] = 0.0
@@ -190,6 +193,8 @@ def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | No
                     "load it with the env it acts in (env=...)"
                 )
             space = getattr(env, key)
+            if key == "observation_space" and layout is not None:
+                space = gym.spaces.Box(-np.inf, np.inf, (layout.trained_size,), np.float32)
             recorded = item.get("shape")
             if recorded is not None and space.shape is not None and tuple(recorded) != tuple(space.shape):
                 raise UserError(
@@ -352,16 +357,23 @@ class NormalizedObservationExpert:
         )
 
 
+def env_name_version(env_id: str | None) -> tuple[str, int] | None:
+    """``("Walker2d", 3)`` for ``Walker2d-v3`` (a ``module:`` prefix ignored), None for an id without a version."""
+    match = _ENV_ID.match(str(env_id).rsplit(":", 1)[-1]) if env_id else None
+    return (match["name"], int(match["version"])) if match else None
+
+
+def _target_env_id(env: gym.Env | None) -> str | None:
+    return getattr(getattr(env, "spec", None), "id", None)
+
+
 def _check_env_version(files: ZooFiles, env: gym.Env | None) -> None:
-    trained = files.trained_env_id
-    target = getattr(getattr(env, "spec", None), "id", None)
-    if trained is None or target is None:
-        return
-    a, b = _ENV_ID.match(trained.rsplit(":", 1)[-1]), _ENV_ID.match(str(target).rsplit(":", 1)[-1])
-    if a and b and a["name"] == b["name"] and a["version"] != b["version"]:
+    trained, target = files.trained_env_id, _target_env_id(env)
+    a, b = env_name_version(trained), env_name_version(target)
+    if a and b and a[0] == b[0] and a[1] != b[1]:
         warnings.warn(
-            f"expert {files.model} was trained on {trained} and is used on {target}: same shapes, "
-            "but the dynamics or rewards of the two versions may differ",
+            f"expert {files.model} was trained on {trained} and is used on {target}: the dynamics or rewards "
+            "of the two versions may differ",
             UserWarning,
             stacklevel=3,
         )
@@ -407,7 +419,9 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
     :param env: the env the expert will act in: its spaces replace pickled ones that do not load,
         and its id is compared with the one the agent was trained on.
     :return: the model, or a :class:`NormalizedObservationExpert` around it for a zoo agent trained
-        with normalised observations.
+        with normalised observations, and that in a
+        :class:`~sb3_cmzdril.experts.adapters.PaddedObservationExpert` for an agent whose env's newer
+        version lays its observation out differently (the zoo's Ant-v3 agents on Ant-v5).
     """
     files = find_model_files(path)
     model_path = files.model
@@ -416,7 +430,8 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
     _check_env_version(files, env)
     name = algo or _infer_algo(model_path)
     candidates = [algo_class(name)] if name else _algorithm_from_data(model_path, data)
-    custom = inference_custom_objects(model_path, data, env)
+    layout = _padded_layout(files, data, env)
+    custom = inference_custom_objects(model_path, data, env, layout)
     errors = []
     model = None
     for cls in candidates:
@@ -428,14 +443,29 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
     if model is None:
         raise UserError(f"cannot load expert model {model_path}: " + "; ".join(errors))
     if env is not None:
-        _check_fits_env(model, env, model_path)
+        _check_fits_env(model, env, model_path, layout)
     vecnormalize = files.vecnormalize
     if getattr(model, "vecnormalize_obs", False):
         vecnormalize = _run_statistics(model_path)
     stats = load_vecnormalize(vecnormalize) if vecnormalize is not None else None
-    if stats is not None and getattr(stats, "norm_obs", True):
-        return NormalizedObservationExpert(model, stats)
-    return model
+    expert = NormalizedObservationExpert(model, stats) if stats is not None and getattr(stats, "norm_obs", True) \
+        else model
+    if layout is None:
+        return expert
+    check_padding_was_zeros(layout, stats if expert is not model else None, model_path)
+    return PaddedObservationExpert(expert, layout)
+
+
+def _padded_layout(files: ZooFiles, data: dict[str, Any], env: gym.Env | None) -> PaddedLayout | None:
+    """The known layout (:mod:`~sb3_cmzdril.experts.adapters`) that lets this agent act in ``env``, if its
+    observations and the env's differ in one."""
+    if env is None:
+        return None
+    recorded = data.get("observation_space")
+    # SB3 1.x wrote the space's shape as "shape" in the zip's JSON, SB3 2.x as "_shape".
+    shape = (recorded.get("shape") or recorded.get("_shape")) if isinstance(recorded, dict) else None
+    return padded_layout(env_name_version(files.trained_env_id), env_name_version(_target_env_id(env)), shape,
+                         getattr(env.observation_space, "shape", None))
 
 
 def _run_statistics(model_path: Path) -> Path:
@@ -450,9 +480,11 @@ def _run_statistics(model_path: Path) -> Path:
     return path
 
 
-def _check_fits_env(model: Any, env: gym.Env, path: Path) -> None:
+def _check_fits_env(model: Any, env: gym.Env, path: Path, layout: PaddedLayout | None = None) -> None:
     for key in ("observation_space", "action_space"):
         ours, theirs = getattr(env, key), getattr(model, key)
+        if key == "observation_space" and layout is not None:
+            ours = gym.spaces.Box(-np.inf, np.inf, (layout.trained_size,), np.float32)
         if type(ours) is not type(theirs) or ours.shape != theirs.shape:
             raise UserError(f"expert {path} has {key} {theirs}, the env has {ours}")
 
