@@ -310,7 +310,11 @@ class CMZDRIL(PPO):
     @pretrained.setter
     def pretrained(self, value: bool) -> None:
         self._policy_pretrained = bool(value)
-        self.ensemble.fitted.fill_(float(bool(value)))
+        if not value:
+            self.ensemble.fitted.fill_(0.0)
+        elif not self.ensemble.is_fitted:
+            # Members loaded by hand: an "auto" ensemble reads its form from the demos, as fit() would have.
+            self.ensemble.mark_fitted(None if self.demonstrations is None else self.demonstrations.actions)
         self._imitation_ready = False  # the rule (and DRIL threshold) is remade for the ensemble at learn()
 
     @property

@@ -320,10 +320,16 @@ class BCEnsemble(nn.Module):
                 epoch_loss += per_member.detach().cpu().numpy() * idx.shape[1]
         self.eval()
         self.train_loss_ = epoch_loss / n
+        return self.mark_fitted(demos.actions)
+
+    def mark_fitted(self, actions: np.ndarray | None) -> BCEnsemble:
+        """Mark the members' current weights as fitted (``fit`` does, and so does a caller that loaded
+        them by hand). ``disagreement="auto"`` then takes its form from ``actions``, the training
+        demonstrations' actions; None keeps the form it has (a loaded state dict's)."""
         with th.no_grad():
             self.fitted.fill_(1.0)
-            if self.requested_disagreement == "auto":
-                chosen = auto_disagreement_form(demos.actions, self.action_space)
+            if self.requested_disagreement == "auto" and actions is not None:
+                chosen = auto_disagreement_form(actions, self.action_space)
                 self.unclipped.fill_(float(chosen == "std_unclipped"))
         self._resolve_auto()
         self._np_cache = None

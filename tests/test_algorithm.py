@@ -445,6 +445,15 @@ def test_auto_disagreement_chooses_from_the_demonstrations_and_survives_save_loa
     assert loaded.disagreement == "auto" and loaded.ensemble.disagreement_form == "std_unclipped"
     far = pendulum_demos.observations[:4] * 50.0
     np.testing.assert_array_equal(loaded.ensemble.disagreement(far), model.ensemble.disagreement(far))
+    # Members' weights loaded by hand, without the flags fit() sets: `pretrained = True` makes the same
+    # choice from the demonstrations.
+    by_hand = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=bang_bang, disagreement="auto", **TINY)
+    weights = {k: v for k, v in model.ensemble.state_dict().items() if k not in ("fitted", "unclipped")}
+    by_hand.ensemble.load_state_dict(weights, strict=False)
+    assert by_hand.ensemble.disagreement_form == "std"
+    by_hand.pretrained = True
+    assert by_hand.ensemble.disagreement_form == "std_unclipped"
+    np.testing.assert_array_equal(by_hand.ensemble.disagreement(far), model.ensemble.disagreement(far))
     inside = Demonstrations(pendulum_demos.observations, np.clip(pendulum_demos.actions, -1.9, 1.9),
                             pendulum_demos.episode_lengths)
     smooth = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=inside, disagreement="auto", **TINY)
