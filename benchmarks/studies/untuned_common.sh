@@ -7,11 +7,12 @@ untuned=results/untuned
 workers=${WORKERS:-2}
 cli=${SB3_CMZDRIL:-sb3-cmzdril}
 
-# record_pool ENV_ID: the zoo's A2C agent's 30 deterministic episodes (reset seeds 0-29) into
-# results/untuned/ENV_ID/demos.npz; an existing pool is kept.
+# record_pool ENV_ID [AGENT]: the 30 deterministic episodes (reset seeds 0-29) of the zoo's agent AGENT
+# (a folder of the zoo's clone; default: its A2C agent of ENV_ID) into results/untuned/ENV_ID/demos.npz;
+# an existing pool is kept.
 record_pool() {
     local pool=$untuned/$1/demos.npz
     if [ ! -f "$pool" ]; then
-        $cli collect-demos --expert "$zoo/a2c/${1}_1" --env "$1" --episodes 30 --seed 0 -o "$pool"
+        $cli collect-demos --expert "$zoo/${2:-a2c/${1}_1}" --env "$1" --episodes 30 --seed 0 -o "$pool"
     fi
 }

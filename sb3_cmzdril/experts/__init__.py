@@ -5,6 +5,8 @@ One module a job:
 - :mod:`~sb3_cmzdril.experts.scripted`: the scripted-expert registry (``collect-demos --expert NAME``)
 - :mod:`~sb3_cmzdril.experts.envs`: env ids and seeds as the commands take them, the training VecEnv
 - :mod:`~sb3_cmzdril.experts.loading`: SB3 model zips of any algorithm; ``--expert`` to a policy
+- :mod:`~sb3_cmzdril.experts.adapters`: published agents on an env version whose observation is laid out
+  otherwise (the RL Zoo's Ant-v3 agents on Ant-v5)
 - :mod:`~sb3_cmzdril.experts.training`: ``train_expert`` (resumable, best model by evaluation)
 - :mod:`~sb3_cmzdril.experts.checkpoints`: its resumable state on disk
 - :mod:`~sb3_cmzdril.experts.callbacks`: its SB3 callbacks (progress, evaluation, checkpoints)
