@@ -38,6 +38,9 @@ ABS_NORMREW = "--set absorbing=auto " + NORMREW
 #: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
 PPO_UNCLIPPED = "--set disagreement=std_unclipped"
 PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
+PPO_AUTO = "--set disagreement=auto"
+PPO_AUTO_LABEL = ("u's form read from the demonstrations (`disagreement: auto`; the unclipped form on every trial of "
+                  "this pool, results/tuning/bound_share.txt)")
 #: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
 #: reward normalisation, HalfCheetah-v5's reward normalisation, WaypointNav-v0's unclipped u): the tune.py runs
 #: folder and its --set flags. Their runs of every method were made by that command and moved into the grid's
@@ -482,19 +485,26 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
     *(row for method in ("cmz", "dril")
       for row in pendulum_rows(method, PENDULUM_UNCLIPPED_LABEL, "P-zoo-ppo-unclipped",
                                f"{PENDULUM_ZOO_PPO} {PPO_UNCLIPPED}", "cmz,dril")),
+    *trial_set_rows(PENDULUM, f"CMZ-DRIL, package defaults, {PPO_AUTO_LABEL}", "results/tuning/P-auto",
+                    f"python benchmarks/studies/tune.py P-auto {PPO_AUTO} -- --methods cmz --trials 0-4 {PENDULUM_RUN}",
+                    firsts=(0,)),
 )
 
 #: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's
 #: A2C) holds a bound in over half its action entries, so the unclipped u is what `disagreement: auto` would take
 BIPEDAL = "BipedalWalker-v3"
+BIPEDAL_GRID = ("bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env BipedalWalker-v3 --methods "
+                "bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir "
+                f"{UNTUNED} -o {UNTUNED}")
 BIPEDAL_ROWS: tuple[Variant, ...] = (
-    Variant(BIPEDAL, "cmz", "package defaults (the `default` entry)", UNTUNED,
-            "bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env BipedalWalker-v3 --methods "
-            "bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir "
-            f"{UNTUNED} -o {UNTUNED}"),
+    Variant(BIPEDAL, "cmz", "package defaults (the `default` entry)", UNTUNED, BIPEDAL_GRID),
     *tuning_rows(BIPEDAL, PPO_UNCLIPPED_LABEL, "BW-unclipped",
                  tune_command("BW-unclipped", PPO_UNCLIPPED, BIPEDAL, trials="0-4")
                  + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,)),
+    Variant(BIPEDAL, "dril", "DRIL, package defaults (the `default` entry)", UNTUNED, BIPEDAL_GRID),
+    *trial_set_rows(BIPEDAL, f"DRIL, {PPO_UNCLIPPED_LABEL}", "results/tuning/BW-unclipped",
+                    tune_command("BW-unclipped", PPO_UNCLIPPED, BIPEDAL, trials="0-4", methods="dril")
+                    + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,), method="dril"),
 )
 
 #: The variants, reference first per env. Add a variant by adding a line.
