@@ -203,6 +203,7 @@ def test_an_ant_v3_agent_whose_contact_inputs_moved_or_another_layout_is_refused
     with pytest.raises(ValueError, match=r"has observation_space Box.*\(111,\).*the env has Box.*\(107,\)"):
         load_expert_model(ant, env=gym.make("Ant-v5", exclude_current_positions_from_observation=False))
     plain = tmp_path / "plain" / "ant.zip"  # no zoo files: the env it was trained on is unknown
+    plain.parent.mkdir()
     ant_v3_agent.save(plain)
     with pytest.raises(ValueError, match=r"has observation_space Box.*\(111,\).*the env has Box.*\(105,\)"):
         load_expert_model(plain, env=gym.make("Ant-v5"))
