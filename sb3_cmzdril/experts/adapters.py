@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_cmzdril.errors import UserError
@@ -38,6 +39,11 @@ class PaddedLayout:
     trained_size: int
     kept: int
     target_sizes: tuple[int, ...]
+
+    @property
+    def observation_space(self) -> gym.spaces.Box:
+        """The observation space the agent was trained on."""
+        return gym.spaces.Box(-np.inf, np.inf, (self.trained_size,), np.float32)
 
     def describe(self) -> str:
         return (f"the first {self.kept} of the env's observation followed by "

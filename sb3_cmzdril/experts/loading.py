@@ -194,7 +194,7 @@ def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | No
                 )
             space = getattr(env, key)
             if key == "observation_space" and layout is not None:
-                space = gym.spaces.Box(-np.inf, np.inf, (layout.trained_size,), np.float32)
+                space = layout.observation_space
             recorded = item.get("shape")
             if recorded is not None and space.shape is not None and tuple(recorded) != tuple(space.shape):
                 raise UserError(
@@ -484,7 +484,7 @@ def _check_fits_env(model: Any, env: gym.Env, path: Path, layout: PaddedLayout |
     for key in ("observation_space", "action_space"):
         ours, theirs = getattr(env, key), getattr(model, key)
         if key == "observation_space" and layout is not None:
-            ours = gym.spaces.Box(-np.inf, np.inf, (layout.trained_size,), np.float32)
+            ours = layout.observation_space
         if type(ours) is not type(theirs) or ours.shape != theirs.shape:
             raise UserError(f"expert {path} has {key} {theirs}, the env has {ours}")
 
