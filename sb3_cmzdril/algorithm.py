@@ -24,7 +24,8 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
@@ -131,6 +132,12 @@ class CMZDRIL(PPO):
         deterministic action there where the disagreement needs actions), so that ending as the
         expert ends (a landing, a goal reached) is worth what the state it ends in is worth. Where the
         expert ends its episodes, ``"highest"`` makes its own ending the worst outcome.
+    :param critic_warmup_updates: the first this many PPO updates (one per rollout, counted over the
+        model's life, so a resumed run does not warm up again) train the value function only: the
+        actor's own parameters (and a features extractor it shares with the critic) stay the clone's,
+        and no NLL epoch follows. The critic starts untrained, so without it the first updates move
+        the clone along advantages computed from an arbitrary value function. 0 (the default, the
+        paper) does not warm up.
     :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
@@ -170,6 +177,7 @@ class CMZDRIL(PPO):
         log_std_floor: float | None = -1.0,
         absorbing: bool | str = False,
         absorbing_score: str = "highest",
+        critic_warmup_updates: int = 0,
         batch_scoring: bool = True,
         learning_rate: float | Schedule = 3e-4,
         n_steps: int = 2048,
@@ -206,6 +214,7 @@ class CMZDRIL(PPO):
         check_imitation_options(
             reward, alpha, ema, u0, dril_quantile, bc_pretrain_epochs, bc_validation_fraction, bc_patience, absorbing,
             cmz_clip_quantile, absorbing_score, bc_epochs_per_update=bc_epochs_per_update,
+            critic_warmup_updates=critic_warmup_updates,
         )
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
@@ -240,6 +249,9 @@ class CMZDRIL(PPO):
         self.absorbing_score = absorbing_score
         #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
         self.absorbing_active = False
+        self.critic_warmup_updates = int(critic_warmup_updates)
+        #: value-only updates done so far (saved with the model: a resumed run does not warm up again)
+        self.critic_warmup_done = 0
         self.batch_scoring = bool(batch_scoring)
         self.pretrain_info: dict[str, float] = {}
         self.pretrain_history: dict[str, list[float]] = {}
@@ -748,12 +760,37 @@ class CMZDRIL(PPO):
             self.logger.record("rollout/absorbing_u", self.absorbing_u)
 
     def train(self) -> None:
+        if self.critic_warmup_done < self.critic_warmup_updates:
+            with _critic_only(self.policy):
+                super().train()
+            self.critic_warmup_done += 1
+            self.logger.record("train/critic_warmup", 1.0)
+            return
         super().train()
         if self.bc_epochs_per_update and self.demonstrations is not None:
             transform = self._demo_obs_transform()
             for _ in range(self.bc_epochs_per_update):
                 nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+@contextmanager
+def _critic_only(policy: ActorCriticPolicy) -> Iterator[None]:
+    """Within it, only the critic's own parameters (its head, the value branch of the MLP extractor and
+    its own features extractor) take gradients: PPO's update then fits the value function alone and
+    the optimiser leaves every other parameter as it is (Adam skips a parameter without a gradient)."""
+    critic_parts = [policy.value_net, getattr(policy.mlp_extractor, "value_net", None)]
+    if not policy.share_features_extractor:
+        critic_parts.append(policy.vf_features_extractor)
+    critic = {id(p) for part in critic_parts if part is not None for p in part.parameters()}
+    frozen = [p for p in policy.parameters() if id(p) not in critic and p.requires_grad]
+    for p in frozen:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in frozen:
+            p.requires_grad_(True)
 
 
 class _RolloutScoring(BaseCallback):

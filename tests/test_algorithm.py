@@ -59,6 +59,30 @@ def test_bc_epoch_after_each_update_and_disabled(pendulum_demos):
     )  # PPO still updated
 
 
+def _changed(before: dict, model: CMZDRIL) -> set[str]:
+    return {k for k, v in model.policy.state_dict().items() if not np.array_equal(before[k].cpu(), v.cpu())}
+
+
+def test_critic_warmup_fits_the_value_function_alone_and_is_not_repeated_on_resume(pendulum_demos, tmp_path):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, critic_warmup_updates=2, **TINY)
+    model.pretrain()
+    model.bc.epoch = lambda *a, **k: pytest.fail("no NLL epoch during the critic's warm-up")
+    before = {k: v.clone() for k, v in model.policy.state_dict().items()}
+    model.learn(128)  # two updates, both warm-up
+    assert model.critic_warmup_done == 2
+    assert _changed(before, model) == {
+        "mlp_extractor.value_net.0.weight", "mlp_extractor.value_net.0.bias", "mlp_extractor.value_net.2.weight",
+        "mlp_extractor.value_net.2.bias", "value_net.weight", "value_net.bias",
+    }
+    assert all(p.requires_grad for p in model.policy.parameters())  # unfrozen again
+    model.save(tmp_path / "warm.zip")
+    resumed = CMZDRIL.load(tmp_path / "warm.zip", env=gym.make("Pendulum-v1"))
+    assert resumed.critic_warmup_done == 2
+    before = {k: v.clone() for k, v in resumed.policy.state_dict().items()}
+    resumed.learn(64, reset_num_timesteps=False)  # warm-up over: PPO and the NLL epoch move the actor
+    assert {"action_net.weight", "log_std", "mlp_extractor.policy_net.0.weight"} <= _changed(before, resumed)
+
+
 def test_wrapper_reports_true_return_to_monitor_and_callbacks(pendulum_demos):
     seen = []
 
@@ -175,6 +199,8 @@ def test_errors(pendulum_demos, cartpole_demos, tmp_path):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, dril_quantile=0.0)
     with pytest.raises(ValueError, match="bc_epochs_per_update must be >= 0"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)
+    with pytest.raises(ValueError, match="critic_warmup_updates must be >= 0"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, critic_warmup_updates=-1)
     with pytest.raises(ValueError, match="CMZDRIL needs demonstrations"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", **TINY).learn(64)
     with pytest.raises(ValueError, match=r"observation shape \(4,\).*\(3,\)"):
