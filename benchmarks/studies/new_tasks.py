@@ -361,6 +361,18 @@ def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers:
             f"--timesteps 300000 --eval-every {eval_every} --workers {workers}")
 
 
+#: PPO's critic warm-up (CMZDRIL's `critic_warmup_updates`), as measured
+CRITIC_WARMUP_PPO = "--set critic_warmup_updates=10"
+
+
+def critic_warmup_ppo(env: str, name: str) -> Variant:
+    """``env``'s CMZ-DRIL runs whose first 10 PPO updates fit the value function alone, trials 0-4."""
+    return Variant(env, "cmz", "the value function fitted alone in the first 10 PPO updates, the actor held at the "
+                   "clone (`critic_warmup_updates: 10`)", f"results/tuning/{name}",
+                   tune_command(name, CRITIC_WARMUP_PPO, env, trials="0-4") + " --no-progress",
+                   trials=(0, 1, 2, 3, 4))
+
+
 def tuning_rows(env: str, label: str, name: str, made_by: str,
                 firsts: tuple[int, ...] = (0, 5)) -> tuple[Variant, ...]:
     """A PPO variant in results/tuning/NAME, made by ``made_by``, as a row per five trials (:func:`trial_set_rows`)."""
@@ -525,6 +537,7 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
     Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
             "results/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
+    critic_warmup_ppo("Walker2d-v5", "W-cwarm10"),
     Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
