@@ -586,6 +586,7 @@ ABLATIONS: tuple[Variant, ...] = (
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *averaged_rows("Hopper-v5", "H-avg75"),
     *longest_rows("Hopper-v5", "H-longest", firsts=(0,)),
+    critic_warmup_ppo("Hopper-v5", "H-cwarm10"),
     *tuning_and_confirmation(SAC_CLIP_LABEL, "H-sac-64-clip98-abs", CLIP_ABS, "Hopper-v5", firsts=(0,)),
     *tuning_and_confirmation(SAC_LONGEST_LABEL, "H-sac-64-clip98-abs-longest", CLIP_ABS_LONGEST, "Hopper-v5"),
     *tuning_and_confirmation(CLONE_LABEL, "H-sac-64-clone", CLONE, "Hopper-v5"),
