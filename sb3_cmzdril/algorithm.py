@@ -135,9 +135,10 @@ class CMZDRIL(PPO):
     :param critic_warmup_updates: the first this many PPO updates (one per rollout, counted over the
         model's life, so a resumed run does not warm up again) train the value function only: the
         actor's own parameters (and a features extractor it shares with the critic) stay the clone's,
-        and no NLL epoch follows. The critic starts untrained, so without it the first updates move
-        the clone along advantages computed from an arbitrary value function. 0 (the default, the
-        paper) does not warm up.
+        and no NLL epoch follows, so the first actor updates see advantages from a fitted value
+        function rather than an untrained one. 0 (the default, the paper) does not warm up: with 10,
+        CMZ-DRIL's final policy fell on Walker2d-v5 and Hopper-v5 (docs/beyond_home_tasks.md), whose
+        PPO runs never lost their clone early as the off-policy learner's did.
     :param batch_scoring: score each rollout from the rollout buffer in one ensemble forward (see
         :mod:`sb3_cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
