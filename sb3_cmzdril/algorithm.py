@@ -40,7 +40,6 @@ from stable_baselines3.common.callbacks import (
     tqdm,  # SB3's (rich) tqdm; None without it, and then SB3 refuses progress_bar=True first
 )
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
-from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -49,7 +48,15 @@ from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError, check_finite
-from sb3_cmzdril.imitation import check_imitation_options, restored_state, reward_rule, rule_bounds
+from sb3_cmzdril.imitation import (
+    check_imitation_options,
+    parameters_to_set,
+    restored_state,
+    restoring_saved_model,
+    reward_rule,
+    rule_bounds,
+    weights_brought_by_user,
+)
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, floor_log_std, mean_log_std, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import DisagreementReward, RewardRule, expert_never_terminates
@@ -324,9 +331,8 @@ class CMZDRIL(PPO):
     def pretrained(self, value: bool) -> None:
         self._policy_pretrained = bool(value)
         if not value:
-            self.ensemble.fitted.fill_(0.0)
-        elif not self.ensemble.is_fitted:
-            # Members loaded by hand: an "auto" ensemble reads its form from the demos, as fit() would have.
+            self.ensemble.mark_unfitted()
+        elif not self.ensemble.is_fitted:  # members loaded by hand: "auto" reads its form from the demos
             self.ensemble.mark_fitted(None if self.demonstrations is None else self.demonstrations.actions)
         self._imitation_ready = False  # the rule (and DRIL threshold) is remade for the ensemble at learn()
 
@@ -393,15 +399,16 @@ class CMZDRIL(PPO):
         **kwargs: Any,
     ) -> SelfCMZDRIL:
         """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
-        model = super().load(
-            path,
-            env=env,
-            device=device,
-            custom_objects=custom_objects,
-            print_system_info=print_system_info,
-            force_reset=force_reset,
-            **kwargs,
-        )
+        with restoring_saved_model():
+            model = super().load(
+                path,
+                env=env,
+                device=device,
+                custom_objects=custom_objects,
+                print_system_info=print_system_info,
+                force_reset=force_reset,
+                **kwargs,
+            )
         model._restore_saved_state(None if demonstrations is None else as_demonstrations(demonstrations))
         return model
 
@@ -413,12 +420,9 @@ class CMZDRIL(PPO):
     ) -> None:
         """SB3's ``set_parameters``; what it loads is kept by the next ``learn()``: a loaded policy is
         not pretrained again and a loaded fitted ensemble not refitted (see :attr:`pretrained`)."""
-        if isinstance(load_path_or_dict, dict):
-            params = load_path_or_dict
-        else:
-            _, params, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
+        params = parameters_to_set(load_path_or_dict, device)
         super().set_parameters(params, exact_match=exact_match, device=device)
-        if "policy" in params:
+        if "policy" in params and weights_brought_by_user():
             self._policy_pretrained = True
         if "ensemble" in params:
             self._ensemble_replaced = True  # the DRIL threshold and the rule belong to the old ensemble

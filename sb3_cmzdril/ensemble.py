@@ -335,6 +335,14 @@ class BCEnsemble(nn.Module):
         self._np_cache = None
         return self
 
+    def mark_unfitted(self) -> BCEnsemble:
+        """Forget the fit: the members keep their weights, and whoever needs a fitted ensemble
+        (disagreement, a learner's pretraining) fits it again."""
+        with th.no_grad():
+            self.fitted.fill_(0.0)
+        self._np_cache = None
+        return self
+
     def _resolve_auto(self) -> None:
         if self.requested_disagreement == "auto":
             self.disagreement_form = "std_unclipped" if float(self.unclipped) != 0.0 else "std"

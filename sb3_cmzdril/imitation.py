@@ -8,10 +8,14 @@ same meaning; checking and interpreting them here keeps the two from drifting ap
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import quantile_of_disagreement
@@ -121,5 +125,34 @@ def restored_state(saved: np.ndarray, n_envs: int) -> tuple[np.ndarray, bool]:
     return state, False
 
 
-__all__ = ["REWARD_MODES", "check_imitation_options", "demo_tensors", "demos_from_tensors", "reward_rule",
-           "restored_state", "rule_bounds"]
+_RESTORING: ContextVar[bool] = ContextVar("sb3_cmzdril_restoring_a_saved_model", default=False)
+
+
+@contextmanager
+def restoring_saved_model() -> Iterator[None]:
+    """Within: a model's ``load()`` is running. SB3's ``load()`` calls ``set_parameters()`` with the
+    weights the model was saved with; those are not weights a user brought, so the model keeps the
+    pretrained flag it was saved with (see :func:`weights_brought_by_user`)."""
+    token = _RESTORING.set(True)
+    try:
+        yield
+    finally:
+        _RESTORING.reset(token)
+
+
+def parameters_to_set(load_path_or_dict: Any, device: th.device | str) -> dict[str, Any]:
+    """The state dicts a ``set_parameters()`` call brings: the dict itself, or a saved zip's."""
+    if isinstance(load_path_or_dict, dict):
+        return load_path_or_dict
+    _, params, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
+    return params
+
+
+def weights_brought_by_user() -> bool:
+    """Whether a ``set_parameters()`` call brings the user's weights (True), not a ``load()``
+    restoring the saved model's own (False)."""
+    return not _RESTORING.get()
+
+
+__all__ = ["REWARD_MODES", "check_imitation_options", "demo_tensors", "demos_from_tensors", "parameters_to_set",
+           "reward_rule", "restored_state", "restoring_saved_model", "rule_bounds", "weights_brought_by_user"]

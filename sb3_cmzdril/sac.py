@@ -59,9 +59,12 @@ from sb3_cmzdril.imitation import (
     check_imitation_options,
     demo_tensors,
     demos_from_tensors,
+    parameters_to_set,
     restored_state,
+    restoring_saved_model,
     reward_rule,
     rule_bounds,
+    weights_brought_by_user,
 )
 from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import RewardRule, expert_never_terminates, with_absorbing_state
@@ -165,6 +168,8 @@ class CMZDRILSAC(SAC):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases
+    #: the reward rule, made for the fitted ensemble by :meth:`pretrain` (None before)
+    reward_rule: RewardRule | None
 
     def __init__(
         self,
@@ -286,8 +291,8 @@ class CMZDRILSAC(SAC):
         self.absorbing_score = absorbing_score
         #: whether terminations are scored as an absorbing state (``absorbing`` resolved at ``learn()``)
         self.absorbing_active = False
-        #: the policy is pretrained and the ensemble fitted: ``learn()`` goes straight to SAC
-        self.pretrained = False
+        #: the actor holds pretrained (or loaded) weights: pretraining leaves it alone
+        self._policy_pretrained = False
         self.pretrain_info: dict[str, float] = {}
         #: the actor's NLL per pretraining epoch, on the training and the held-out demo steps
         self.pretrain_history: dict[str, list[float]] = {}
@@ -327,6 +332,30 @@ class CMZDRILSAC(SAC):
             self._setup_model()
 
     # -- model construction and persistence --------------------------------------------------
+    @property
+    def pretrained(self) -> bool:
+        """Whether the actor is pretrained and the ensemble fitted, so that ``learn()`` goes straight
+        to SAC (as SB3's ``learn()`` continues from the current parameters).
+
+        True after the first ``learn()`` or :meth:`pretrain`, after ``load()`` of a model saved
+        pretrained, and after ``set_parameters()`` with a policy and a fitted ensemble. A
+        ``set_parameters()`` that brings only some of them (``exact_match=False``) keeps what it
+        brought: the next ``learn()`` pretrains only the rest. Set it to True after loading weights by
+        hand (e.g. ``model.policy.load_state_dict(...)``) to skip pretraining; set it to False to
+        clone and refit from scratch at the next ``learn()``. Either way the reward rule (and the
+        bounds it takes from the ensemble) is made again for the ensemble at the next ``learn()``.
+        """
+        return self._policy_pretrained and self.ensemble.is_fitted
+
+    @pretrained.setter
+    def pretrained(self, value: bool) -> None:
+        self._policy_pretrained = bool(value)
+        if not value:
+            self.ensemble.mark_unfitted()
+        elif not self.ensemble.is_fitted:  # members loaded by hand: "auto" reads its form from the demos
+            self.ensemble.mark_fitted(None if self.demonstrations is None else self.demonstrations.actions)
+        self.reward_rule = None
+
     def _setup_model(self) -> None:
         if not isinstance(self.observation_space, spaces.Box) or len(self.observation_space.shape) != 1:
             raise UserError(
@@ -347,7 +376,7 @@ class CMZDRILSAC(SAC):
             self.actor, self.bc_batch_size, self.bc_learning_rate, max_grad_norm=10.0, seed=seed,
             loss=ScaledActionMSE(self.action_space, self.device),
         )
-        self.reward_rule: RewardRule | None = None
+        self.reward_rule = None
         for name in _SAVED_TENSORS:
             setattr(self, name, th.zeros(0))
 
@@ -383,10 +412,15 @@ class CMZDRILSAC(SAC):
         **kwargs: Any,
     ) -> SelfCMZDRILSAC:
         """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
-        model = super().load(
-            path, env=env, device=device, custom_objects=custom_objects, print_system_info=print_system_info,
-            force_reset=force_reset, **kwargs,
-        )
+        with restoring_saved_model():
+            model = super().load(
+                path, env=env, device=device, custom_objects=custom_objects, print_system_info=print_system_info,
+                force_reset=force_reset, **kwargs,
+            )
+        # Models saved while the flag was a plain attribute have it in __dict__, under the property.
+        legacy_pretrained = model.__dict__.pop("pretrained", None)
+        if legacy_pretrained is not None:
+            model._policy_pretrained = bool(legacy_pretrained)
         if demonstrations is not None:
             model.demonstrations = as_demonstrations(demonstrations)
         elif model._saved_demo_obs.numel():
@@ -401,6 +435,21 @@ class CMZDRILSAC(SAC):
                 model.reward_rule.absorbing_u = float(model._saved_absorbing_u.item())
         return model
 
+    def set_parameters(
+        self,
+        load_path_or_dict: str | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """SB3's ``set_parameters``; what it loads is kept by the next ``learn()``: a loaded actor is
+        not cloned again and a loaded fitted ensemble not refitted (see :attr:`pretrained`)."""
+        params = parameters_to_set(load_path_or_dict, device)
+        super().set_parameters(params, exact_match=exact_match, device=device)
+        if weights_brought_by_user():
+            self._policy_pretrained = self._policy_pretrained or "policy" in params
+            if "ensemble" in params:
+                self.reward_rule = None  # its bounds belong to the ensemble it replaced
+
     # -- imitation set-up ------------------------------------------------------------------------
     @property
     def absorbing_u(self) -> float:
@@ -412,7 +461,8 @@ class CMZDRILSAC(SAC):
 
     def pretrain(self, progress_bar: bool = False) -> dict[str, float]:
         """Check the demos, set the input standardisation, clone the demos into the actor (early
-        stopping on held-out steps) and fit the ensemble, unless :attr:`pretrained`; returns the
+        stopping on held-out steps) and fit the ensemble, each unless done already (see
+        :attr:`pretrained`), then make the reward rule for the ensemble if it has none; returns the
         losses, epochs and timings of what ran."""
         if self.demonstrations is None:
             raise UserError(
@@ -424,8 +474,40 @@ class CMZDRILSAC(SAC):
             raise UserError("reward='env' replays the demonstrations with their rewards, and these have none; "
                             "set demo_fraction=0 or record the demos with rewards")
         self.bc.set_demonstrations(self.demonstrations)
-        if self.pretrained:
+        if self.pretrained and self.reward_rule is not None:
             return self.pretrain_info
+        info: dict[str, float] = {}
+        if not self._policy_pretrained:
+            info.update(self._clone_demonstrations(progress_bar))
+        if not self.ensemble.is_fitted:
+            start = time.perf_counter()
+            self.ensemble.fit(
+                self.demonstrations,
+                self.ensemble_epochs,
+                self.ensemble_batch_size,
+                self.ensemble_learning_rate,
+                progress_bar,
+            )
+            info["ensemble_seconds"] = time.perf_counter() - start
+        self.dril_threshold, self.cmz_u_max = rule_bounds(
+            self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.cmz_clip_quantile
+        )
+        self.reward_rule = self._make_rule()
+        self._policy_pretrained = True
+        self.pretrain_info = {**self.pretrain_info, **info}
+        if self.verbose >= 1 and info:
+            done = []
+            if "bc_loss" in info:
+                done.append(f"BC loss {info['bc_loss']:.4g} (best epoch {int(info['bc_best_epoch'])})")
+            if "ensemble_seconds" in info:
+                done.append(f"ensemble fitted in {info['ensemble_seconds']:.1f}s")
+            print(f"CMZDRILSAC pretraining: {'; '.join(done)}")
+        return self.pretrain_info
+
+    def _clone_demonstrations(self, progress_bar: bool) -> dict[str, float]:
+        """Standardise the inputs by the demos and clone them into the actor (early stopping on
+        held-out steps); the loss, best epoch and time it took."""
+        assert self.demonstrations is not None
         if self.standardize_observations:
             for module in self.policy.modules():  # actor's, critic's and the target critic's
                 if isinstance(module, DemoStandardizer):
@@ -441,30 +523,11 @@ class CMZDRILSAC(SAC):
                     head.weight.zero_()
                     head.bias.fill_(self.log_std_init)
         self.pretrain_history = {"train_nll": stopping.train_nll, "validation_nll": stopping.validation_nll}
-        info = {
+        return {
             "bc_loss": self.bc.nll(),
             "bc_best_epoch": float(stopping.best_epoch),
             "bc_seconds": time.perf_counter() - start,
         }
-        start = time.perf_counter()
-        self.ensemble.fit(
-            self.demonstrations,
-            self.ensemble_epochs,
-            self.ensemble_batch_size,
-            self.ensemble_learning_rate,
-            progress_bar,
-        )
-        info["ensemble_seconds"] = time.perf_counter() - start
-        self.dril_threshold, self.cmz_u_max = rule_bounds(
-            self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.cmz_clip_quantile
-        )
-        self.reward_rule = self._make_rule()
-        self.pretrained = True
-        self.pretrain_info = info
-        if self.verbose >= 1:
-            print(f"CMZDRILSAC pretraining: BC loss {info['bc_loss']:.4g} (best epoch {stopping.best_epoch}); "
-                  f"ensemble fitted in {info['ensemble_seconds']:.1f}s")
-        return info
 
     # -- training ---------------------------------------------------------------------------------
     def learn(
@@ -496,7 +559,7 @@ class CMZDRILSAC(SAC):
         tb_log_name: str = "run",
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
-        if not self.pretrained:
+        if not self.pretrained or self.reward_rule is None:
             self.pretrain()
         assert self.demonstrations is not None and self.env is not None
         self.absorbing_active = self.reward != "env" and (
