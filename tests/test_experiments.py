@@ -610,5 +610,5 @@ def test_an_env_id_with_its_module_prefix_names_the_same_run(tmp_path):
 
 
 def test_grid_module_names():
-    assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz", "cmz-sac")
+    assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz", "cmz-sac", "dril-sac", "zero-sac", "env-sac")
     assert grid.parse_list("cmz, bc,cmz,,") == ["cmz", "bc"]

@@ -184,7 +184,7 @@ def test_longest_tie_break_in_the_yaml_reaches_the_runs_choice_and_is_refused_wh
         plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=bad, output_dir=tmp_path / "x")
     ppo = tmp_path / "ppo.yml"
     ppo.write_text(tiny_experiment["hp"].read_text() + "  longest_tie_break: lowest_u\n")
-    with pytest.raises(UserError, match="longest_tie_break applies only to the off-policy methods \\['cmz-sac'\\]"):
+    with pytest.raises(UserError, match="longest_tie_break applies only to the off-policy methods \\['cmz-sac', 'dril"):
         plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], hyperparams=ppo, output_dir=tmp_path / "y")
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
@@ -198,6 +198,20 @@ def test_a_grid_runs_the_papers_methods_unless_told_and_gives_cmz_sac_its_file(t
     assert [(s.method, Path(s.hyperparams)) for s in specs] == [
         ("cmz", tiny_experiment["hp"]), ("cmz-sac", sac_yaml)]
     assert Path(specs[1].output_dir) == tmp_path / ENV / "cmz-sac" / "trial0"
+
+
+@pytest.mark.parametrize("method, reward", [("dril-sac", "dril"), ("zero-sac", "zero"), ("env-sac", "env")])
+def test_the_off_policy_comparisons_train_cmzdrilsac_with_the_reward_they_name(method, reward, tiny_experiment,
+                                                                              sac_yaml, tmp_path):
+    out = tmp_path / method
+    spec = plan_run(ENV, method, 0, demos=tiny_experiment["pool"], hyperparams=sac_yaml, output_dir=out,
+                    timesteps=128, n_eval_episodes=2)
+    assert spec.hyperparams == str(sac_yaml) and spec.off_policy
+    run_experiment(spec)
+    model = CMZDRILSAC.load(out / "model.zip", device="cpu")
+    assert model.reward == reward and model.num_timesteps == 128
+    assert json.loads((out / "config.json").read_text())["method"] == method
+    assert {r["policy"] for r in _rows(out / "final_eval.csv")} == {"final", "longest"}
 
 
 @pytest.mark.slow

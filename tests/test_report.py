@@ -236,7 +236,8 @@ def test_runs_the_report_cannot_place_are_named_with_the_reason(main_grid, tmp_p
     assert main(["report", str(main_grid), "-o", str(tmp_path / "docs"), "--no-figures"]) == 0
     out = capsys.readouterr().out
     text = (tmp_path / "docs" / "results.md").read_text()
-    for line in (f"`{ENV}/gail/trial0` (method 'gail' in config.json is none of bc, zero, env, dril, cmz, cmz-sac)",
+    for line in (f"`{ENV}/gail/trial0` (method 'gail' in config.json is none of bc, zero, env, dril, cmz, cmz-sac, "
+                 "dril-sac, zero-sac, env-sac)",
                  f"`{ENV}/cmz/trial9` (no config.json, so not known which run it is)",
                  f"`{ENV}/cmz/trial8` (config.json is not what sb3-cmzdril wrote: it holds a JSON array, "
                  "not an object)"):

@@ -11,7 +11,8 @@ if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
 
 _METHODS_HELP = (
     "bc (pretrained policy only), zero, env, dril or cmz (CMZDRIL, PPO), or cmz-sac (CMZ-DRIL's reward with the "
-    "off-policy learner CMZDRILSAC)"
+    "off-policy learner CMZDRILSAC) and its comparisons dril-sac, zero-sac and env-sac (the same learner with "
+    "DRIL's reward, none, the env's)"
 )
 
 

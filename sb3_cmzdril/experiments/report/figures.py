@@ -45,7 +45,7 @@ FINAL_FIGURE = "fig3_final_eval.png"
 FINAL_FIGURE_REFERENCE = "fig3_final_eval_reference.png"
 SMOOTHING_SIGMA = 2.0
 COLORS = {"bc": "tab:gray", "dril": "tab:orange", "cmz": "tab:blue", "zero": "tab:red", "env": "tab:green",
-          "cmz-sac": "tab:purple"}
+          "cmz-sac": "tab:purple", "dril-sac": "tab:brown", "zero-sac": "tab:pink", "env-sac": "tab:olive"}
 
 
 def new_figure(width: float, height: float):

@@ -45,9 +45,12 @@ METHOD_LABELS: dict[str, str] = {
     "zero": "No reward",
     "env": "Env. reward",
     "cmz-sac": "CMZ-DRIL (SAC)",
+    "dril-sac": "DRIL (SAC)",
+    "zero-sac": "No reward (SAC)",
+    "env-sac": "Env. reward (SAC)",
 }
 #: Row order of the tables: the paper's Table I first, then Fig. 2's extra methods, then the off-policy learner.
-METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env", "cmz-sac")
+METHOD_ORDER: tuple[str, ...] = ("bc", "dril", "cmz", "zero", "env", "cmz-sac", "dril-sac", "zero-sac", "env-sac")
 #: Column order of envs: the paper's (PyUXV, Half Cheetah, Hopper); others follow alphabetically.
 ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: The policies of a final evaluation: the one at the end of training, and the reward-free choice of

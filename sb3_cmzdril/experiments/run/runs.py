@@ -16,7 +16,8 @@ deleted.
 Methods (``METHODS``): ``bc`` (the NLL-pretrained policy, evaluated once at epoch 0), the four
 CMZDRIL reward modes ``zero``, ``env``, ``dril``, ``cmz``, and ``cmz-sac``: CMZ-DRIL's reward with the
 off-policy learner CMZDRILSAC, whose epoch is ``OFFPOLICY_EPOCH_STEPS`` env steps and whose checkpoint
-holds its replay buffer too. Every method of a trial shares the env seed and the demonstration split;
+holds its replay buffer too (``dril-sac``, ``zero-sac`` and ``env-sac``: the same learner with the
+other reward modes). Every method of a trial shares the env seed and the demonstration split;
 the PPO methods share the network seed's initial weights too, so their epoch-0 policies are identical.
 
 This module stays the public path of the planning and run-folder names that users import from it

@@ -33,10 +33,11 @@ if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not whe
     from sb3_cmzdril.hyperparams import Hyperparams
 
 #: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL (PPO), then
-#: CMZ-DRIL's reward with the off-policy learner CMZDRILSAC (:data:`OFFPOLICY_METHODS`).
-METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz", "cmz-sac")
-#: Methods trained by CMZDRILSAC, each with the reward mode it names before ``-sac``.
-OFFPOLICY_METHODS: tuple[str, ...] = ("cmz-sac",)
+#: the off-policy learner CMZDRILSAC with each reward mode (:data:`OFFPOLICY_METHODS`).
+METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz", "cmz-sac", "dril-sac", "zero-sac", "env-sac")
+#: Methods trained by CMZDRILSAC, each with the reward mode it names before ``-sac``: ``cmz-sac`` is
+#: the package's off-policy method, the others its comparisons (DRIL's reward, none, the env's).
+OFFPOLICY_METHODS: tuple[str, ...] = ("cmz-sac", "dril-sac", "zero-sac", "env-sac")
 #: The paper's comparison: what a grid runs when no method is named.
 PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m not in OFFPOLICY_METHODS)
 #: Hyperparameter file of the repository used when none is given (hyperparams/cmzdril.yml).
