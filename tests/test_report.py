@@ -20,7 +20,13 @@ from scipy.stats import bootstrap
 from helpers import write_run
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.report.final_eval import expert_level_share, expert_percent, final_table, mean_ci
+from sb3_cmzdril.experiments.report.final_eval import (
+    expert_level_share,
+    expert_percent,
+    final_table,
+    mean_ci,
+    paired_markdown,
+)
 from sb3_cmzdril.experiments.report.records import NOT_SET, load_runs, read_final_eval, setting_differences
 
 ENV = "HalfCheetah-v5"
@@ -358,6 +364,23 @@ def test_final_table_orders_final_then_lowest_u(main_grid):
     rows = final_table(load_runs(main_grid))
     assert [(r.method, r.policy) for r in rows] == [("bc", "final"), ("cmz", "final"), ("zero", "final"),
                                                     ("cmz", "lowest_u"), ("zero", "lowest_u")]
+
+
+def test_the_off_policy_method_is_paired_with_its_own_learner_without_reward(tmp_path):
+    # Held-out returns per trial: cmz-sac's result (its longest-episodes choice) beats zero-sac's in
+    # trials 0 and 2 (by 30, -10, 50); each last-weights row is paired with the other's last weights.
+    returns = {"bc": ([10, 10, 10], None), "cmz-sac": ([100, 90, 120], [80, 70, 60]),
+               "zero-sac": ([70, 100, 70], [90, 90, 90])}
+    for method, (longest, last) in returns.items():
+        for trial in range(3):
+            final = {"final": [float(last[trial])] * 2, "longest": [float(longest[trial])] * 2} if last else \
+                {"final": [float(longest[trial])] * 2}
+            write_run(tmp_path, method, trial, [1.0], final=final)
+    table = paired_markdown(final_table(load_runs(tmp_path)))
+    assert f"| CMZ-DRIL (SAC) | 3 of 3 | {report.fmt_ci(*mean_ci([90.0, 80.0, 110.0]))} |" in table
+    assert f"| 2 of 3 | {report.fmt_ci(*mean_ci([30.0, -10.0, 50.0]))} | ?, ?, ? |" in table  # longest vs longest
+    assert f"| 0 of 3 | {report.fmt_ci(*mean_ci([-10.0, -20.0, -30.0]))} | — |" in table  # last weights vs last
+    assert sum("| No reward (SAC)" in line and "| — | — |" in line for line in table.splitlines()) == 2
 
 
 # -- Table I, gap closed, reward signal, discussion (moved from test_experiments.py) -------------------

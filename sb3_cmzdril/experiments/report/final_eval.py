@@ -185,11 +185,16 @@ def paired(row: FinalRow, baseline: FinalRow | None, column: str = "return") -> 
     return Paired(trials, [mine[t] - theirs[t] for t in trials])
 
 
+#: CMZ-DRIL's methods and their ablations without reward: the same learner, everything but the reward.
+NO_REWARD_ABLATION: dict[str, str] = {"cmz": "zero", "cmz-sac": "zero-sac"}
+
+
 def baselines(rows: Sequence[FinalRow], row: FinalRow) -> tuple[FinalRow | None, FinalRow | None]:
-    """(BC, no reward) to compare ``row`` with: BC's policy for every RL row; no reward (the same
-    policy choice, so the selection is compared like with like) for CMZ-DRIL only."""
+    """(BC, no reward) to compare ``row`` with: BC's policy for every RL row; for CMZ-DRIL's methods,
+    the same learner with no reward (the same policy choice, so the selection is compared like with like)."""
     bc = find(rows, row.env, "bc") if row.method != "bc" else None
-    zero = find(rows, row.env, "zero", row.policy) if row.method == "cmz" else None
+    ablation = NO_REWARD_ABLATION.get(row.method)
+    zero = find(rows, row.env, ablation, row.policy) if ablation is not None else None
     return bc, zero
 
 
@@ -211,7 +216,7 @@ def final_markdown(rows: Sequence[FinalRow]) -> str:
 
 
 def paired_markdown(rows: Sequence[FinalRow]) -> str:
-    """Each RL row against BC and (CMZ-DRIL) against no reward, trial by trial."""
+    """Each RL row against BC and (CMZ-DRIL's methods) against no reward, trial by trial."""
     body = []
     for r in rows:
         if r.method == "bc":

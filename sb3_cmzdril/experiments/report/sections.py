@@ -238,7 +238,8 @@ def final_sections(rep: GridReport, h: str, figure: Path | None) -> list[str]:
     else:
         parts += ["Paired by trial (a trial's methods share the seed, the demo split and the held-out episodes): "
                   "in how many trials each policy's mean return is above BC's (and, for CMZ-DRIL, above no reward's "
-                  "with the same policy choice), and the mean difference with its bootstrap CI. For the lowest-u "
+                  "with the same learner and policy choice: CMZ-DRIL (SAC) against No reward (SAC)), and the mean "
+                  "difference with its bootstrap CI. For the lowest-u "
                   "policies, the epoch each trial's choice came from (done.json).", "", paired_markdown(rep.final), ""]
     if figure is not None:
         parts += [f"![Final evaluation: {rep.label}]({figure.name})", ""]
