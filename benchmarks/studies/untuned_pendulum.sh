@@ -9,9 +9,12 @@
 #      resampled every 4 steps; the rest of that entry equals the package's) with everything else of the
 #      `default` entry, results/tuning/P-zoo-ppo;
 #   3. the same with the ensemble's disagreement taken on its members' actions unclipped
-#      (`disagreement: std_unclipped`), results/tuning/P-zoo-ppo-unclipped.
+#      (`disagreement: std_unclipped`), results/tuning/P-zoo-ppo-unclipped;
+#   4. the off-policy method `cmz-sac` with the package defaults (hyperparams/cmzdril_sac.yml has no
+#      Pendulum-v1 entry: its `default` entry, 70,000 steps) and its ablation without reward,
+#      `zero-sac`, on trials 0-4, results/untuned.
 #
-# Every run has the zoo's budget for the task, 100,000 steps. Resumable: rerun it to continue; finished
+# The PPO runs have the zoo's budget for the task, 100,000 steps; the off-policy ones their file's. Resumable: rerun it to continue; finished
 # runs are skipped, an existing pool is kept.
 #
 #   ZOO=path/to/rl-trained-agents bash benchmarks/studies/untuned_pendulum.sh
@@ -33,6 +36,9 @@ for trials in 0-4 5-9; do
     python benchmarks/studies/tune.py P-zoo-ppo-unclipped "${zoo_ppo[@]}" --set disagreement=std_unclipped \
         -- --methods cmz,dril --trials "$trials" "${common[@]}"
 done
+# The package's off-policy method and its no-reward ablation, at their own file's budget.
+$cli benchmark --env "$env_id" --methods cmz-sac,zero-sac --trials 0-4 --eval-every 5 --workers "$workers" \
+    --no-progress --demos-dir "$untuned" -o "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
 $cli benchmark --methods bc --trials 0-9 "${common[@]}" -o "$untuned"
