@@ -65,5 +65,5 @@ print("   ", ", ".join(f"{m.__name__} {m.__version__}" for m in (torch, stable_b
 job py310 3.10 2.13.0 "" test
 job py313 3.13 2.13.0 "" test
 job floors 3.10 2.0.0 "$repo/.ci/floors.txt" experiments,ray,minari,contrib,hub \
-    "pytest>=7.0" "tensorboard>=2.10" "minari[create]>=0.5,<0.6"
+    "pytest>=7.0" "pytest-xdist>=3.0" "tensorboard>=2.10" "minari[create]>=0.5,<0.6"
 echo "== matrix: all passed in $((SECONDS - start)) s"

@@ -2,6 +2,7 @@
 helpers (the tiny setting, the experts, hand-written run folders) are in helpers.py."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,10 @@ from helpers import ENV, POOL_EPISODES, TINY_PPO_YAML, cartpole_expert, pendulum
 from sb3_cmzdril.demos import Demonstrations
 
 torch.set_num_threads(1)
+# Ray renices its workers to 15: beside a test of another pytest-xdist worker they got almost no CPU,
+# and a Ray test that takes 20 s alone ran past its 300 s timeout. Read by the Ray processes the tests
+# start, which inherit it.
+os.environ.setdefault("RAY_worker_niceness", "0")
 
 
 @pytest.fixture(scope="session")

@@ -305,6 +305,7 @@ def test_report_expert_scale_skips_a_pool_that_changed(grid_runs, tmp_path):
 
 # -- Ray backend ------------------------------------------------------------------------------------------
 @pytest.mark.slow
+@pytest.mark.xdist_group("ray")  # one worker for every Ray test (tests/test_ray_cluster.py)
 def test_ray_backend_runs_the_grid(tiny_experiment, tmp_path):
     ray = pytest.importorskip("ray")
     specs = plan_grid(

@@ -27,7 +27,9 @@ from sb3_cmzdril.experiments.run.grid import held_elsewhere, plan_grid, run_grid
 from sb3_cmzdril.experiments.run.runs import run_experiment, train_command
 
 ray = pytest.importorskip("ray")
-pytestmark = pytest.mark.slow  # every test starts or uses a two-node Ray cluster
+# Every test starts or uses a two-node Ray cluster. The "ray" group keeps every Ray test of the suite on
+# one worker under pytest-xdist: a ray.init() finds a local instance another test is running and joins it.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray")]
 
 #: Set on the worker node only: the folder its processes must not touch.
 DENIED = "SB3_CMZDRIL_TEST_DENIED_ROOT"

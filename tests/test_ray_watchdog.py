@@ -14,7 +14,8 @@ import pytest
 
 from sb3_cmzdril.experiments.run._ray_watchdog import descendants
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="the watchdog reads /proc (Linux)")
+pytestmark = [pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="the watchdog reads /proc (Linux)"),
+              pytest.mark.xdist_group("ray")]  # one worker for every Ray test (tests/test_ray_cluster.py)
 
 #: A stand-in driver: starts the watchdog, then a child and a grandchild that, like Ray's agents,
 #: is left to PID 1 once its parent exits; with argument "stop" it stops the watchdog as the backend's

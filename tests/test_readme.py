@@ -51,7 +51,7 @@ def test_training_lengths_shrink_and_nothing_else_changes():
 COMMANDS = (
     'python3 -m pip install torch==2.13.0 && python3 -m pip install -e ".[experiments]" && sb3-cmzdril train '
     "--env HalfCheetah-v5 --reward cmz --timesteps 300000 --eval-every 5",
-    'python3 -m pip install torch==2.13.0 && python3 -m pip install -e ".[test]" && python3 -m pytest',
+    'python3 -m pip install torch==2.13.0 && python3 -m pip install -e ".[test]" && python3 -m pytest -n auto',
     'python3 -m pip install -e ".[docs]" && python3 -m mkdocs build --strict',
 )
 
