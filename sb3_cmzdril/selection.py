@@ -26,7 +26,7 @@ al., 2018), so that the policy a run ends with depends less on where its last up
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -44,6 +44,27 @@ from sb3_cmzdril.io import PathLike, atomic_path
 
 #: How :class:`LongestEpisodesPolicy` chooses between checks whose episodes lasted equally long.
 TIE_BREAKS: tuple[str, ...] = ("latest", "lowest_u")
+
+
+def kept_check(history: Sequence[tuple[int, float, float]], tie_break: str = "latest") -> int:
+    """The index in ``history`` of the check :class:`LongestEpisodesPolicy` keeps: the longest mean
+    episode; among equally long ones the latest, or with ``tie_break="lowest_u"`` the lowest mean
+    disagreement (the later on an exact tie, or where u is NaN).
+
+    :param history: (training steps, mean episode length, mean disagreement) of each check, in order,
+        as :attr:`LongestEpisodesPolicy.history` holds them.
+    :raises UserError: an empty history or an unknown ``tie_break``.
+    """
+    if tie_break not in TIE_BREAKS:
+        raise UserError(f"tie_break must be one of {list(TIE_BREAKS)}, got {tie_break!r}")
+    if not history:
+        raise UserError("no checks to choose from")
+    best, best_length, best_u = 0, -float("inf"), float("nan")
+    for index, (_, length, u) in enumerate(history):
+        tied_and_better = length == best_length and (tie_break == "latest" or not u > best_u)
+        if length > best_length or tied_and_better:
+            best, best_length, best_u = index, length, u
+    return best
 
 
 class _KeptWeights(BaseCallback):
@@ -75,7 +96,7 @@ class _KeptWeights(BaseCallback):
         loading needs no pickle."""
         raise NotImplementedError
 
-    def kept(self) -> dict[str, float]:
+    def kept(self) -> dict[str, Any]:
         """Which policy is kept and why, as plain numbers (for a run's summary)."""
         raise NotImplementedError
 
@@ -261,8 +282,7 @@ class LongestEpisodesPolicy(_KeptWeights):
         u = float(np.mean(ensemble.disagreement(_stacked(played[0]), np.concatenate(played[1])))) \
             if ensemble is not None and played[0] else float("nan")
         self.history.append((timesteps, length, u))
-        tied_and_better = length == self.best_length and (self.tie_break == "latest" or not u > self.best_u)
-        if length > self.best_length or tied_and_better:
+        if kept_check(self.history, self.tie_break) == len(self.history) - 1:
             self.best_length, self.best_timesteps, self.best_u = length, timesteps, u
             self._keep()
         if self.verbose >= 1:
@@ -278,12 +298,13 @@ class LongestEpisodesPolicy(_KeptWeights):
             "env_steps": th.tensor(self.env_steps, dtype=th.int64),
         }
 
-    def kept(self) -> dict[str, float]:
+    def kept(self) -> dict[str, Any]:
         """The kept policy's training steps, its checks' mean episode length and disagreement (NaN
-        without an ensemble), and the checks' env steps."""
+        without an ensemble), the checks' env steps, and every check as ``[steps, mean length, mean
+        u]`` (what :func:`kept_check` chooses from: the run's record of the other tie break's choice)."""
         steps = -1 if self.best_timesteps is None else self.best_timesteps
         return {"timesteps": int(steps), "mean_length": self.best_length, "mean_u": self.best_u,
-                "env_steps": int(self.env_steps)}
+                "env_steps": int(self.env_steps), "checks": [list(check) for check in self.history]}
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
         # Everything is read before anything is set: a file that lacks a part changes nothing. Files
@@ -385,4 +406,4 @@ class AveragedPolicy(_KeptWeights):
         self.first_timesteps, self.last_timesteps = int(blob["first_timesteps"]), int(blob["last_timesteps"])
 
 
-__all__ = ["TIE_BREAKS", "AveragedPolicy", "LongestEpisodesPolicy", "LowestDisagreementPolicy"]
+__all__ = ["TIE_BREAKS", "AveragedPolicy", "LongestEpisodesPolicy", "LowestDisagreementPolicy", "kept_check"]

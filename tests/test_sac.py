@@ -21,7 +21,7 @@ from sb3_cmzdril import CMZDRIL, CMZReward, Demonstrations, DRILReward, UserErro
 from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
 from sb3_cmzdril.rewards import EnvReward, ZeroReward
 from sb3_cmzdril.sac import CMZDRILSAC, ScaledActionMSE
-from sb3_cmzdril.selection import LongestEpisodesPolicy
+from sb3_cmzdril.selection import LongestEpisodesPolicy, kept_check
 
 #: A CMZDRILSAC whose learn() calls take a second: TINY's networks and fits, TINY_SAC's buffer.
 TINY_CMZ_SAC = dict(
@@ -544,6 +544,11 @@ def test_longest_episodes_keeps_the_longest_latest_on_a_tie_from_the_same_starts
     assert all(np.isnan(u) for *_, u in selector.history)  # a model without an ensemble: no u
     assert selector.best_timesteps == 40 and selector.best_length == 20.0
     assert selector.env_steps == 3 * (3 + 7 + 20 + 5 + 20 + 2)
+    # The run's record (done.json) lists every check, so the other tie break's choice can be replayed.
+    checks = selector.kept()["checks"]
+    assert [(s, length) for s, length, _ in checks] == [
+        (0, 3.0), (10, 7.0), (20, 20.0), (30, 5.0), (40, 20.0), (50, 2.0)]
+    assert kept_check(checks, "latest") == 4
     # Every check starts its three episodes from the same three states: the comparison is paired. (The
     # vectorised env also resets once after a check's last episode: four resets a check.)
     blocks = [env.starts[i:i + 4] for i in range(0, len(env.starts), 4)]
@@ -602,6 +607,29 @@ def test_longest_episodes_breaks_a_tie_in_length_by_the_lowest_disagreement_when
     assert selector.best_length == 20.0 and selector.kept()["mean_u"] == abs(kept_w - 22)
     selector.apply(model)
     assert model.policy.w.item() == kept_w
+
+
+#: (steps, mean length, u) of five checks: the longest episodes (200) first at 10, tied at 20, 30 and 40.
+_CHECKS = [(0, 50.0, 0.9), (10, 200.0, 0.3), (20, 200.0, 0.1), (30, 200.0, 0.7), (40, 200.0, 0.1)]
+
+
+@pytest.mark.parametrize(("checks", "tie_break", "kept"), [
+    (_CHECKS, "latest", 4),
+    (_CHECKS, "lowest_u", 4),  # 20 and 40 tie in u too: the later
+    (_CHECKS[:4], "lowest_u", 2),
+    (_CHECKS[:4], "latest", 3),
+    ([(0, 10.0, 0.1), (10, 9.0, 0.0)], "lowest_u", 0),  # length first: a lower u never outranks it
+    ([(0, 5.0, float("nan")), (10, 5.0, float("nan"))], "lowest_u", 1),  # u unknown: the later
+])
+def test_the_kept_check_is_the_longest_then_the_latest_or_the_lowest_u(checks, tie_break, kept):
+    assert kept_check(checks, tie_break) == kept
+
+
+def test_the_kept_check_refuses_no_checks_and_an_unknown_tie_break():
+    with pytest.raises(UserError, match="no checks to choose from"):
+        kept_check([])
+    with pytest.raises(UserError, match=r"tie_break must be one of \['latest', 'lowest_u'\], got 'first'"):
+        kept_check(_CHECKS, "first")
 
 
 def test_the_lowest_u_tie_break_refuses_a_model_without_an_ensemble():

@@ -1,0 +1,135 @@
+"""Which policy would each finished off-policy run have kept with the other tie break?
+
+    python benchmarks/studies/longest_checks.py FOLDER [FOLDER ...] [-o OUT]
+
+The off-policy runs (`cmz-sac` and its comparisons) keep, as their result, the policy whose checks'
+deterministic episodes lasted longest (``LongestEpisodesPolicy``); where checks tie in length, the
+latest (``longest_tie_break: latest``, the default) or the one whose checks' states the ensemble
+disagrees on least (``lowest_u``). Every check's length and mean u are in the run's done.json (in
+its longest.pt, which the repository does not keep, for runs made before done.json had them), so
+the choice either rule makes is known without training again (``selection.kept_check``, the rule the
+runs apply). Its return is not: only the kept policy and the last weights get the final evaluation
+on every held-out episode. This script reads the per-epoch evaluation instead (eval.csv: the policy
+at the same step on the run's ``--eval-episodes`` held-out episodes, 5 in the grid), so its returns
+for a policy the run did not keep are estimates on few episodes.
+
+For every finished run folder under the FOLDERs with a longest-episodes choice: the checks (steps, mean length, mean u,
+eval.csv's return at that step), the check each rule keeps, and the final evaluation's returns.
+Then, per env and method, the runs where the two rules keep different policies. A run whose
+recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
+
+The repository's output: results/tuning/longest_checks.txt, from
+
+    python benchmarks/studies/longest_checks.py results/runs results/runs_sac_trials5-9 results/untuned \\
+        -o results/tuning/longest_checks.txt
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from sb3_cmzdril.experiments.run.run_folder import DONE_FILE, LONGEST_FILE
+from sb3_cmzdril.io import read_json
+from sb3_cmzdril.selection import TIE_BREAKS, LongestEpisodesPolicy, kept_check
+
+
+def recorded_checks(run: Path, config: dict) -> list[tuple[int, float, float]] | None:
+    """The run's checks: from done.json, or from its longest.pt where done.json predates them; None
+    where neither is here (the repository keeps no longest.pt)."""
+    done = read_json(run / DONE_FILE)
+    kept = done.get("final_evaluation", {}).get("longest", {})
+    if "checks" in kept:  # written by jsonable: a NaN u as the string "nan"
+        return [(int(steps), float(length), float(u)) for steps, length, u in kept["checks"]]
+    env = gym.make(config["env_id"], **config.get("env_kwargs", {}))
+    try:
+        selector = LongestEpisodesPolicy(env)
+        if not selector.load(run / LONGEST_FILE):
+            return None
+    finally:
+        env.close()
+    return selector.history
+
+
+def replay(run: Path) -> dict | None:
+    """One run's checks, the check each tie break keeps, and its evaluations; None where its checks
+    are not recorded."""
+    config = read_json(run / "config.json")
+    recorded = config["hyperparams_values"].get("longest_tie_break", "latest")
+    checks = recorded_checks(run, config)
+    if checks is None:
+        return None
+    kept = {rule: kept_check(checks, rule) for rule in TIE_BREAKS}
+    kept_steps = read_json(run / DONE_FILE)["final_evaluation"]["longest"]["timesteps"]
+    if checks[kept[recorded]][0] != kept_steps:
+        raise RuntimeError(f"{run}: the run kept the check at {kept_steps} steps, the replay of {recorded!r} "
+                           f"the one at {checks[kept[recorded]][0]}")
+    evaluation = pd.read_csv(run / "eval.csv").set_index("timesteps")["return_mean"]
+    final = pd.read_csv(run / "final_eval.csv").groupby("policy")["return"].mean()
+    return {"env": config["env_id"], "method": config["method"], "trial": config["seed"], "recorded": recorded,
+            "checks": [(steps, length, u, float(evaluation.get(steps, np.nan))) for steps, length, u in checks],
+            "kept": kept, "final": final.to_dict(), "episodes": int(config["n_eval_episodes"])}
+
+
+def describe(run: Path, r: dict) -> list[str]:
+    """The lines of one run."""
+    checks = ", ".join(f"{steps}: {length:g} / {u:.3f} / {ret:.0f}" for steps, length, u, ret in r["checks"])
+    lines = [f"{run} (trial {r['trial']}; the run's tie break: {r['recorded']})",
+             f"  checks (steps: mean length / mean u / eval.csv return over {r['episodes']} episodes): {checks}"]
+    for rule, index in r["kept"].items():
+        steps, length, u, ret = r["checks"][index]
+        lines.append(f"  {rule:>8}: keeps the check at {steps} steps (length {length:g}, u {u:.3f}, "
+                     f"eval.csv {ret:.0f})")
+    final = ", ".join(f"{name} {value:.0f}" for name, value in sorted(r["final"].items()))
+    lines.append(f"  final evaluation (every held-out episode): {final}")
+    return lines
+
+
+def summary(replays: list[dict]) -> list[str]:
+    """Per env and method: the runs where the two rules keep different policies."""
+    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for r in replays:
+        groups[(r["env"], r["method"])].append(r)
+    lines = ["", "Per env and method: runs, those whose two rules keep different checks, and there eval.csv's "
+             "return of the check each keeps (latest -> lowest_u)"]
+    for (env, method), runs in sorted(groups.items()):
+        runs = sorted(runs, key=lambda r: r["trial"])
+        differ = [r for r in runs if r["kept"]["latest"] != r["kept"]["lowest_u"]]
+        returns = [(r["trial"], *(r["checks"][r["kept"][rule]][3] for rule in ("latest", "lowest_u"))) for r in differ]
+        detail = "; ".join(f"trial {trial}: {latest:.0f} -> {lowest:.0f}" for trial, latest, lowest in returns)
+        trials = ", ".join(str(r["trial"]) for r in runs)
+        lines.append(f"{env} {method}: {len(runs)} runs (trials {trials}), {len(differ)} differ"
+                     + (f": {detail}" if detail else ""))
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("folders", nargs="+", type=Path, help="folders searched for run folders with a longest.pt")
+    parser.add_argument("-o", "--output", type=Path, help="also write the lines here")
+    args = parser.parse_args(argv)
+    runs = sorted(p.parent for folder in args.folders for p in folder.rglob(DONE_FILE)
+                  if "longest" in read_json(p).get("final_evaluation", {}))
+    if not runs:
+        parser.error(f"no finished run with a longest-episodes choice under {', '.join(map(str, args.folders))}")
+    found = [(run, replay(run)) for run in runs]
+    replays = [(run, r) for run, r in found if r is not None]
+    unrecorded = [str(run) for run, r in found if r is None]
+    lines = [line for run, r in replays for line in describe(run, r)] + summary([r for _, r in replays])
+    if unrecorded:
+        lines.append(f"Not recorded (made before done.json listed the checks, and no {LONGEST_FILE} here): "
+                     + ", ".join(unrecorded))
+    text = "\n".join(lines) + "\n"
+    sys.stdout.write(text)
+    if args.output:
+        args.output.write_text(text, encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
