@@ -18,10 +18,9 @@ eval.csv's return at that step), the check each rule keeps, and the final evalua
 Then, per env and method, the runs where the two rules keep different policies. A run whose
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
-The repository's output: results/tuning/longest_checks.txt, from
+The repository's output, Pendulum-v1's off-policy runs (docs/untuned_discussion.md):
 
-    python benchmarks/studies/longest_checks.py results/runs results/runs_sac_trials5-9 results/untuned \\
-        -o results/tuning/longest_checks.txt
+    python benchmarks/studies/longest_checks.py results/untuned/Pendulum-v1 -o results/tuning/longest_checks_pendulum.txt
 """
 from __future__ import annotations
 

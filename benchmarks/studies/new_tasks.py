@@ -488,6 +488,16 @@ def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
                    f"{PENDULUM_RUN} -o {UNTUNED}")
 
 
+#: the off-policy learner's rows: hyperparams/cmzdril_sac.yml as shipped (no Pendulum-v1 entry), its own budget
+PENDULUM_SAC_LABEL = "package defaults (hyperparams/cmzdril_sac.yml, its `default` entry: 70k SAC steps)"
+
+
+def pendulum_sac_command(methods: str, trials: str, workers: int = 2) -> str:
+    """The benchmark command of the off-policy runs on Pendulum-v1 (steps 4 and 5 of the study)."""
+    return (f"sb3-cmzdril benchmark --env Pendulum-v1 --methods {methods} --trials {trials} --eval-every 5 "
+            f"--workers {workers} --no-progress --demos-dir {UNTUNED} -o {UNTUNED}")
+
+
 PENDULUM_ROWS: tuple[Variant, ...] = (
     pendulum_defaults("bc", "bc", "0-9"),
     pendulum_defaults("cmz", "cmz,env", "0-4"),
@@ -500,6 +510,15 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
     *trial_set_rows(PENDULUM, f"CMZ-DRIL, package defaults, {PPO_AUTO_LABEL}", "results/tuning/P-auto",
                     f"python benchmarks/studies/tune.py P-auto {PPO_AUTO} -- --methods cmz --trials 0-4 {PENDULUM_RUN}",
                     firsts=(0,)),
+    *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, {PENDULUM_SAC_LABEL}", UNTUNED,
+                    f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')} (trials 5-9 by the same "
+                    "command with --methods cmz-sac --trials 5-9 --workers 1, trial 9 by a second such process "
+                    "with --trials 9-9)", method="cmz-sac"),
+    Variant(PENDULUM, "zero-sac", f"{METHOD_LABELS['zero-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
+            f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')}", trials=tuple(range(5))),
+    Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-2", UNTUNED,
+            f"{PENDULUM_STUDY}: {pendulum_sac_command('env-sac', '0-4', workers=1)}, stopped after trial 2 for "
+            "the session's time", trials=(0, 1, 2)),
 )
 
 #: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's

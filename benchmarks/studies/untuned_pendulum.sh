@@ -12,7 +12,9 @@
 #      (`disagreement: std_unclipped`), results/tuning/P-zoo-ppo-unclipped;
 #   4. the off-policy method `cmz-sac` with the package defaults (hyperparams/cmzdril_sac.yml has no
 #      Pendulum-v1 entry: its `default` entry, 70,000 steps) and its ablation without reward,
-#      `zero-sac`, on trials 0-4, results/untuned.
+#      `zero-sac`, on trials 0-4, results/untuned;
+#   5. its confirmation, `cmz-sac` on trials 5-9, and the same learner on the env's reward, `env-sac`
+#      (its RL ceiling at the same budget), on trials 0-4, results/untuned.
 #
 # The PPO runs have the zoo's budget for the task, 100,000 steps; the off-policy ones their file's. Resumable: rerun it to continue; finished
 # runs are skipped, an existing pool is kept.
@@ -38,6 +40,10 @@ for trials in 0-4 5-9; do
 done
 # The package's off-policy method and its no-reward ablation, at their own file's budget.
 $cli benchmark --env "$env_id" --methods cmz-sac,zero-sac --trials 0-4 --eval-every 5 --workers "$workers" \
+    --no-progress --demos-dir "$untuned" -o "$untuned"
+$cli benchmark --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --workers "$workers" \
+    --no-progress --demos-dir "$untuned" -o "$untuned"
+$cli benchmark --env "$env_id" --methods env-sac --trials 0-4 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
