@@ -20,7 +20,8 @@ recorded choice differs from the replayed one is an error (the replay would not 
 
 The repository's output, Pendulum-v1's off-policy runs (docs/untuned_discussion.md):
 
-    python benchmarks/studies/longest_checks.py results/untuned/Pendulum-v1 -o results/tuning/longest_checks_pendulum.txt
+    python benchmarks/studies/longest_checks.py results/untuned/Pendulum-v1 \\
+        -o results/tuning/longest_checks_pendulum.txt
 """
 from __future__ import annotations
 
