@@ -97,7 +97,7 @@ class _KeptWeights(BaseCallback):
         raise NotImplementedError
 
     def kept(self) -> dict[str, Any]:
-        """Which policy is kept and why, as plain numbers (for a run's summary)."""
+        """Which policy is kept and why, as JSON-ready numbers and lists (for a run's summary)."""
         raise NotImplementedError
 
     def _restore(self, blob: Mapping[str, Any]) -> None:

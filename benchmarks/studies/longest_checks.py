@@ -13,8 +13,9 @@ on every held-out episode. This script reads the per-epoch evaluation instead (e
 at the same step on the run's ``--eval-episodes`` held-out episodes, 5 in the grid), so its returns
 for a policy the run did not keep are estimates on few episodes.
 
-For every finished run folder under the FOLDERs with a longest-episodes choice: the checks (steps, mean length, mean u,
-eval.csv's return at that step), the check each rule keeps, and the final evaluation's returns.
+For every finished run folder under the FOLDERs with a longest-episodes choice: the checks (steps,
+mean length, mean u, eval.csv's return at that step), the check each rule keeps, and the final
+evaluation's returns.
 Then, per env and method, the runs where the two rules keep different policies. A run whose
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
@@ -39,11 +40,9 @@ from sb3_cmzdril.io import read_json
 from sb3_cmzdril.selection import TIE_BREAKS, LongestEpisodesPolicy, kept_check
 
 
-def recorded_checks(run: Path, config: dict) -> list[tuple[int, float, float]] | None:
-    """The run's checks: from done.json, or from its longest.pt where done.json predates them; None
-    where neither is here (the repository keeps no longest.pt)."""
-    done = read_json(run / DONE_FILE)
-    kept = done.get("final_evaluation", {}).get("longest", {})
+def recorded_checks(run: Path, config: dict, kept: dict) -> list[tuple[int, float, float]] | None:
+    """The run's checks: from done.json's record of its choice (``kept``), or from its longest.pt where
+    that record predates them; None where neither has them (the repository keeps no longest.pt)."""
     if "checks" in kept:  # written by jsonable: a NaN u as the string "nan"
         return [(int(steps), float(length), float(u)) for steps, length, u in kept["checks"]]
     env = gym.make(config["env_id"], **config.get("env_kwargs", {}))
@@ -56,16 +55,16 @@ def recorded_checks(run: Path, config: dict) -> list[tuple[int, float, float]] |
     return selector.history
 
 
-def replay(run: Path) -> dict | None:
+def replay(run: Path, record: dict) -> dict | None:
     """One run's checks, the check each tie break keeps, and its evaluations; None where its checks
-    are not recorded."""
+    are not recorded. ``record``: done.json's entry of the run's longest-episodes choice."""
     config = read_json(run / "config.json")
     recorded = config["hyperparams_values"].get("longest_tie_break", "latest")
-    checks = recorded_checks(run, config)
+    checks = recorded_checks(run, config, record)
     if checks is None:
         return None
     kept = {rule: kept_check(checks, rule) for rule in TIE_BREAKS}
-    kept_steps = read_json(run / DONE_FILE)["final_evaluation"]["longest"]["timesteps"]
+    kept_steps = record["timesteps"]
     if checks[kept[recorded]][0] != kept_steps:
         raise RuntimeError(f"{run}: the run kept the check at {kept_steps} steps, the replay of {recorded!r} "
                            f"the one at {checks[kept[recorded]][0]}")
@@ -110,14 +109,15 @@ def summary(replays: list[dict]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("folders", nargs="+", type=Path, help="folders searched for run folders with a longest.pt")
+    parser.add_argument("folders", nargs="+", type=Path, help="folders searched for finished runs")
     parser.add_argument("-o", "--output", type=Path, help="also write the lines here")
     args = parser.parse_args(argv)
-    runs = sorted(p.parent for folder in args.folders for p in folder.rglob(DONE_FILE)
-                  if "longest" in read_json(p).get("final_evaluation", {}))
+    records = {p.parent: read_json(p).get("final_evaluation", {}).get("longest")
+               for folder in args.folders for p in folder.rglob(DONE_FILE)}
+    runs = sorted(run for run, record in records.items() if record is not None)
     if not runs:
         parser.error(f"no finished run with a longest-episodes choice under {', '.join(map(str, args.folders))}")
-    found = [(run, replay(run)) for run in runs]
+    found = [(run, replay(run, records[run])) for run in runs]
     replays = [(run, r) for run, r in found if r is not None]
     unrecorded = [str(run) for run, r in found if r is None]
     lines = [line for run, r in replays for line in describe(run, r)] + summary([r for _, r in replays])
