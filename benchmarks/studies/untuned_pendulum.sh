@@ -14,7 +14,9 @@
 #      Pendulum-v1 entry: its `default` entry, 70,000 steps) and its ablation without reward,
 #      `zero-sac`, on trials 0-4, results/untuned;
 #   5. its confirmation, `cmz-sac` on trials 5-9, and the same learner on the env's reward, `env-sac`
-#      (its RL ceiling at the same budget), on trials 0-4, results/untuned.
+#      (its RL ceiling at the same budget), on trials 0-4, results/untuned;
+#   6. `cmz-sac` with u's form read from the demonstrations (`disagreement: auto`: the unclipped form on
+#      this pool, whose expert holds its torque on a bound) on trials 0-4, results/tuning/P-sac-auto.
 #
 # The PPO runs have the zoo's budget for the task, 100,000 steps; the off-policy ones their file's. Resumable: rerun it to continue; finished
 # runs are skipped, an existing pool is kept.
@@ -45,6 +47,8 @@ $cli benchmark --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --w
     --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env "$env_id" --methods env-sac --trials 0-4 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
+python benchmarks/studies/tune.py P-sac-auto --base hyperparams/cmzdril_sac.yml --set disagreement=auto -- \
+    --env "$env_id" --methods cmz-sac --trials 0-4 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
 $cli benchmark --methods bc --trials 0-9 "${common[@]}" -o "$untuned"
