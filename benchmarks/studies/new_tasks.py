@@ -38,9 +38,10 @@ ABS_NORMREW = "--set absorbing=auto " + NORMREW
 #: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
 PPO_UNCLIPPED = "--set disagreement=std_unclipped"
 PPO_UNCLIPPED_LABEL = "u on the ensemble members' actions unclipped (`disagreement: std_unclipped`)"
-PPO_AUTO = "--set disagreement=auto"
-PPO_AUTO_LABEL = ("u's form read from the demonstrations (`disagreement: auto`; the unclipped form on every trial of "
-                  "this pool, results/tuning/bound_share.txt)")
+AUTO = "--set disagreement=auto"
+#: u's form read from the demonstrations, for either learner
+AUTO_LABEL = ("u's form read from the demonstrations (`disagreement: auto`; the unclipped form on every trial of "
+              "this pool, results/tuning/bound_share.txt)")
 #: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
 #: reward normalisation, HalfCheetah-v5's reward normalisation, WaypointNav-v0's unclipped u): the tune.py runs
 #: folder and its --set flags. Their runs of every method were made by that command and moved into the grid's
@@ -507,18 +508,24 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
     *(row for method in ("cmz", "dril")
       for row in pendulum_rows(method, PENDULUM_UNCLIPPED_LABEL, "P-zoo-ppo-unclipped",
                                f"{PENDULUM_ZOO_PPO} {PPO_UNCLIPPED}", "cmz,dril")),
-    *trial_set_rows(PENDULUM, f"CMZ-DRIL, package defaults, {PPO_AUTO_LABEL}", "results/tuning/P-auto",
-                    f"python benchmarks/studies/tune.py P-auto {PPO_AUTO} -- --methods cmz --trials 0-4 {PENDULUM_RUN}",
+    *trial_set_rows(PENDULUM, f"CMZ-DRIL, package defaults, {AUTO_LABEL}", "results/tuning/P-auto",
+                    f"python benchmarks/studies/tune.py P-auto {AUTO} -- --methods cmz --trials 0-4 {PENDULUM_RUN}",
                     firsts=(0,)),
     *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, {PENDULUM_SAC_LABEL}", UNTUNED,
                     f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')} (trials 5-9 by the same "
                     "command with --methods cmz-sac --trials 5-9 --workers 1, trial 9 by a second such process "
                     "with --trials 9-9)", method="cmz-sac"),
+    *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, the same, {AUTO_LABEL}", "results/tuning/P-sac-auto",
+                    f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto --base "
+                    f"hyperparams/cmzdril_sac.yml {AUTO} -- --env Pendulum-v1 --methods cmz-sac --trials 0-4 "
+                    f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by a second such "
+                    "process with --trials 2-2 --workers 1)", firsts=(0,), method="cmz-sac"),
     Variant(PENDULUM, "zero-sac", f"{METHOD_LABELS['zero-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
             f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')}", trials=tuple(range(5))),
-    Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-2", UNTUNED,
+    Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
             f"{PENDULUM_STUDY}: {pendulum_sac_command('env-sac', '0-4', workers=1)}, stopped after trial 2 for "
-            "the session's time", trials=(0, 1, 2)),
+            "the session's time; trials 3 and 4 by the same command with --trials 3-4 --workers 2",
+            trials=tuple(range(5))),
 )
 
 #: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's
