@@ -521,11 +521,12 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
                     f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by a second such "
                     "process with --trials 2-2 --workers 1)", firsts=(0,), method="cmz-sac"),
     Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same with a tie in episode length broken by the "
-            "lowest mean u on the check's states (`longest_tie_break: lowest_u`): trials 1, 3",
+            "lowest mean u on the check's states (`longest_tie_break: lowest_u`): trials 1-3",
             "results/tuning/P-sac-auto-tie-u",
             f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
             f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods cmz-sac --trials 1,3 "
-            f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED}", trials=(1, 3)),
+            f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by the same command with "
+            "--trials 2-2 --workers 1)", trials=(1, 2, 3)),
     Variant(PENDULUM, "zero-sac", f"{METHOD_LABELS['zero-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
             f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')}", trials=tuple(range(5))),
     Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,

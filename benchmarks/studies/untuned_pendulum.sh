@@ -17,7 +17,7 @@
 #      (its RL ceiling at the same budget), on trials 0-4, results/untuned;
 #   6. `cmz-sac` with u's form read from the demonstrations (`disagreement: auto`: the unclipped form on
 #      this pool, whose expert holds its torque on a bound) on trials 0-4, results/tuning/P-sac-auto;
-#   7. the same with the lowest-u tie break on trials 1 and 3, two of the three where it keeps another
+#   7. the same with the lowest-u tie break on trials 1-3, the three where it keeps another
 #      check (results/tuning/longest_checks_pendulum_auto.txt: on trial 3 one from before the run's
 #      collapse, on trials 1 and 2 one of the same eval.csv return): the same training, so it measures
 #      the kept policy on the held-out episodes, results/tuning/P-sac-auto-tie-u.
@@ -54,7 +54,7 @@ $cli benchmark --env "$env_id" --methods env-sac --trials 0-4 --eval-every 5 --w
 python benchmarks/studies/tune.py P-sac-auto --base hyperparams/cmzdril_sac.yml --set disagreement=auto -- \
     --env "$env_id" --methods cmz-sac --trials 0-4 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned"
 python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml --set disagreement=auto \
-    --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 1,3 --eval-every 5 --workers "$workers" \
+    --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 1-3 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
