@@ -499,6 +499,17 @@ def pendulum_sac_command(methods: str, trials: str, workers: int = 2) -> str:
             f"--workers {workers} --no-progress --demos-dir {UNTUNED} -o {UNTUNED}")
 
 
+PENDULUM_TIE_U = "results/tuning/P-sac-auto-tie-u"
+PENDULUM_TIE_U_9 = "trial 9 by a second such process with --trials 9-9 --workers 1"
+
+
+def pendulum_tie_u(trials: str, how: str) -> str:
+    """The command of Pendulum-v1's `cmz-sac` runs with `disagreement: auto` and the lowest-u tie break."""
+    return (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
+            f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods cmz-sac --trials {trials} "
+            f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} ({how})")
+
+
 PENDULUM_ROWS: tuple[Variant, ...] = (
     pendulum_defaults("bc", "bc", "0-9"),
     pendulum_defaults("cmz", "cmz,env", "0-4"),
@@ -520,13 +531,17 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
                     f"hyperparams/cmzdril_sac.yml {AUTO} -- --env Pendulum-v1 --methods cmz-sac --trials 0-4 "
                     f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by a second such "
                     "process with --trials 2-2 --workers 1)", firsts=(0,), method="cmz-sac"),
-    Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same with a tie in episode length broken by the "
-            "lowest mean u on the check's states (`longest_tie_break: lowest_u`): trials 1-3",
-            "results/tuning/P-sac-auto-tie-u",
-            f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
-            f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods cmz-sac --trials 1,3 "
-            f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by the same command with "
-            "--trials 2-2 --workers 1)", trials=(1, 2, 3)),
+    # The tie break changes no update: the runs' last weights are `disagreement: auto`'s on trials 5-9, and the
+    # kept policy is the tie break's on every trial it ran.
+    Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same, {AUTO_LABEL}, the last weights of the "
+            "runs below: trials 5-9", PENDULUM_TIE_U, pendulum_tie_u("5-9", PENDULUM_TIE_U_9), trials=(5, 6, 7, 8, 9)),
+    *(Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same with a tie in episode length broken by "
+              "the lowest mean u on the check's states (`longest_tie_break: lowest_u`), the kept policy: "
+              f"trials {label}",
+              PENDULUM_TIE_U, pendulum_tie_u(named, how), trials=trials, policy="longest")
+      for label, named, how, trials in (
+          ("1-3", "1,3", "trial 2 by the same command with --trials 2-2 --workers 1", (1, 2, 3)),
+          ("5-9", "5-9", PENDULUM_TIE_U_9, (5, 6, 7, 8, 9)))),
     Variant(PENDULUM, "zero-sac", f"{METHOD_LABELS['zero-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
             f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')}", trials=tuple(range(5))),
     Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,

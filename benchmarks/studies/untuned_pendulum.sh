@@ -20,7 +20,9 @@
 #   7. the same with the lowest-u tie break on trials 1-3, the three where it keeps another
 #      check (results/tuning/longest_checks_pendulum_auto.txt: on trial 3 one from before the run's
 #      collapse, on trials 1 and 2 one of the same eval.csv return): the same training, so it measures
-#      the kept policy on the held-out episodes, results/tuning/P-sac-auto-tie-u.
+#      the kept policy on the held-out episodes, results/tuning/P-sac-auto-tie-u;
+#   8. its confirmation: the same on trials 5-9 (their last weights are step 6's on those trials, the
+#      tie break changes no update), results/tuning/P-sac-auto-tie-u.
 #
 # The PPO runs have the zoo's budget for the task, 100,000 steps; the off-policy ones their file's. Resumable: rerun it to continue; finished
 # runs are skipped, an existing pool is kept.
@@ -55,6 +57,9 @@ python benchmarks/studies/tune.py P-sac-auto --base hyperparams/cmzdril_sac.yml 
     --env "$env_id" --methods cmz-sac --trials 0-4 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned"
 python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml --set disagreement=auto \
     --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 1-3 --eval-every 5 --workers "$workers" \
+    --no-progress --demos-dir "$untuned"
+python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml --set disagreement=auto \
+    --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
