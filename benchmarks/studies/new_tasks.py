@@ -339,6 +339,22 @@ def tie_u(env: str, trials: tuple[int, ...]) -> Variant:
                       workers)
 
 
+def auto_tie_u(env: str, name: str, note: str) -> tuple[Variant, ...]:
+    """``env``'s `cmz-sac` runs with `disagreement: auto` and the lowest-u tie break (the pair confirmed on
+    Pendulum-v1) in results/tuning/NAME, per trial set the runs' last weights, then their kept policy."""
+    label = (f"{CMZ_SAC_LABEL}, u's form read from the demonstrations (`disagreement: auto`; the clipped form, "
+             "no action entry of this pool on a bound) and a tie in episode length broken by the lowest mean u on "
+             "the check's states (`longest_tie_break: lowest_u`)")
+    rows = []
+    for first in (0, 5):
+        last = sac_tuning(env, name, f"{AUTO} --set longest_tie_break=lowest_u", f"{label}, the runs' last weights",
+                          tuple(range(first, first + 5)), "0-9", note, workers=1)
+        kept = sac_tuning(env, name, f"{AUTO} --set longest_tie_break=lowest_u", f"{label}, the kept policy",
+                          tuple(range(first, first + 5)), "0-9", note, workers=1)
+        rows += [last, dataclasses.replace(kept, policy="longest")]
+    return tuple(rows)
+
+
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
 #: them): the runs folder under results/tuning/ per task
 CRITIC_WARMUP_RUNS = {"Hopper-v5": "H-sac-warmup10k"}
@@ -674,6 +690,8 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_rows("Swimmer-v5", NORMREW_LABEL, "S-normrew",
                  tune_command("S-normrew", NORMREW, "Swimmer-v5", "0-9") + " --no-progress"),
     *averaged_rows("Swimmer-v5", "S-avg75", firsts=(0,), command_trials="0-4"),
+    *auto_tie_u("Swimmer-v5", "S-sac-auto-tie-u", " (trials 5-9 by a second such process with --trials 5-9; both "
+                "stopped for the session's time after trials 0-3 and 5-7)"),
     *entry_rows("WaypointNav-v0", entry_command("WaypointNav-v0", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)", WAYPOINT_TRIALS5_9_BEFORE),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1, before=True),
