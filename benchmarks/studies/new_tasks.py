@@ -345,14 +345,11 @@ def auto_tie_u(env: str, name: str, note: str) -> tuple[Variant, ...]:
     label = (f"{CMZ_SAC_LABEL}, u's form read from the demonstrations (`disagreement: auto`; the clipped form, "
              "no action entry of this pool on a bound) and a tie in episode length broken by the lowest mean u on "
              "the check's states (`longest_tie_break: lowest_u`)")
-    rows = []
-    for first in (0, 5):
-        last = sac_tuning(env, name, f"{AUTO} --set longest_tie_break=lowest_u", f"{label}, the runs' last weights",
-                          tuple(range(first, first + 5)), "0-9", note, workers=1)
-        kept = sac_tuning(env, name, f"{AUTO} --set longest_tie_break=lowest_u", f"{label}, the kept policy",
-                          tuple(range(first, first + 5)), "0-9", note, workers=1)
-        rows += [last, dataclasses.replace(kept, policy="longest")]
-    return tuple(rows)
+    sets = f"{AUTO} --set longest_tie_break=lowest_u"
+    return tuple(dataclasses.replace(sac_tuning(env, name, sets, f"{label}, {words}", tuple(range(first, first + 5)),
+                                                "0-9", note, workers=1), policy=policy)
+                 for first in (0, 5)
+                 for words, policy in (("the runs' last weights", "final"), ("the kept policy", "longest")))
 
 
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
