@@ -689,7 +689,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *averaged_rows("Swimmer-v5", "S-avg75", firsts=(0,), command_trials="0-4"),
     *auto_tie_u("Swimmer-v5", "S-sac-auto-tie-u", " (trials 5-9 by a second such process with --trials 5-9; both "
                 "stopped for the session's time after trials 0-3 and 5-7; trials 4 and 8 by the same command with "
-                "--trials 4-4 and --trials 8-8, two processes side by side)"),
+                "--trials 4-4 and --trials 8-8, two processes side by side, then trial 9 by --trials 9-9)"),
     *entry_rows("WaypointNav-v0", entry_command("WaypointNav-v0", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)", WAYPOINT_TRIALS5_9_BEFORE),
     bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1, before=True),
