@@ -19,9 +19,12 @@ evaluation's returns.
 Then, per env and method, the runs where the two rules keep different policies. A run whose
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
-The repository's output, Pendulum-v1's off-policy runs (docs/untuned_discussion.md):
+The repository's outputs, Pendulum-v1's off-policy runs with the package's `default` entry and with the entry
+before it (docs/untuned_discussion.md):
 
     python benchmarks/studies/longest_checks.py results/untuned/Pendulum-v1 \\
+        -o results/tuning/longest_checks_pendulum_auto_tie_u.txt
+    python benchmarks/studies/longest_checks.py results/tuning/P-sac-default-before/Pendulum-v1 \\
         -o results/tuning/longest_checks_pendulum.txt
 """
 from __future__ import annotations

@@ -502,25 +502,59 @@ def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
                    f"{PENDULUM_RUN} -o {UNTUNED}")
 
 
-#: the off-policy learner's rows: hyperparams/cmzdril_sac.yml as shipped (no Pendulum-v1 entry), its own budget
-PENDULUM_SAC_LABEL = "package defaults (hyperparams/cmzdril_sac.yml, its `default` entry: 70k SAC steps)"
+#: the off-policy learner's rows on the untuned tasks: hyperparams/cmzdril_sac.yml as shipped (no entry for them),
+#: its own budget
+SAC_DEFAULT_LABEL = ("package defaults (hyperparams/cmzdril_sac.yml, its `default` entry: 70k SAC steps, u's form read "
+                     "from the demonstrations, a tie in episode length broken by the lowest mean u)")
+#: the `default` entry before it took `disagreement: auto` and the lowest-u tie break: its runs, moved out of
+#: results/untuned; every check of a Pendulum-v1 run ties (no episode ends early), so each kept its last weights
+PENDULUM_SAC_BEFORE = "results/tuning/P-sac-default-before"
+SAC_DEFAULT_BEFORE_LABEL = ("the `default` entry before (hyperparams/cmzdril_sac.yml at commit 7514c932: the clipped "
+                            "u, the latest check kept on a tie)")
 
 
 def pendulum_sac_command(methods: str, trials: str, workers: int = 2) -> str:
-    """The benchmark command of the off-policy runs on Pendulum-v1 (steps 4 and 5 of the study)."""
+    """The benchmark command of the entry before's off-policy runs on Pendulum-v1 (the study's steps 4 and 5 then)."""
     return (f"sb3-cmzdril benchmark --env Pendulum-v1 --methods {methods} --trials {trials} --eval-every 5 "
             f"--workers {workers} --no-progress --demos-dir {UNTUNED} -o {UNTUNED}")
 
 
-PENDULUM_TIE_U = "results/tuning/P-sac-auto-tie-u"
-PENDULUM_TIE_U_9 = "trial 9 by a second such process with --trials 9-9 --workers 1"
-
-
-def pendulum_tie_u(trials: str, how: str) -> str:
-    """The command of Pendulum-v1's `cmz-sac` runs with `disagreement: auto` and the lowest-u tie break."""
+def pendulum_tie_u(methods: str, trials: str, how: str) -> str:
+    """The command of Pendulum-v1's off-policy runs with `disagreement: auto` and the lowest-u tie break, made as a
+    study before the `default` entry took the pair and moved to results/untuned when it did."""
     return (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
-            f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods cmz-sac --trials {trials} "
-            f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} ({how})")
+            f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods {methods} --trials {trials} "
+            f"--eval-every 5 --no-progress --demos-dir {UNTUNED} ({how}; moved to {UNTUNED})")
+
+
+#: how each trial set of the package's `cmz-sac` and `env-sac` runs was made
+PENDULUM_SAC_RUNS = {
+    ("cmz-sac", 0): pendulum_tie_u("cmz-sac", "1,3", "--workers 2; trial 2 by --trials 2-2 --workers 1, trials 0 and 4 "
+                                   "by --trials 0-0 and --trials 4-4 --workers 1"),
+    ("cmz-sac", 5): pendulum_tie_u("cmz-sac", "5-9", "--workers 2; trial 9 by a second such process with --trials 9-9 "
+                                   "--workers 1"),
+    ("env-sac", 0): pendulum_tie_u("env-sac", "0-2", "--workers 1; trials 3-4 by a second such process"),
+}
+
+
+def pendulum_sac(method: str, first: int) -> tuple[Variant, ...]:
+    """``method``'s runs of Pendulum-v1 with the package defaults on trials ``first``-``first + 4``: their last
+    weights and their kept policy, the package's result (the tie break moves no update, only the choice)."""
+    trials = tuple(range(first, first + 5))
+    label = f"{METHOD_LABELS[method]}, {SAC_DEFAULT_LABEL}"
+    made_by = PENDULUM_SAC_RUNS[method, first]
+    return (Variant(PENDULUM, method, f"{label}, the last weights: trials {first}-{first + 4}", UNTUNED, made_by,
+                    trials=trials),
+            Variant(PENDULUM, method, f"{label}, the kept policy: trials {first}-{first + 4}", UNTUNED, made_by,
+                    trials=trials, policy="longest"))
+
+
+def pendulum_sac_before(method: str, trials: str, made_by: str) -> Variant:
+    """``method``'s runs of Pendulum-v1 with the `default` entry before, moved out of results/untuned."""
+    first, last = (int(t) for t in trials.split("-"))
+    return Variant(PENDULUM, method, f"{METHOD_LABELS[method]}, {SAC_DEFAULT_BEFORE_LABEL}: trials {trials}",
+                   PENDULUM_SAC_BEFORE, f"{PENDULUM_STUDY} at commit 7514c932: {made_by} (moved here)",
+                   trials=tuple(range(first, last + 1)))
 
 
 PENDULUM_ROWS: tuple[Variant, ...] = (
@@ -535,32 +569,22 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
     *trial_set_rows(PENDULUM, f"CMZ-DRIL, package defaults, {AUTO_LABEL}", "results/tuning/P-auto",
                     f"python benchmarks/studies/tune.py P-auto {AUTO} -- --methods cmz --trials 0-4 {PENDULUM_RUN}",
                     firsts=(0,)),
-    *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, {PENDULUM_SAC_LABEL}", UNTUNED,
-                    f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')} (trials 5-9 by the same "
-                    "command with --methods cmz-sac --trials 5-9 --workers 1, trial 9 by a second such process "
-                    "with --trials 9-9)", method="cmz-sac"),
-    *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, the same, {AUTO_LABEL}", "results/tuning/P-sac-auto",
+    *pendulum_sac("cmz-sac", 0),
+    *pendulum_sac("cmz-sac", 5),
+    pendulum_sac_before("cmz-sac", "0-4", pendulum_sac_command("cmz-sac,zero-sac", "0-4")),
+    pendulum_sac_before("cmz-sac", "5-9", pendulum_sac_command("cmz-sac", "5-9", workers=1)
+                        + ", trial 9 by a second such process with --trials 9-9"),
+    *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, the entry before with u's form read from the "
+                    "demonstrations alone (`disagreement: auto`), the last weights", "results/tuning/P-sac-auto",
                     f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto --base "
                     f"hyperparams/cmzdril_sac.yml {AUTO} -- --env Pendulum-v1 --methods cmz-sac --trials 0-4 "
                     f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by a second such "
                     "process with --trials 2-2 --workers 1)", firsts=(0,), method="cmz-sac"),
-    # The tie break changes no update: the runs' last weights are `disagreement: auto`'s on trials 5-9, and the
-    # kept policy is the tie break's on every trial it ran.
-    Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same, {AUTO_LABEL}, the last weights of the "
-            "runs below: trials 5-9", PENDULUM_TIE_U, pendulum_tie_u("5-9", PENDULUM_TIE_U_9), trials=(5, 6, 7, 8, 9)),
-    *(Variant(PENDULUM, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same with a tie in episode length broken by "
-              "the lowest mean u on the check's states (`longest_tie_break: lowest_u`), the kept policy: "
-              f"trials {label}",
-              PENDULUM_TIE_U, pendulum_tie_u(named, how), trials=trials, policy="longest")
-      for label, named, how, trials in (
-          ("1-3", "1,3", "trial 2 by the same command with --trials 2-2 --workers 1", (1, 2, 3)),
-          ("5-9", "5-9", PENDULUM_TIE_U_9, (5, 6, 7, 8, 9)))),
-    Variant(PENDULUM, "zero-sac", f"{METHOD_LABELS['zero-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
-            f"{PENDULUM_STUDY}: {pendulum_sac_command('cmz-sac,zero-sac', '0-4')}", trials=tuple(range(5))),
-    Variant(PENDULUM, "env-sac", f"{METHOD_LABELS['env-sac']}, {PENDULUM_SAC_LABEL}: trials 0-4", UNTUNED,
-            f"{PENDULUM_STUDY}: {pendulum_sac_command('env-sac', '0-4', workers=1)}, stopped after trial 2 for "
-            "the session's time; trials 3 and 4 by the same command with --trials 3-4 --workers 2",
-            trials=tuple(range(5))),
+    pendulum_sac_before("zero-sac", "0-4", pendulum_sac_command("cmz-sac,zero-sac", "0-4")),
+    *pendulum_sac("env-sac", 0),
+    pendulum_sac_before("env-sac", "0-4", pendulum_sac_command("env-sac", "0-4", workers=1)
+                        + ", stopped after trial 2 for the session's time; trials 3 and 4 by the same command with "
+                        "--trials 3-4 --workers 2"),
 )
 
 #: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's
@@ -578,6 +602,16 @@ BIPEDAL_ROWS: tuple[Variant, ...] = (
     *trial_set_rows(BIPEDAL, f"DRIL, {PPO_UNCLIPPED_LABEL}", "results/tuning/BW-unclipped",
                     tune_command("BW-unclipped", PPO_UNCLIPPED, BIPEDAL, trials="0-4", methods="dril")
                     + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,), method="dril"),
+    *(Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trial 0", UNTUNED,
+              "python benchmarks/studies/tune.py BW-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
+              f"{AUTO} --set longest_tie_break=lowest_u -- --env BipedalWalker-v3 --methods cmz-sac --eval-every 5 "
+              f"--no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-0 (moved to {UNTUNED})",
+              trials=(0,), policy=policy)
+      for words, policy in (("the last weights", "final"), ("the kept policy", "longest"))),
+    Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_BEFORE_LABEL}: trial 0",
+            "results/tuning/BW-sac-default-before", "bash benchmarks/studies/untuned_task.sh at commit 7514c932: "
+            "sb3-cmzdril benchmark --env BipedalWalker-v3 --methods cmz-sac --trials 0-2 --eval-every 5 --workers 1 "
+            f"--no-progress --demos-dir {UNTUNED} -o {UNTUNED}, stopped after trial 0 (moved here)", trials=(0,)),
 )
 
 #: The variants, reference first per env. Add a variant by adding a line.

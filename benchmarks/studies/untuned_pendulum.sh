@@ -11,18 +11,18 @@
 #   3. the same with the ensemble's disagreement taken on its members' actions unclipped
 #      (`disagreement: std_unclipped`), results/tuning/P-zoo-ppo-unclipped;
 #   4. the off-policy method `cmz-sac` with the package defaults (hyperparams/cmzdril_sac.yml has no
-#      Pendulum-v1 entry: its `default` entry, 70,000 steps) and its ablation without reward,
-#      `zero-sac`, on trials 0-4, results/untuned;
-#   5. its confirmation, `cmz-sac` on trials 5-9, and the same learner on the env's reward, `env-sac`
-#      (its RL ceiling at the same budget), on trials 0-4, results/untuned;
-#   6. `cmz-sac` with u's form read from the demonstrations (`disagreement: auto`: the unclipped form on
-#      this pool, whose expert holds its torque on a bound) on trials 0-4, results/tuning/P-sac-auto;
-#   7. the same with the lowest-u tie break on trials 1-3, the three where it keeps another
-#      check (results/tuning/longest_checks_pendulum_auto.txt: on trial 3 one from before the run's
-#      collapse, on trials 1 and 2 one of the same eval.csv return): the same training, so it measures
-#      the kept policy on the held-out episodes, results/tuning/P-sac-auto-tie-u;
-#   8. its confirmation: the same on trials 5-9 (their last weights are step 6's on those trials, the
-#      tie break changes no update), results/tuning/P-sac-auto-tie-u.
+#      Pendulum-v1 entry: its `default` entry, 70,000 steps, u's form read from the demonstrations and a
+#      tie in the longest-episodes choice broken by the lowest mean u) on trials 0-9, the same learner on
+#      the env's reward, `env-sac` (its RL ceiling at the same budget), and without reward, `zero-sac`, on
+#      trials 0-4, results/untuned. The `cmz-sac` and `env-sac` runs there were made as the study
+#      results/tuning/P-sac-auto-tie-u (the same two settings by --set, before the `default` entry took
+#      them: `cmz-sac` on trials 1-3 and 5-9 to choose and confirm them, 0 and 4 and `env-sac` after) and
+#      moved to results/untuned when it did; `zero-sac` has not run with this entry.
+#
+# Made with the `default` entry before (the clipped u, the latest check kept on a tie) at commit 7514c932,
+# by step 4's commands then, and not remade here: results/tuning/P-sac-default-before (`cmz-sac` on
+# trials 0-9, `zero-sac` and `env-sac` on trials 0-4, moved out of results/untuned) and
+# results/tuning/P-sac-auto (`cmz-sac` with `--set disagreement=auto` on trials 0-4).
 #
 # The PPO runs have the zoo's budget for the task, 100,000 steps; the off-policy ones their file's. Resumable: rerun it to continue; finished
 # runs are skipped, an existing pool is kept.
@@ -46,21 +46,11 @@ for trials in 0-4 5-9; do
     python benchmarks/studies/tune.py P-zoo-ppo-unclipped "${zoo_ppo[@]}" --set disagreement=std_unclipped \
         -- --methods cmz,dril --trials "$trials" "${common[@]}"
 done
-# The package's off-policy method and its no-reward ablation, at their own file's budget.
-$cli benchmark --env "$env_id" --methods cmz-sac,zero-sac --trials 0-4 --eval-every 5 --workers "$workers" \
+# The package's off-policy method, its ceiling and its no-reward ablation, at their own file's budget.
+$cli benchmark --env "$env_id" --methods cmz-sac,env-sac,zero-sac --trials 0-4 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
-$cli benchmark --env "$env_id" --methods env-sac --trials 0-4 --eval-every 5 --workers "$workers" \
-    --no-progress --demos-dir "$untuned" -o "$untuned"
-python benchmarks/studies/tune.py P-sac-auto --base hyperparams/cmzdril_sac.yml --set disagreement=auto -- \
-    --env "$env_id" --methods cmz-sac --trials 0-4 --eval-every 5 --workers "$workers" --no-progress --demos-dir "$untuned"
-python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml --set disagreement=auto \
-    --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 1-3 --eval-every 5 --workers "$workers" \
-    --no-progress --demos-dir "$untuned"
-python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml --set disagreement=auto \
-    --set longest_tie_break=lowest_u -- --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --workers "$workers" \
-    --no-progress --demos-dir "$untuned"
 # The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
 $cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
 $cli benchmark --methods bc --trials 0-9 "${common[@]}" -o "$untuned"

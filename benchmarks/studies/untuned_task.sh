@@ -19,7 +19,9 @@ env_id=BipedalWalker-v3
 record_pool "$env_id"
 $cli benchmark --env "$env_id" --methods bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
-# The off-policy method, one trial (the recorded command asked for trials 0-2 and was stopped after trial 0 for time).
+# The off-policy method, one trial. Its run in results/untuned was made as the study results/tuning/BW-sac-auto-tie-u
+# (the `default` entry's disagreement: auto and longest_tie_break: lowest_u by --set, before the entry took them)
+# and moved there; the entry before's run (trials 0-2 asked, stopped after 0) is in results/tuning/BW-sac-default-before.
 $cli benchmark --env "$env_id" --methods cmz-sac --trials 0 --eval-every 5 --workers 1 --no-progress \
     --demos-dir "$untuned" -o "$untuned"
 # Ant-v5, from the zoo's ARS agent of Ant-v3 (collect-demos pads its contact-force inputs with the zeros it
