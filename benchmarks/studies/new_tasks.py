@@ -522,7 +522,7 @@ def pendulum_sac_command(methods: str, trials: str, workers: int = 2) -> str:
 def pendulum_tie_u(methods: str, trials: str, how: str) -> str:
     """The command of Pendulum-v1's off-policy runs with `disagreement: auto` and the lowest-u tie break, made as a
     study before the `default` entry took the pair and moved to results/untuned when it did."""
-    return (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
+    return (f"python benchmarks/studies/tune.py P-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
             f"{AUTO} --set longest_tie_break=lowest_u -- --env Pendulum-v1 --methods {methods} --trials {trials} "
             f"--eval-every 5 --no-progress --demos-dir {UNTUNED} ({how}; moved to {UNTUNED})")
 
@@ -576,7 +576,7 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
                         + ", trial 9 by a second such process with --trials 9-9"),
     *trial_set_rows(PENDULUM, f"{METHOD_LABELS['cmz-sac']}, the entry before with u's form read from the "
                     "demonstrations alone (`disagreement: auto`), the last weights", "results/tuning/P-sac-auto",
-                    f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py P-sac-auto --base "
+                    f"{PENDULUM_STUDY} at commit 7514c932: python benchmarks/studies/tune.py P-sac-auto --base "
                     f"hyperparams/cmzdril_sac.yml {AUTO} -- --env Pendulum-v1 --methods cmz-sac --trials 0-4 "
                     f"--eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} (trial 2 by a second such "
                     "process with --trials 2-2 --workers 1)", firsts=(0,), method="cmz-sac"),
