@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from sb3_cmzdril.experiments.report.records import METHOD_LABELS
@@ -320,6 +321,15 @@ TIE_U_LABEL = (f"{CMZ_SAC_LABEL}, a tie in episode length broken by the lowest m
                "(`longest_tie_break: lowest_u`)")
 
 
+#: an off-policy run's two readouts: its last weights and the policy it kept (the longest-episodes choice)
+READOUTS = (("the last weights", "final"), ("the kept policy", "longest"))
+
+
+def both_readouts(variant: Callable[[str], Variant]) -> tuple[Variant, ...]:
+    """A row per readout (:data:`READOUTS`) of the runs ``variant(words)`` names, ``words`` saying which."""
+    return tuple(dataclasses.replace(variant(words), policy=policy) for words, policy in READOUTS)
+
+
 def sac_tuning(env: str, name: str, sets: str, label: str, trials: tuple[int, ...], named_trials: str,
                note: str = "", workers: int = 2) -> Variant:
     """``env``'s `cmz-sac` runs in results/tuning/NAME on ``trials``, made by tune.py with the shipped
@@ -346,10 +356,9 @@ def auto_tie_u(env: str, name: str, note: str) -> tuple[Variant, ...]:
              "no action entry of this pool on a bound) and a tie in episode length broken by the lowest mean u on "
              "the check's states (`longest_tie_break: lowest_u`)")
     sets = f"{AUTO} --set longest_tie_break=lowest_u"
-    return tuple(dataclasses.replace(sac_tuning(env, name, sets, f"{label}, {words}", tuple(range(first, first + 5)),
-                                                "0-9", note, workers=1), policy=policy)
-                 for first in (0, 5)
-                 for words, policy in (("the runs' last weights", "final"), ("the kept policy", "longest")))
+    return tuple(row for first in (0, 5)
+                 for row in both_readouts(lambda words, first=first: sac_tuning(
+                     env, name, sets, f"{label}, {words}", tuple(range(first, first + 5)), "0-9", note, workers=1)))
 
 
 #: `cmz-sac` with the critics trained alone first (the actor and the temperature held as pretraining left
@@ -540,13 +549,10 @@ PENDULUM_SAC_RUNS = {
 def pendulum_sac(method: str, first: int) -> tuple[Variant, ...]:
     """``method``'s runs of Pendulum-v1 with the package defaults on trials ``first``-``first + 4``: their last
     weights and their kept policy, the package's result (the tie break moves no update, only the choice)."""
-    trials = tuple(range(first, first + 5))
     label = f"{METHOD_LABELS[method]}, {SAC_DEFAULT_LABEL}"
-    made_by = PENDULUM_SAC_RUNS[method, first]
-    return (Variant(PENDULUM, method, f"{label}, the last weights: trials {first}-{first + 4}", UNTUNED, made_by,
-                    trials=trials),
-            Variant(PENDULUM, method, f"{label}, the kept policy: trials {first}-{first + 4}", UNTUNED, made_by,
-                    trials=trials, policy="longest"))
+    return both_readouts(lambda words: Variant(PENDULUM, method, f"{label}, {words}: trials {first}-{first + 4}",
+                                               UNTUNED, PENDULUM_SAC_RUNS[method, first],
+                                               trials=tuple(range(first, first + 5))))
 
 
 def pendulum_sac_before(method: str, trials: str, made_by: str) -> Variant:
@@ -602,12 +608,11 @@ BIPEDAL_ROWS: tuple[Variant, ...] = (
     *trial_set_rows(BIPEDAL, f"DRIL, {PPO_UNCLIPPED_LABEL}", "results/tuning/BW-unclipped",
                     tune_command("BW-unclipped", PPO_UNCLIPPED, BIPEDAL, trials="0-4", methods="dril")
                     + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,), method="dril"),
-    *(Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trial 0", UNTUNED,
-              "python benchmarks/studies/tune.py BW-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
-              f"{AUTO} --set longest_tie_break=lowest_u -- --env BipedalWalker-v3 --methods cmz-sac --eval-every 5 "
-              f"--no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-0 (moved to {UNTUNED})",
-              trials=(0,), policy=policy)
-      for words, policy in (("the last weights", "final"), ("the kept policy", "longest"))),
+    *both_readouts(lambda words: Variant(
+        BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trial 0", UNTUNED,
+        "python benchmarks/studies/tune.py BW-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
+        f"{AUTO} --set longest_tie_break=lowest_u -- --env BipedalWalker-v3 --methods cmz-sac --eval-every 5 "
+        f"--no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-0 (moved to {UNTUNED})", trials=(0,))),
     Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_BEFORE_LABEL}: trial 0",
             "results/tuning/BW-sac-default-before", "bash benchmarks/studies/untuned_task.sh at commit 7514c932: "
             "sb3-cmzdril benchmark --env BipedalWalker-v3 --methods cmz-sac --trials 0-2 --eval-every 5 --workers 1 "
