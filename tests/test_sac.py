@@ -625,6 +625,65 @@ def test_the_kept_check_is_the_longest_then_the_latest_or_the_lowest_u(checks, t
     assert kept_check(checks, tie_break) == kept
 
 
+@pytest.mark.parametrize(("checks", "tie_break", "kept"), [
+    (_CHECKS, "lowest_u", 4),
+    ([(0, 100.0, 0.05), (10, 200.0, 0.3)], "lowest_u", 0),  # the shorter check, with the lower u
+    ([(0, 100.0, 0.05), (10, 200.0, 0.3), (20, 150.0, 0.9)], "latest", 2),  # every check ties: the last
+])
+def test_without_lengths_compared_the_tie_break_alone_chooses(checks, tie_break, kept):
+    assert kept_check(checks, tie_break, compare_length=False) == kept
+
+
+class _DisagreementFromFour(_DisagreementOnAction):
+    """u = |action - 4|: the policy whose episodes end soonest is the one the ensemble knows best."""
+
+    def disagreement(self, obs, actions):
+        return np.abs(np.asarray(actions, np.float64)[:, 0] - 4.0)
+
+
+@pytest.mark.parametrize(("compare_length", "kept_w"), [(True, 25.0), (False, 4.0), ("auto", 4.0), (None, 4.0)])
+def test_where_length_is_not_compared_a_shorter_policy_the_ensemble_knows_better_is_kept(compare_length, kept_w):
+    # _FallsAfterW has no spec, so its time limit is unknown: "auto" (None's meaning with lowest_u) cannot
+    # tell that the expert runs to it, and leaves length out, as absorbing="auto" does.
+    selector = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7, tie_break="lowest_u",
+                                     compare_length=compare_length)
+    model = _ConstantModel()
+    model.ensemble, model.demonstrations = _DisagreementFromFour(), object()
+    selector.init_callback(model)
+    with th.no_grad():
+        model.policy.w.fill_(25)
+    selector.on_training_start({}, {})  # the first check: episodes of 20 steps (the time limit), u 21
+    with th.no_grad():
+        model.policy.w.fill_(4)
+    model.num_timesteps = 10
+    selector.on_step()  # the second: episodes of 4 steps (a fall), u 0
+    assert [(length, u) for _, length, u in selector.history] == [(20.0, 21.0), (4.0, 0.0)]
+    assert selector.kept()["length_compared"] is (compare_length is True)
+    selector.apply(model)
+    assert model.policy.w.item() == kept_w
+
+
+@pytest.mark.parametrize(("lengths", "compared"), [([10, 12], True), ([10, 4], False)])
+def test_auto_compares_length_only_where_every_demonstration_lasts_the_time_limit(lengths, compared):
+    selector = LongestEpisodesPolicy("Pendulum-v1", n_episodes=1, tie_break="lowest_u",
+                                     env_kwargs={"max_episode_steps": 10})
+    model = _ConstantModel()
+    model.ensemble = _DisagreementOnAction()
+    model.demonstrations = Demonstrations(np.zeros((sum(lengths), 3), np.float32),
+                                          np.zeros((sum(lengths), 1), np.float32), lengths)
+    selector.init_callback(model)
+    selector.on_training_start({}, {})
+    assert selector.length_compared is compared and selector.kept()["length_compared"] is compared
+    selector.close()
+
+
+def test_auto_refuses_a_model_without_demonstrations():
+    selector = LongestEpisodesPolicy(_FallsAfterW(), compare_length="auto")
+    selector.init_callback(_ConstantModel())
+    with pytest.raises(UserError, match="compare_length='auto' reads the model's demonstrations; _ConstantModel has"):
+        selector.on_training_start({}, {})
+
+
 def test_the_kept_check_refuses_no_checks_and_an_unknown_tie_break():
     with pytest.raises(UserError, match="no checks to choose from"):
         kept_check([])
@@ -699,6 +758,7 @@ def test_a_damaged_longest_episodes_file_is_named_and_a_missing_one_is_no_choice
      ({"n_episodes": 2.5}, "n_episodes must be a positive integer, got 2.5"),
      ({"seed": "a"}, "seed must be an integer, got 'a'"),
      ({"tie_break": "earliest"}, r"tie_break must be one of \['latest', 'lowest_u'\], got 'earliest'"),
+     ({"compare_length": "yes"}, "compare_length must be true, false or 'auto', got 'yes'"),
      ({"env_kwargs": {"g": 9.81}, "eval_env": None}, "env_kwargs applies only to an env id")],
 )
 def test_longest_episodes_refuses_bad_options_naming_them(kwargs, message):

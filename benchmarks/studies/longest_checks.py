@@ -1,11 +1,13 @@
-"""Which policy would each finished off-policy run have kept with the other tie break?
+"""Which policy would each finished off-policy run have kept with the other tie break, or with lengths compared?
 
     python benchmarks/studies/longest_checks.py FOLDER [FOLDER ...] [-o OUT]
 
 The off-policy runs (`cmz-sac` and its comparisons) keep, as their result, the policy whose checks'
 deterministic episodes lasted longest (``LongestEpisodesPolicy``); where checks tie in length, the
 latest (``longest_tie_break: latest``, the default) or the one whose checks' states the ensemble
-disagrees on least (``lowest_u``). Every check's length and mean u are in the run's done.json (in
+disagrees on least (``lowest_u``). Where the expert ends its episodes itself, runs with ``lowest_u`` do not
+compare lengths at all (``compare_length``, 'auto' by default with ``lowest_u``; done.json's
+``length_compared``): u alone chooses. Every check's length and mean u are in the run's done.json (in
 its longest.pt, which the repository does not keep, for runs made before done.json had them), so
 the choice either rule makes is known without training again (``selection.kept_check``, the rule the
 runs apply). Its return is not: only the kept policy and the last weights get the final evaluation
@@ -14,8 +16,8 @@ at the same step on the run's ``--eval-episodes`` held-out episodes, 5 in the gr
 for a policy the run did not keep are estimates on few episodes.
 
 For every finished run folder under the FOLDERs with a longest-episodes choice: the checks (steps,
-mean length, mean u, eval.csv's return at that step), the check each rule keeps, and the final
-evaluation's returns.
+mean length, mean u, eval.csv's return at that step), the check each rule keeps (each tie break with
+lengths compared, and u alone), and the final evaluation's returns.
 Then, per env and method, the runs where the two rules keep different policies. A run whose
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
@@ -26,6 +28,12 @@ before it (docs/untuned_discussion.md):
         -o results/tuning/longest_checks_pendulum_auto_tie_u.txt
     python benchmarks/studies/longest_checks.py results/tuning/P-sac-default-before/Pendulum-v1 \\
         -o results/tuning/longest_checks_pendulum.txt
+
+and the tasks nobody here tuned for whose expert ends its episodes, where the runs compare no lengths:
+
+    python benchmarks/studies/longest_checks.py results/untuned/BipedalWalker-v3 \\
+        results/untuned/MountainCarContinuous-v0 results/tuning/BW-sac-auto-tie-u \\
+        -o results/tuning/longest_checks_goal_tasks.txt
 """
 from __future__ import annotations
 
@@ -41,6 +49,9 @@ import pandas as pd
 from sb3_cmzdril.experiments.run.run_folder import DONE_FILE, LONGEST_FILE
 from sb3_cmzdril.io import read_json
 from sb3_cmzdril.selection import TIE_BREAKS, LongestEpisodesPolicy, kept_check
+
+#: The replayed rule that compares no lengths: the lowest u over every check.
+U_ALONE = "u alone"
 
 
 def recorded_checks(run: Path, config: dict, kept: dict) -> list[tuple[int, float, float]] | None:
@@ -67,6 +78,12 @@ def replay(run: Path, record: dict) -> dict | None:
     if checks is None:
         return None
     kept = {rule: kept_check(checks, rule) for rule in TIE_BREAKS}
+    kept[U_ALONE] = kept_check(checks, "lowest_u", compare_length=False)
+    if not record.get("length_compared", True):  # recorded since compare_length exists; before it, always
+        if recorded != "lowest_u":
+            raise RuntimeError(f"{run}: compared no lengths with the tie break {recorded!r}, which this replays only "
+                               "with lowest_u")
+        recorded = U_ALONE
     kept_steps = record["timesteps"]
     if checks[kept[recorded]][0] != kept_steps:
         raise RuntimeError(f"{run}: the run kept the check at {kept_steps} steps, the replay of {recorded!r} "
@@ -93,20 +110,23 @@ def describe(run: Path, r: dict) -> list[str]:
 
 
 def summary(replays: list[dict]) -> list[str]:
-    """Per env and method: the runs where the two rules keep different policies."""
+    """Per env and method: the runs where two rules keep different policies (the two tie breaks with
+    lengths compared; then the lowest u with lengths compared and with u alone)."""
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in replays:
         groups[(r["env"], r["method"])].append(r)
-    lines = ["", "Per env and method: runs, those whose two rules keep different checks, and there eval.csv's "
-             "return of the check each keeps (latest -> lowest_u)"]
-    for (env, method), runs in sorted(groups.items()):
-        runs = sorted(runs, key=lambda r: r["trial"])
-        differ = [r for r in runs if r["kept"]["latest"] != r["kept"]["lowest_u"]]
-        returns = [(r["trial"], *(r["checks"][r["kept"][rule]][3] for rule in ("latest", "lowest_u"))) for r in differ]
-        detail = "; ".join(f"trial {trial}: {latest:.0f} -> {lowest:.0f}" for trial, latest, lowest in returns)
-        trials = ", ".join(str(r["trial"]) for r in runs)
-        lines.append(f"{env} {method}: {len(runs)} runs (trials {trials}), {len(differ)} differ"
-                     + (f": {detail}" if detail else ""))
+    lines = []
+    for first, second in (("latest", "lowest_u"), ("lowest_u", U_ALONE)):
+        lines += ["", f"Per env and method: runs, those whose two rules keep different checks, and there eval.csv's "
+                      f"return of the check each keeps ({first} -> {second})"]
+        for (env, method), runs in sorted(groups.items()):
+            runs = sorted(runs, key=lambda r: r["trial"])
+            differ = [r for r in runs if r["kept"][first] != r["kept"][second]]
+            returns = [(r["trial"], *(r["checks"][r["kept"][rule]][3] for rule in (first, second))) for r in differ]
+            detail = "; ".join(f"trial {trial}: {one:.0f} -> {other:.0f}" for trial, one, other in returns)
+            trials = ", ".join(str(r["trial"]) for r in runs)
+            lines.append(f"{env} {method}: {len(runs)} runs (trials {trials}), {len(differ)} differ"
+                         + (f": {detail}" if detail else ""))
     return lines
 
 
