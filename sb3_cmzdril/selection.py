@@ -18,8 +18,8 @@ signals are:
   ensemble disagrees on least (``tie_break="lowest_u"``, for a model with an ensemble). It reads
   termination and the ensemble, never reward; on a task without failure terminations every check
   ties, and ``"latest"`` keeps the last policy. Where the expert itself ends its episodes (it reaches
-  a goal before the time limit: BipedalWalker, MountainCar), a longer episode is no better one, and
-  ``compare_length`` leaves length out: every check ties and the tie break alone chooses.
+  a goal before the time limit: BipedalWalker, MountainCar), a longer episode is no better one:
+  ``episode_length="expert"`` keeps the check whose episodes last as long as the demonstrations'.
 
 A third policy is made rather than chosen: :class:`AveragedPolicy` (for an on-policy learner such as
 :class:`~sb3_cmzdril.algorithm.CMZDRIL`) averages the policy weights after each update over the last
@@ -47,14 +47,16 @@ from sb3_cmzdril.rewards import expert_never_terminates
 
 #: How :class:`LongestEpisodesPolicy` chooses between checks whose episodes lasted equally long.
 TIE_BREAKS: tuple[str, ...] = ("latest", "lowest_u")
+#: Which episode length :class:`LongestEpisodesPolicy` prefers: the longest, or the expert's.
+EPISODE_LENGTHS: tuple[str, ...] = ("longest", "expert")
 
 
 def kept_check(history: Sequence[tuple[int, float, float]], tie_break: str = "latest",
-               compare_length: bool = True) -> int:
+               target_length: float | None = None) -> int:
     """The index in ``history`` of the check :class:`LongestEpisodesPolicy` keeps: the longest mean
-    episode; among equally long ones the latest, or with ``tie_break="lowest_u"`` the lowest mean
-    disagreement (the later on an exact tie, or where u is NaN). With ``compare_length=False`` every
-    check counts as equally long, so the tie break alone chooses.
+    episode, or with a ``target_length`` the mean episode closest to it; among equally good ones the
+    latest, or with ``tie_break="lowest_u"`` the lowest mean disagreement (the later on an exact tie,
+    or where u is NaN).
 
     :param history: (training steps, mean episode length, mean disagreement) of each check, in order,
         as :attr:`LongestEpisodesPolicy.history` holds them.
@@ -66,7 +68,7 @@ def kept_check(history: Sequence[tuple[int, float, float]], tie_break: str = "la
         raise UserError("no checks to choose from")
     best, best_length, best_u = 0, -float("inf"), float("nan")
     for index, (_, episode_length, u) in enumerate(history):
-        length = episode_length if compare_length else 0.0
+        length = episode_length if target_length is None else -abs(episode_length - target_length)
         tied_and_better = length == best_length and (tie_break == "latest" or not u > best_u)
         if length > best_length or tied_and_better:
             best, best_length, best_u = index, length, u
@@ -197,9 +199,10 @@ class LongestEpisodesPolicy(_KeptWeights):
 
     Length means failure only where the expert runs to the time limit. Where its demonstrations end
     earlier (its success ends the episode), a check that lasts longer reached the goal later or not at
-    all: ``compare_length=False`` leaves length out, and ``"auto"`` (the default with
-    ``tie_break="lowest_u"``) does so when the model's demonstrations (``model.demonstrations``) do not
-    all last the env's time limit, decided when training starts (:attr:`length_compared`).
+    all: ``episode_length="expert"`` (the default with ``tie_break="lowest_u"``) then keeps the check
+    whose mean episode length is closest to the mean length of the model's demonstrations
+    (``model.demonstrations``), :attr:`target_length`, set when training starts. Where every
+    demonstration lasts the env's time limit it keeps the longest, as ``"longest"`` does.
 
     After ``learn()``, :meth:`apply` loads the kept weights into a model. :meth:`save`/:meth:`load`
     persist the choice with the checks so far, so that a resumed run (``learn(...,
@@ -213,8 +216,8 @@ class LongestEpisodesPolicy(_KeptWeights):
     :param env_kwargs: keyword arguments of ``gym.make`` when ``eval_env`` is an id.
     :param verbose: 1 prints each check.
     :param tie_break: ``"latest"`` or ``"lowest_u"`` (:data:`TIE_BREAKS`).
-    :param compare_length: True (the longest check is kept), False (every check ties) or ``"auto"``
-        (above); None: ``"auto"`` with ``tie_break="lowest_u"``, True with ``"latest"``.
+    :param episode_length: ``"longest"`` or ``"expert"`` (:data:`EPISODE_LENGTHS`, above); None:
+        ``"expert"`` with ``tie_break="lowest_u"``, ``"longest"`` with ``"latest"``.
     """
 
     _file_kind = "longest-episodes policy"
@@ -228,7 +231,7 @@ class LongestEpisodesPolicy(_KeptWeights):
         env_kwargs: Mapping[str, Any] | None = None,
         verbose: int = 0,
         tie_break: str = "latest",
-        compare_length: bool | str | None = None,
+        episode_length: str | None = None,
     ) -> None:
         super().__init__(verbose)
         for name, value in (("check_every", check_every), ("n_episodes", n_episodes)):
@@ -238,18 +241,19 @@ class LongestEpisodesPolicy(_KeptWeights):
             raise UserError(f"seed must be an integer, got {seed!r}")
         if tie_break not in TIE_BREAKS:
             raise UserError(f"tie_break must be one of {list(TIE_BREAKS)}, got {tie_break!r}")
-        if compare_length is None:
-            compare_length = "auto" if tie_break == "lowest_u" else True
-        if not isinstance(compare_length, bool) and compare_length != "auto":
-            raise UserError(f"compare_length must be true, false or 'auto', got {compare_length!r}")
+        if episode_length is None:
+            episode_length = "expert" if tie_break == "lowest_u" else "longest"
+        if episode_length not in EPISODE_LENGTHS:
+            raise UserError(f"episode_length must be one of {list(EPISODE_LENGTHS)}, got {episode_length!r}")
         if isinstance(eval_env, str):
             eval_env = gym.make(eval_env, **dict(env_kwargs or {}))
         elif env_kwargs:
             raise UserError("env_kwargs applies only to an env id; the env given is made already")
         self.check_every, self.n_episodes, self.seed = int(check_every), int(n_episodes), int(seed)
-        self.tie_break, self.compare_length = tie_break, compare_length
-        #: whether the checks' lengths are compared (``compare_length`` resolved when training starts)
-        self.length_compared = compare_length is not False
+        self.tie_break, self.episode_length = tie_break, episode_length
+        #: the mean episode length a check is kept for coming closest to; None: the longest is kept
+        #: (``episode_length="expert"`` sets it when training starts, where the expert ends its episodes)
+        self.target_length: float | None = None
         self.eval_env = DummyVecEnv([lambda: Monitor(eval_env)])
         self.best_length = -float("inf")
         self.best_timesteps: int | None = None
@@ -266,12 +270,15 @@ class LongestEpisodesPolicy(_KeptWeights):
             raise UserError(
                 f"tie_break='lowest_u' needs a model with an ensemble; {type(self.model).__name__} has none"
             )
-        if self.compare_length == "auto":
+        if self.episode_length == "expert":
             demonstrations = getattr(self.model, "demonstrations", None)
             if demonstrations is None:
-                raise UserError(f"compare_length='auto' reads the model's demonstrations; "
+                raise UserError(f"episode_length='expert' reads the model's demonstrations; "
                                 f"{type(self.model).__name__} has none")
-            self.length_compared = expert_never_terminates(demonstrations, self.eval_env)
+            # Where the expert runs to the time limit no check lasts longer than it: the longest is the
+            # closest, and keeping the longest says so without a float comparison.
+            if not expert_never_terminates(demonstrations, self.eval_env):
+                self.target_length = float(np.mean(demonstrations.episode_lengths))
         self._next_check = int(self.model.num_timesteps)
         self._check()
 
@@ -309,7 +316,7 @@ class LongestEpisodesPolicy(_KeptWeights):
         u = float(np.mean(ensemble.disagreement(_stacked(played[0]), np.concatenate(played[1])))) \
             if ensemble is not None and played[0] else float("nan")
         self.history.append((timesteps, length, u))
-        if kept_check(self.history, self.tie_break, self.length_compared) == len(self.history) - 1:
+        if kept_check(self.history, self.tie_break, self.target_length) == len(self.history) - 1:
             self.best_length, self.best_timesteps, self.best_u = length, timesteps, u
             self._keep()
         if self.verbose >= 1:
@@ -329,11 +336,11 @@ class LongestEpisodesPolicy(_KeptWeights):
         """The kept policy's training steps, its checks' mean episode length and disagreement (NaN
         without an ensemble), the checks' env steps, and every check as ``[steps, mean length, mean
         u]`` (what :func:`kept_check` chooses from: the run's record of the other tie break's choice),
-        and whether the lengths were compared."""
+        and the target length (None: the longest)."""
         steps = -1 if self.best_timesteps is None else self.best_timesteps
         return {"timesteps": int(steps), "mean_length": self.best_length, "mean_u": self.best_u,
                 "env_steps": int(self.env_steps), "checks": [list(check) for check in self.history],
-                "length_compared": self.length_compared}
+                "target_length": self.target_length}
 
     def _restore(self, blob: Mapping[str, th.Tensor]) -> None:
         # Everything is read before anything is set: a file that lacks a part changes nothing. Files

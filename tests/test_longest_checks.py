@@ -64,32 +64,33 @@ def test_no_run_with_a_longest_episodes_choice_is_one_line(tmp_path, monkeypatch
 
 
 def _goal_task_run(root: Path, tie_break: str) -> Path:
-    """A run that compared no lengths (its expert ends its episodes): u alone kept the check at 2048,
-    the shortest; with lengths compared the one at 0 (the longest) would have been kept."""
-    run = _off_policy_run(root, 0, [[0, 999.0, 0.3], [2048, 120.0, 0.1], [4096, 500.0, 0.2]], kept_steps=2048)
+    """A run that aimed at the expert's episode length, 480 steps (its expert ends its episodes): it
+    kept the check at 4096 (500 steps); the longest (0, 999 steps) and the lowest u (2048) differ."""
+    run = _off_policy_run(root, 0, [[0, 999.0, 0.3], [2048, 120.0, 0.1], [4096, 500.0, 0.2]], kept_steps=4096)
     config = json.loads((run / "config.json").read_text())
     config["hyperparams_values"] = {"longest_tie_break": tie_break}
     (run / "config.json").write_text(json.dumps(config))
     done = json.loads((run / "done.json").read_text())
-    done["final_evaluation"]["longest"]["length_compared"] = False
+    done["final_evaluation"]["longest"]["target_length"] = 480.0
     (run / "done.json").write_text(json.dumps(done))
     return run
 
 
-def test_a_run_that_compared_no_lengths_is_replayed_by_u_alone_beside_the_length_rules(tmp_path, monkeypatch, capsys):
+def test_a_run_that_aimed_at_the_expert_length_is_replayed_beside_the_other_rules(tmp_path, monkeypatch, capsys):
     study = _study(monkeypatch)
     run = _goal_task_run(tmp_path, "lowest_u")
     assert study.main([str(tmp_path)]) == 0
     text = capsys.readouterr().out
-    assert f"{run} (trial 0; the run's tie break: u alone)" in text
+    assert f"{run} (trial 0; the run's tie break: expert length)" in text
+    assert "  expert length: keeps the check at 4096 steps (length 500, u 0.200, eval.csv -800)" in text
     assert "   u alone: keeps the check at 2048 steps (length 120, u 0.100, eval.csv -200)" in text
     assert "  lowest_u: keeps the check at 0 steps (length 999, u 0.300, eval.csv -1000)" in text
-    after = text.split("(lowest_u -> u alone)")[1]
-    assert f"{ENV} cmz-sac: 1 runs (trials 0), 1 differ: trial 0: -1000 -> -200" in after
+    after = text.split("(lowest_u -> expert length)")[1]
+    assert f"{ENV} cmz-sac: 1 runs (trials 0), 1 differ: trial 0: -1000 -> -800" in after
 
 
-def test_a_run_that_compared_no_lengths_with_the_latest_is_not_replayed(tmp_path, monkeypatch):
+def test_a_run_that_aimed_at_the_expert_length_with_the_latest_is_not_replayed(tmp_path, monkeypatch):
     study = _study(monkeypatch)
     run = _goal_task_run(tmp_path, "latest")
-    with pytest.raises(RuntimeError, match=f"{run}: compared no lengths with the tie break 'latest'"):
+    with pytest.raises(RuntimeError, match=f"{run}: aimed at the expert's length with the tie break 'latest'"):
         study.main([str(tmp_path)])

@@ -177,8 +177,8 @@ def test_longest_tie_break_in_the_yaml_reaches_the_runs_choice_and_is_refused_wh
     assert len(history) == 5 and (history[:, 1] == history[0, 1]).all() and np.isfinite(history[:, 2]).all()
     assert done["final_evaluation"]["longest"]["mean_u"] == pytest.approx(history[:, 2].min())
     assert done["final_evaluation"]["longest"]["timesteps"] == int(history[history[:, 2].argmin(), 0])
-    # lowest_u leaves compare_length at "auto": the record says what it resolved to on this pool
-    assert isinstance(done["final_evaluation"]["longest"]["length_compared"], bool)
+    # lowest_u leaves episode_length at "expert": the record has the length it aimed at (None: the longest)
+    assert "target_length" in done["final_evaluation"]["longest"]
 
     bad = tmp_path / "bad.yml"
     bad.write_text(tie_yaml.read_text().replace("lowest_u", "earliest"))
@@ -192,30 +192,30 @@ def test_longest_tie_break_in_the_yaml_reaches_the_runs_choice_and_is_refused_wh
 
 
 @pytest.mark.parametrize(("method", "value", "message"), [
-    ("cmz-sac", "'sometimes'", "compare_length must be true, false or 'auto', got 'sometimes'"),
-    ("cmz", "false", r"compare_length applies only to the off-policy methods \['cmz-sac'"),
+    ("cmz-sac", "shortest", r"episode_length must be one of \['longest', 'expert'\], got 'shortest'"),
+    ("cmz", "expert", r"episode_length applies only to the off-policy methods \['cmz-sac'"),
 ])
-def test_compare_length_in_the_yaml_is_refused_before_a_file_is_written_where_it_cannot_apply(
+def test_episode_length_in_the_yaml_is_refused_before_a_file_is_written_where_it_cannot_apply(
     tiny_experiment, sac_yaml, tmp_path, method, value, message
 ):
     base = sac_yaml if method == "cmz-sac" else tiny_experiment["hp"]
     bad = tmp_path / "bad.yml"
-    bad.write_text(base.read_text().rstrip("\n") + f"\n  compare_length: {value}\n")
+    bad.write_text(base.read_text().rstrip("\n") + f"\n  episode_length: {value}\n")
     with pytest.raises(UserError, match=message):
         plan_run(ENV, method, 0, demos=tiny_experiment["pool"], hyperparams=bad, output_dir=tmp_path / "x")
     assert not (tmp_path / "x").exists()
 
 
-def test_compare_length_in_the_yaml_reaches_the_runs_choice(tiny_experiment, sac_yaml, tmp_path):
+def test_episode_length_in_the_yaml_reaches_the_runs_choice(tiny_experiment, sac_yaml, tmp_path):
     from sb3_cmzdril.experiments.run.runs import _longest_policy, resolve_run
 
     yaml = tmp_path / "length.yml"
-    yaml.write_text(sac_yaml.read_text().rstrip("\n") + "\n  compare_length: false\n")
+    yaml.write_text(sac_yaml.read_text().rstrip("\n") + "\n  episode_length: expert\n")
     run = resolve_run(plan_run(ENV, "cmz-sac", 0, demos=tiny_experiment["pool"], hyperparams=yaml,
                                output_dir=tmp_path / "run"))
-    assert run.settings["compare_length"] is False and "compare_length" not in run.model_kwargs()
+    assert run.settings["episode_length"] == "expert" and "episode_length" not in run.model_kwargs()
     selector = _longest_policy(run, 2048)
-    assert selector.compare_length is False and selector.length_compared is False
+    assert selector.episode_length == "expert" and selector.tie_break == "latest"
     selector.close()
 
 

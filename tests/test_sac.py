@@ -626,61 +626,65 @@ def test_the_kept_check_is_the_longest_then_the_latest_or_the_lowest_u(checks, t
 
 
 @pytest.mark.parametrize(("checks", "tie_break", "kept"), [
-    (_CHECKS, "lowest_u", 4),
-    ([(0, 100.0, 0.05), (10, 200.0, 0.3)], "lowest_u", 0),  # the shorter check, with the lower u
-    ([(0, 100.0, 0.05), (10, 200.0, 0.3), (20, 150.0, 0.9)], "latest", 2),  # every check ties: the last
+    ([(0, 100.0, 0.3), (10, 150.0, 0.2), (20, 999.0, 0.1)], "lowest_u", 1),  # 150 is the closest to 160
+    ([(0, 100.0, 0.3), (10, 170.0, 0.2), (20, 150.0, 0.1)], "lowest_u", 2),  # 10 from it either side: u
+    ([(0, 100.0, 0.3), (10, 170.0, 0.2), (20, 150.0, 0.1)], "latest", 2),
 ])
-def test_without_lengths_compared_the_tie_break_alone_chooses(checks, tie_break, kept):
-    assert kept_check(checks, tie_break, compare_length=False) == kept
+def test_with_a_target_length_the_check_closest_to_it_is_kept_then_the_tie_break(checks, tie_break, kept):
+    assert kept_check(checks, tie_break, target_length=160.0) == kept
 
 
 class _DisagreementFromFour(_DisagreementOnAction):
-    """u = |action - 4|: the policy whose episodes end soonest is the one the ensemble knows best."""
+    """u = |action - 4|: the policy that falls soonest is the one the ensemble knows best."""
 
     def disagreement(self, obs, actions):
         return np.abs(np.asarray(actions, np.float64)[:, 0] - 4.0)
 
 
-@pytest.mark.parametrize(("compare_length", "kept_w"), [(True, 25.0), (False, 4.0), ("auto", 4.0), (None, 4.0)])
-def test_where_length_is_not_compared_a_shorter_policy_the_ensemble_knows_better_is_kept(compare_length, kept_w):
-    # _FallsAfterW has no spec, so its time limit is unknown: "auto" (None's meaning with lowest_u) cannot
-    # tell that the expert runs to it, and leaves length out, as absorbing="auto" does.
+def _demos(lengths: list[int]) -> Demonstrations:
+    return Demonstrations(np.zeros((sum(lengths), 1), np.float32), np.zeros((sum(lengths), 1), np.float32), lengths)
+
+
+@pytest.mark.parametrize(("episode_length", "kept_w"), [("longest", 25.0), ("expert", 4.0), (None, 4.0)])
+def test_where_the_expert_ends_its_episodes_the_check_as_long_as_its_is_kept(episode_length, kept_w):
+    # _FallsAfterW has no spec, so its time limit is unknown: "expert" (None's meaning with lowest_u)
+    # cannot tell that the expert runs to it, and keeps the check closest to the demonstrations' 5 steps.
     selector = LongestEpisodesPolicy(_FallsAfterW(), check_every=10, n_episodes=2, seed=7, tie_break="lowest_u",
-                                     compare_length=compare_length)
+                                     episode_length=episode_length)
     model = _ConstantModel()
-    model.ensemble, model.demonstrations = _DisagreementFromFour(), object()
+    model.ensemble, model.demonstrations = _DisagreementFromFour(), _demos([4, 6])
     selector.init_callback(model)
-    with th.no_grad():
-        model.policy.w.fill_(25)
-    selector.on_training_start({}, {})  # the first check: episodes of 20 steps (the time limit), u 21
-    with th.no_grad():
-        model.policy.w.fill_(4)
-    model.num_timesteps = 10
-    selector.on_step()  # the second: episodes of 4 steps (a fall), u 0
-    assert [(length, u) for _, length, u in selector.history] == [(20.0, 21.0), (4.0, 0.0)]
-    assert selector.kept()["length_compared"] is (compare_length is True)
+    for steps, w in [(0, 25), (10, 4), (20, 6)]:  # lengths 20 (the time limit), 4 (u 0) and 6 (u 2)
+        with th.no_grad():
+            model.policy.w.fill_(w)
+        model.num_timesteps = steps
+        if steps == 0:
+            selector.on_training_start({}, {})
+        else:
+            selector.on_step()
+    assert [(length, u) for _, length, u in selector.history] == [(20.0, 21.0), (4.0, 0.0), (6.0, 2.0)]
+    assert selector.kept()["target_length"] == (None if episode_length == "longest" else 5.0)
+    # 4 and 6 are as close to 5: the tie break keeps the lower u, 4's
     selector.apply(model)
     assert model.policy.w.item() == kept_w
 
 
-@pytest.mark.parametrize(("lengths", "compared"), [([10, 12], True), ([10, 4], False)])
-def test_auto_compares_length_only_where_every_demonstration_lasts_the_time_limit(lengths, compared):
+@pytest.mark.parametrize(("lengths", "target"), [([10, 12], None), ([10, 4], 7.0)])
+def test_the_expert_length_is_the_demonstrations_mean_unless_every_one_lasts_the_time_limit(lengths, target):
     selector = LongestEpisodesPolicy("Pendulum-v1", n_episodes=1, tie_break="lowest_u",
                                      env_kwargs={"max_episode_steps": 10})
     model = _ConstantModel()
-    model.ensemble = _DisagreementOnAction()
-    model.demonstrations = Demonstrations(np.zeros((sum(lengths), 3), np.float32),
-                                          np.zeros((sum(lengths), 1), np.float32), lengths)
+    model.ensemble, model.demonstrations = _DisagreementOnAction(), _demos(lengths)
     selector.init_callback(model)
     selector.on_training_start({}, {})
-    assert selector.length_compared is compared and selector.kept()["length_compared"] is compared
+    assert selector.target_length == target and selector.kept()["target_length"] == target
     selector.close()
 
 
-def test_auto_refuses_a_model_without_demonstrations():
-    selector = LongestEpisodesPolicy(_FallsAfterW(), compare_length="auto")
+def test_the_expert_length_needs_a_model_with_demonstrations():
+    selector = LongestEpisodesPolicy(_FallsAfterW(), episode_length="expert")
     selector.init_callback(_ConstantModel())
-    with pytest.raises(UserError, match="compare_length='auto' reads the model's demonstrations; _ConstantModel has"):
+    with pytest.raises(UserError, match="episode_length='expert' reads the model's demonstrations; _ConstantModel has"):
         selector.on_training_start({}, {})
 
 
@@ -758,7 +762,7 @@ def test_a_damaged_longest_episodes_file_is_named_and_a_missing_one_is_no_choice
      ({"n_episodes": 2.5}, "n_episodes must be a positive integer, got 2.5"),
      ({"seed": "a"}, "seed must be an integer, got 'a'"),
      ({"tie_break": "earliest"}, r"tie_break must be one of \['latest', 'lowest_u'\], got 'earliest'"),
-     ({"compare_length": "yes"}, "compare_length must be true, false or 'auto', got 'yes'"),
+     ({"episode_length": "shortest"}, r"episode_length must be one of \['longest', 'expert'\], got 'shortest'"),
      ({"env_kwargs": {"g": 9.81}, "eval_env": None}, "env_kwargs applies only to an env id")],
 )
 def test_longest_episodes_refuses_bad_options_naming_them(kwargs, message):

@@ -1,13 +1,14 @@
-"""Which policy would each finished off-policy run have kept with the other tie break, or with lengths compared?
+"""Which policy would each finished off-policy run have kept with the other tie break, or by another length?
 
     python benchmarks/studies/longest_checks.py FOLDER [FOLDER ...] [-o OUT]
 
 The off-policy runs (`cmz-sac` and its comparisons) keep, as their result, the policy whose checks'
 deterministic episodes lasted longest (``LongestEpisodesPolicy``); where checks tie in length, the
 latest (``longest_tie_break: latest``, the default) or the one whose checks' states the ensemble
-disagrees on least (``lowest_u``). Where the expert ends its episodes itself, runs with ``lowest_u`` do not
-compare lengths at all (``compare_length``, 'auto' by default with ``lowest_u``; done.json's
-``length_compared``): u alone chooses. Every check's length and mean u are in the run's done.json (in
+disagrees on least (``lowest_u``). Where the expert ends its episodes itself, runs with ``lowest_u`` keep
+the check whose episodes last as long as the training demonstrations' on average (``episode_length:
+expert``, the default with ``lowest_u``; done.json's ``target_length``). Every check's length and mean u
+are in the run's done.json (in
 its longest.pt, which the repository does not keep, for runs made before done.json had them), so
 the choice either rule makes is known without training again (``selection.kept_check``, the rule the
 runs apply). Its return is not: only the kept policy and the last weights get the final evaluation
@@ -17,7 +18,8 @@ for a policy the run did not keep are estimates on few episodes.
 
 For every finished run folder under the FOLDERs with a longest-episodes choice: the checks (steps,
 mean length, mean u, eval.csv's return at that step), the check each rule keeps (each tie break with
-lengths compared, and u alone), and the final evaluation's returns.
+the longest episodes, the lowest u with no length compared, and the run's own rule where it aimed at
+the expert's length), and the final evaluation's returns.
 Then, per env and method, the runs where the two rules keep different policies. A run whose
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
@@ -29,7 +31,7 @@ before it (docs/untuned_discussion.md):
     python benchmarks/studies/longest_checks.py results/tuning/P-sac-default-before/Pendulum-v1 \\
         -o results/tuning/longest_checks_pendulum.txt
 
-and the tasks nobody here tuned for whose expert ends its episodes, where the runs compare no lengths:
+and the tasks nobody here tuned for whose expert ends its episodes, where the runs aim at its length:
 
     python benchmarks/studies/longest_checks.py results/untuned/BipedalWalker-v3 \\
         results/untuned/MountainCarContinuous-v0 results/tuning/BW-sac-auto-tie-u \\
@@ -52,6 +54,8 @@ from sb3_cmzdril.selection import TIE_BREAKS, LongestEpisodesPolicy, kept_check
 
 #: The replayed rule that compares no lengths: the lowest u over every check.
 U_ALONE = "u alone"
+#: The rule of a run that kept the check closest to the expert's mean episode length (then the lowest u).
+EXPERT_LENGTH = "expert length"
 
 
 def recorded_checks(run: Path, config: dict, kept: dict) -> list[tuple[int, float, float]] | None:
@@ -78,12 +82,15 @@ def replay(run: Path, record: dict) -> dict | None:
     if checks is None:
         return None
     kept = {rule: kept_check(checks, rule) for rule in TIE_BREAKS}
-    kept[U_ALONE] = kept_check(checks, "lowest_u", compare_length=False)
-    if not record.get("length_compared", True):  # recorded since compare_length exists; before it, always
+    # Every check as long as the others: the tie break alone chooses.
+    kept[U_ALONE] = kept_check([(steps, 0.0, u) for steps, _, u in checks], "lowest_u")
+    target = record.get("target_length")  # recorded since episode_length exists; None: the longest
+    if target is not None:
         if recorded != "lowest_u":
-            raise RuntimeError(f"{run}: compared no lengths with the tie break {recorded!r}, which this replays only "
-                               "with lowest_u")
-        recorded = U_ALONE
+            raise RuntimeError(f"{run}: aimed at the expert's length with the tie break {recorded!r}, which this "
+                               "replays only with lowest_u")
+        recorded = EXPERT_LENGTH
+        kept[recorded] = kept_check(checks, "lowest_u", target_length=float(target))
     kept_steps = record["timesteps"]
     if checks[kept[recorded]][0] != kept_steps:
         raise RuntimeError(f"{run}: the run kept the check at {kept_steps} steps, the replay of {recorded!r} "
@@ -111,16 +118,20 @@ def describe(run: Path, r: dict) -> list[str]:
 
 def summary(replays: list[dict]) -> list[str]:
     """Per env and method: the runs where two rules keep different policies (the two tie breaks with
-    lengths compared; then the lowest u with lengths compared and with u alone)."""
+    the longest episodes; the lowest u with the longest episodes and with u alone; and with the expert's
+    length, for the runs that aimed at it)."""
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in replays:
         groups[(r["env"], r["method"])].append(r)
     lines = []
-    for first, second in (("latest", "lowest_u"), ("lowest_u", U_ALONE)):
+    for first, second in (("latest", "lowest_u"), ("lowest_u", U_ALONE), ("lowest_u", EXPERT_LENGTH)):
         lines += ["", f"Per env and method: runs, those whose two rules keep different checks, and there eval.csv's "
                       f"return of the check each keeps ({first} -> {second})"]
         for (env, method), runs in sorted(groups.items()):
             runs = sorted(runs, key=lambda r: r["trial"])
+            runs = [r for r in runs if second in r["kept"]]
+            if not runs:
+                continue
             differ = [r for r in runs if r["kept"][first] != r["kept"][second]]
             returns = [(r["trial"], *(r["checks"][r["kept"][rule]][3] for rule in (first, second))) for r in differ]
             detail = "; ".join(f"trial {trial}: {one:.0f} -> {other:.0f}" for trial, one, other in returns)

@@ -173,8 +173,8 @@ def _result_clause(rows: Sequence[FinalRow]) -> str:
     if not chosen:
         return ""
     return (f" (for {', '.join(METHOD_LABELS[m] for m in chosen)}: its policy whose deterministic episodes from "
-            "fixed starts lasted longest, or where the expert ends its episodes itself the one whose states the "
-            "ensemble knew best, chosen without the env reward)")
+            "fixed starts lasted longest, or where the expert ends its episodes itself as long as its "
+            "demonstrations, chosen without the env reward)")
 
 
 def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int) -> str:

@@ -211,7 +211,7 @@ def _longest_policy(run: ResolvedRun, epoch: int) -> Any:
     return LongestEpisodesPolicy(
         run.spec.env_id, check_every=run.spec.eval_every * epoch, n_episodes=LONGEST_CHECK_EPISODES,
         seed=LONGEST_CHECK_SEED + 100 * run.spec.seed, env_kwargs=run.hp.env_kwargs,
-        tie_break=run.settings.get("longest_tie_break", "latest"), compare_length=run.settings.get("compare_length"),
+        tie_break=run.settings.get("longest_tie_break", "latest"), episode_length=run.settings.get("episode_length"),
     )
 
 

@@ -51,10 +51,10 @@ OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
 OFFPOLICY_EPOCH_STEPS = 2048
 #: Keys of cmzdril.yml that configure the experiment rather than the model (not constructor kwargs):
 #: the training episodes, (off-policy methods only) how the longest-episodes choice breaks a tie in length
-#: and whether it compares lengths at all (not where the expert ends its episodes), and (PPO methods only)
+#: and which episode length it prefers (the expert's, where it ends its episodes), and (PPO methods only)
 #: from which fraction of the run's steps on an averaged policy is kept and evaluated, and whether the
 #: longest-episodes choice is kept and evaluated too.
-EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "compare_length", "average_from", "keep_longest")
+EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "episode_length", "average_from", "keep_longest")
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -200,14 +200,15 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         if tie_break not in TIE_BREAKS:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break must be one of "
                             f"{list(TIE_BREAKS)}, got {tie_break!r}")
-    if "compare_length" in settings:
-        compare_length = settings["compare_length"]
+    if "episode_length" in settings:
+        from sb3_cmzdril.selection import EPISODE_LENGTHS
+
         if not is_off_policy(method):
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: compare_length applies only to the off-policy "
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: episode_length applies only to the off-policy "
                             f"methods {list(OFFPOLICY_METHODS)} (their longest-episodes choice), not to {method!r}")
-        if not isinstance(compare_length, bool) and compare_length != "auto":
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: compare_length must be true, false or 'auto', "
-                            f"got {compare_length!r}")
+        if settings["episode_length"] not in EPISODE_LENGTHS:
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: episode_length must be one of "
+                            f"{list(EPISODE_LENGTHS)}, got {settings['episode_length']!r}")
     average_from = settings.get("average_from")
     if average_from is not None:
         # bc has no updates to average and ignores it, as it ignores the reward's keys.
