@@ -150,3 +150,16 @@ def test_the_batched_bootstrap_statistics_are_rliables():
     assert median == pytest.approx(metrics.aggregate_median(x))
     assert agg.batch_improvement(x[None], y[None])[0] == pytest.approx(metrics.probability_of_improvement(x, y))
     assert agg.batch_improvement(x[None], x[None])[0] == 0.5
+
+
+def test_ten_trials_on_one_task_do_not_crowd_out_five_on_two_others(tmp_path):
+    envs = (*TASKS, "HalfCheetah-v5")
+    for t in range(10):
+        write_run(tmp_path, "bc", t, [1.0], env=envs[0], final={"final": [500.0, 500.0]})
+    for env in envs[1:]:
+        for t in range(5):
+            write_run(tmp_path, "bc", t, [1.0], env=env, final={"final": [600.0, 600.0]})
+    scores = agg.score_matrix(final_table(load_runs(tmp_path)))
+    # trials 0-4 keep 15 runs on three tasks, trials 0-9 ten on one
+    assert scores.trials["bc"] == (0, 1, 2, 3, 4) and set(scores.tasks["bc"]) == set(envs)
+    assert scores.left_out == ()

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -83,15 +83,23 @@ class Scores:
         return tuple(t for t in self.tasks[a] if t in self.tasks[b])
 
 
+def _runs_kept(trials: tuple[int, ...], scored: Mapping[str, Mapping[int, float]]) -> tuple[int, int]:
+    """(runs, tasks) that scoring on ``trials`` keeps: the tasks with all of them."""
+    tasks = sum(set(trials) <= set(by_trial) for by_trial in scored.values())
+    return tasks * len(trials), tasks
+
+
 def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
     """The normalised scores of each method's result (:func:`result_policy`: the final
     policy, or the longest-episodes one for ``cmz-sac``) on its tasks, over the trials its tasks share.
 
     rliable's stratified bootstrap resamples the runs within each task and wants as many on each, so a
-    method is scored on the largest set of trials one of its tasks has, and a task of that method
-    without all of them (a grid still running) is left out with a note, as is a task whose expert
-    mean is not positive. None when nothing is left; a UserError when an (env, method) comes twice
-    (from two grids: which one counts is the caller's choice, not ours).
+    method is scored on the set of trials one of its tasks has that keeps the most runs (tasks with
+    all of them times their number; on a tie, the more tasks): ten trials on one task do not crowd out
+    the five of three others. A task of that method without all of them (a grid still running) is left
+    out with a note, as is a task whose expert mean is not positive. None when nothing is left; a
+    UserError when an (env, method) comes twice (from two grids: which one counts is the caller's
+    choice, not ours).
     """
     chosen = [r for r in rows if r.policy == result_policy(r.method)]
     seen: set[tuple[str, str]] = set()
@@ -117,7 +125,7 @@ def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
         if not scored:
             continue
         # Only a task that can be scored sets the trials: one without a scale must not crowd out the rest.
-        wanted = max((tuple(sorted(by_trial)) for by_trial in scored.values()), key=len)
+        wanted = max((tuple(sorted(by_trial)) for by_trial in scored.values()), key=lambda w: _runs_kept(w, scored))
         for env, by_trial in scored.items():
             if not set(wanted) <= set(by_trial):
                 left_out.append(f"{env} {METHOD_LABELS[method]}: {len(set(by_trial) & set(wanted))} of the "
