@@ -94,3 +94,16 @@ def test_a_run_that_aimed_at_the_expert_length_with_the_latest_is_not_replayed(t
     run = _goal_task_run(tmp_path, "latest")
     with pytest.raises(RuntimeError, match=f"{run}: aimed at the expert's length with the tie break 'latest'"):
         study.main([str(tmp_path)])
+
+
+def test_a_run_that_kept_the_lowest_u_alone_is_replayed_as_such(tmp_path, monkeypatch, capsys):
+    # commit d75d34b4's rule where the expert ends its episodes: no length compared (length_compared: false)
+    study = _study(monkeypatch)
+    run = _goal_task_run(tmp_path, "lowest_u")
+    done = json.loads((run / "done.json").read_text())
+    longest = done["final_evaluation"]["longest"]
+    del longest["target_length"]
+    longest.update(length_compared=False, timesteps=2048)
+    (run / "done.json").write_text(json.dumps(done))
+    assert study.main([str(tmp_path)]) == 0
+    assert f"{run} (trial 0; the run's tie break: u alone)" in capsys.readouterr().out

@@ -7,7 +7,8 @@ deterministic episodes lasted longest (``LongestEpisodesPolicy``); where checks 
 latest (``longest_tie_break: latest``, the default) or the one whose checks' states the ensemble
 disagrees on least (``lowest_u``). Where the expert ends its episodes itself, runs with ``lowest_u`` keep
 the check whose episodes last as long as the training demonstrations' on average (``episode_length:
-expert``, the default with ``lowest_u``; done.json's ``target_length``). Every check's length and mean u
+expert``, the default with ``lowest_u``; done.json's ``target_length``); runs made at commit d75d34b4
+kept the lowest u alone there (done.json's ``length_compared: false``). Every check's length and mean u
 are in the run's done.json (in
 its longest.pt, which the repository does not keep, for runs made before done.json had them), so
 the choice either rule makes is known without training again (``selection.kept_check``, the rule the
@@ -35,7 +36,7 @@ and the tasks nobody here tuned for whose expert ends its episodes, where the ru
 
     python benchmarks/studies/longest_checks.py results/untuned/BipedalWalker-v3 \\
         results/untuned/MountainCarContinuous-v0 results/tuning/BW-sac-auto-tie-u \\
-        -o results/tuning/longest_checks_goal_tasks.txt
+        results/tuning/goal-tasks-u-alone -o results/tuning/longest_checks_goal_tasks.txt
 """
 from __future__ import annotations
 
@@ -84,6 +85,8 @@ def replay(run: Path, record: dict) -> dict | None:
     kept = {rule: kept_check(checks, rule) for rule in TIE_BREAKS}
     # Every check as long as the others: the tie break alone chooses.
     kept[U_ALONE] = kept_check([(steps, 0.0, u) for steps, _, u in checks], "lowest_u")
+    if record.get("length_compared") is False:  # commit d75d34b4's rule where the expert ends its episodes
+        recorded = U_ALONE if recorded == "lowest_u" else recorded
     target = record.get("target_length")  # recorded since episode_length exists; None: the longest
     if target is not None:
         if recorded != "lowest_u":

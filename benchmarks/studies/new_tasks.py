@@ -514,7 +514,8 @@ def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
 #: the off-policy learner's rows on the untuned tasks: hyperparams/cmzdril_sac.yml as shipped (no entry for them),
 #: its own budget
 SAC_DEFAULT_LABEL = ("package defaults (hyperparams/cmzdril_sac.yml, its `default` entry: 70k SAC steps, u's form read "
-                     "from the demonstrations, a tie in episode length broken by the lowest mean u)")
+                     "from the demonstrations, a tie in episode length broken by the lowest mean u, and where the "
+                     "expert ends its episodes the check whose episodes last as long as its demonstrations)")
 #: the `default` entry before it took `disagreement: auto` and the lowest-u tie break: its runs, moved out of
 #: results/untuned; every check of a Pendulum-v1 run ties (no episode ends early), so each kept its last weights
 PENDULUM_SAC_BEFORE = "results/tuning/P-sac-default-before"
@@ -593,6 +594,21 @@ PENDULUM_ROWS: tuple[Variant, ...] = (
                         "--trials 3-4 --workers 2"),
 )
 
+#: the same training as the default entry's runs on the tasks whose expert ends its episodes, keeping the check with
+#: the lowest u whatever its length: a rule of commit d75d34b4 that never shipped
+U_ALONE_RUNS = "results/tuning/goal-tasks-u-alone"
+U_ALONE_LABEL = "the same training keeping the lowest u, whatever the length (commit d75d34b4), the kept policy"
+U_ALONE_NOTE = f" at commit d75d34b4 (moved to {U_ALONE_RUNS})"
+#: MountainCarContinuous-v0, a task nobody here tuned for whose expert (the zoo's SAC) ends its episodes at the goal
+MOUNTAIN = "MountainCarContinuous-v0"
+
+
+def untuned_sac_command(env: str, trials: str) -> str:
+    """untuned_task.sh's command of the off-policy method's runs on ``env``, a task nobody here tuned for."""
+    return (f"bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env {env} --methods cmz-sac --trials "
+            f"{trials} --eval-every 5 --workers 1 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}")
+
+
 #: BipedalWalker-v3, a task nobody here tuned for where cloning reaches the expert already: its expert (the zoo's
 #: A2C) holds a bound in over half its action entries, so the unclipped u is what `disagreement: auto` would take
 BIPEDAL = "BipedalWalker-v3"
@@ -610,13 +626,36 @@ BIPEDAL_ROWS: tuple[Variant, ...] = (
                     + f" --demos-dir {UNTUNED} --no-progress", firsts=(0,), method="dril"),
     *both_readouts(lambda words: Variant(
         BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trial 0", UNTUNED,
-        "python benchmarks/studies/tune.py BW-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
-        f"{AUTO} --set longest_tie_break=lowest_u -- --env BipedalWalker-v3 --methods cmz-sac --eval-every 5 "
-        f"--no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-0 (moved to {UNTUNED})", trials=(0,))),
+        untuned_sac_command(BIPEDAL, "0-0"), trials=(0,))),
+    Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, the same training keeping the longest episodes (the "
+            "`default` entry before `episode_length`), the kept policy: trial 0", "results/tuning/BW-sac-auto-tie-u",
+            "python benchmarks/studies/tune.py BW-sac-auto-tie-u --base hyperparams/cmzdril_sac.yml "
+            f"{AUTO} --set longest_tie_break=lowest_u -- --env BipedalWalker-v3 --methods cmz-sac --eval-every 5 "
+            f"--no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-0", trials=(0,), policy="longest"),
+    Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {U_ALONE_LABEL}: trial 0", U_ALONE_RUNS,
+            untuned_sac_command(BIPEDAL, "0-0") + U_ALONE_NOTE, trials=(0,), policy="longest"),
     Variant(BIPEDAL, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_BEFORE_LABEL}: trial 0",
             "results/tuning/BW-sac-default-before", "bash benchmarks/studies/untuned_task.sh at commit 7514c932: "
             "sb3-cmzdril benchmark --env BipedalWalker-v3 --methods cmz-sac --trials 0-2 --eval-every 5 --workers 1 "
             f"--no-progress --demos-dir {UNTUNED} -o {UNTUNED}, stopped after trial 0 (moved here)", trials=(0,)),
+)
+
+MOUNTAIN_ROWS: tuple[Variant, ...] = (
+    Variant(MOUNTAIN, "bc", f"{METHOD_LABELS['bc']}, package defaults (the `default` entry)", UNTUNED,
+            f"bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env {MOUNTAIN} --methods bc "
+            f"--trials 0-9 --eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}"),
+    *both_readouts(lambda words: Variant(
+        MOUNTAIN, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trials 0-4", UNTUNED,
+        untuned_sac_command(MOUNTAIN, "0-4") + " (two such processes, --workers 1 each)", trials=tuple(range(5)))),
+    Variant(MOUNTAIN, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {U_ALONE_LABEL}: trial 0", U_ALONE_RUNS,
+            untuned_sac_command(MOUNTAIN, "0-4") + ", stopped after trial 0" + U_ALONE_NOTE, trials=(0,),
+            policy="longest"),
+    Variant(MOUNTAIN, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, package defaults without the absorbing state "
+            "(`absorbing: auto`, off where the expert ends its episodes), the last weights: trial 0",
+            "results/tuning/MC-sac-absorbing-auto", "python benchmarks/studies/tune.py MC-sac-absorbing-auto --base "
+            "hyperparams/cmzdril_sac.yml --set absorbing=auto -- --env MountainCarContinuous-v0 --methods cmz-sac "
+            f"--eval-every 5 --no-progress --demos-dir {UNTUNED} --workers 1 --trials 0-4 at commit d75d34b4, "
+            "stopped after trial 0", trials=(0,)),
 )
 
 #: The variants, reference first per env. Add a variant by adding a line.
@@ -781,6 +820,7 @@ ABLATIONS: tuple[Variant, ...] = (
                               f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED} {WARMUP}")),
     *BIPEDAL_ROWS,
     *PENDULUM_ROWS,
+    *MOUNTAIN_ROWS,
 )
 
 
