@@ -17,7 +17,7 @@ import warnings
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -25,6 +25,9 @@ from gymnasium import spaces
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 from sb3_cmzdril.spaces import check_action_space, concatenate, match_observations, n_steps, take
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecEnv
 
 FORMAT_VERSION = 1
 UNKNOWN_SEED = -1
@@ -379,6 +382,18 @@ def _check_format_version(path: Path, version: np.ndarray | None) -> None:
             f"demonstrations file {path} has format_version {number}, newer than this sb3-cmzdril reads "
             f"({FORMAT_VERSION}): upgrade sb3-cmzdril"
         )
+
+
+def expert_never_terminates(demonstrations: Demonstrations, venv: VecEnv) -> bool:
+    """Whether every demonstration lasts the env's time limit (``absorbing="auto"``'s test): then a
+    termination is something the expert never did. False for an env without a gymnasium spec or
+    time limit, whose episodes' ends say nothing about the expert."""
+    try:
+        spec = venv.get_attr("spec", [0])[0]
+    except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
+        return False
+    limit = getattr(spec, "max_episode_steps", None)
+    return limit is not None and bool(np.all(demonstrations.episode_lengths >= limit))
 
 
 def as_demonstrations(demos: Demonstrations | PathLike | list[Mapping[str, Any]]) -> Demonstrations:

@@ -23,7 +23,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.demos import Demonstrations, expert_never_terminates
 from sb3_cmzdril.errors import UserError
 
 
@@ -220,18 +220,6 @@ class EnvReward(RewardRule):
         return np.asarray(env_rewards, dtype=np.float32)
 
     sequence = __call__
-
-
-def expert_never_terminates(demonstrations: Demonstrations, venv: VecEnv) -> bool:
-    """Whether every demonstration lasts the env's time limit (``absorbing="auto"``'s test): then a
-    termination is something the expert never did. False for an env without a gymnasium spec or
-    time limit, whose episodes' ends say nothing about the expert."""
-    try:
-        spec = venv.get_attr("spec", [0])[0]
-    except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
-        return False
-    limit = getattr(spec, "max_episode_steps", None)
-    return limit is not None and bool(np.all(demonstrations.episode_lengths >= limit))
 
 
 def terminations(dones: np.ndarray, infos: list[dict]) -> np.ndarray:

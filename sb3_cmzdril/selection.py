@@ -41,9 +41,9 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_cmzdril.demos import expert_never_terminates
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
-from sb3_cmzdril.rewards import expert_never_terminates
 
 #: How :class:`LongestEpisodesPolicy` chooses between checks whose episodes lasted equally long.
 TIE_BREAKS: tuple[str, ...] = ("latest", "lowest_u")
