@@ -190,25 +190,19 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
     settings = {k: hp.algo_kwargs.pop(k) for k in EXPERIMENT_KEYS if k in hp.algo_kwargs}
-    if "longest_tie_break" in settings:
-        from sb3_cmzdril.selection import TIE_BREAKS
+    for key in ("longest_tie_break", "episode_length"):
+        if key not in settings:
+            continue
+        # selection.py imports torch: only read where the entry sets one of its keys.
+        from sb3_cmzdril.selection import EPISODE_LENGTHS, TIE_BREAKS
 
-        tie_break = settings["longest_tie_break"]
+        allowed = TIE_BREAKS if key == "longest_tie_break" else EPISODE_LENGTHS
         if not is_off_policy(method):
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break applies only to the off-policy "
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: {key} applies only to the off-policy "
                             f"methods {list(OFFPOLICY_METHODS)} (their longest-episodes choice), not to {method!r}")
-        if tie_break not in TIE_BREAKS:
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: longest_tie_break must be one of "
-                            f"{list(TIE_BREAKS)}, got {tie_break!r}")
-    if "episode_length" in settings:
-        from sb3_cmzdril.selection import EPISODE_LENGTHS
-
-        if not is_off_policy(method):
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: episode_length applies only to the off-policy "
-                            f"methods {list(OFFPOLICY_METHODS)} (their longest-episodes choice), not to {method!r}")
-        if settings["episode_length"] not in EPISODE_LENGTHS:
-            raise UserError(f"hyperparameters {hp.key!r} in {path}: episode_length must be one of "
-                            f"{list(EPISODE_LENGTHS)}, got {settings['episode_length']!r}")
+        if settings[key] not in allowed:
+            raise UserError(f"hyperparameters {hp.key!r} in {path}: {key} must be one of "
+                            f"{list(allowed)}, got {settings[key]!r}")
     average_from = settings.get("average_from")
     if average_from is not None:
         # bc has no updates to average and ignores it, as it ignores the reward's keys.
