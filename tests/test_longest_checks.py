@@ -107,3 +107,14 @@ def test_a_run_that_kept_the_lowest_u_alone_is_replayed_as_such(tmp_path, monkey
     (run / "done.json").write_text(json.dumps(done))
     assert study.main([str(tmp_path)]) == 0
     assert f"{run} (trial 0; the run's tie break: u alone)" in capsys.readouterr().out
+
+
+def test_runs_of_one_task_from_several_folders_are_named_by_folder(tmp_path, monkeypatch, capsys):
+    study = _study(monkeypatch)
+    checks = [[0, 200.0, 0.2], [2048, 200.0, 0.1], [4096, 200.0, 0.5]]
+    _off_policy_run(tmp_path / "task", 0, checks, kept_steps=4096)
+    _off_policy_run(tmp_path / "study", 0, checks, kept_steps=4096)
+    assert study.main([str(tmp_path / "task"), str(tmp_path / "study")]) == 0
+    task, other = tmp_path / "task", tmp_path / "study"
+    assert (f"{ENV} cmz-sac: 2 runs (trials 0 in {other}, 0 in {task}), 2 differ: trial 0 in {other}: -800 -> -200; "
+            f"trial 0 in {task}: -800 -> -200") in capsys.readouterr().out

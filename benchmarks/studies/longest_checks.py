@@ -100,7 +100,8 @@ def replay(run: Path, record: dict) -> dict | None:
                            f"the one at {checks[kept[recorded]][0]}")
     evaluation = pd.read_csv(run / "eval.csv").set_index("timesteps")["return_mean"]
     final = pd.read_csv(run / "final_eval.csv").groupby("policy")["return"].mean()
-    return {"env": config["env_id"], "method": config["method"], "trial": config["seed"], "recorded": recorded,
+    return {"env": config["env_id"], "method": config["method"], "trial": config["seed"],
+            "runs_dir": str(run.parents[2]), "recorded": recorded,
             "checks": [(steps, length, u, float(evaluation.get(steps, np.nan))) for steps, length, u in checks],
             "kept": kept, "final": final.to_dict(), "episodes": int(config["n_eval_episodes"])}
 
@@ -117,6 +118,10 @@ def describe(run: Path, r: dict) -> list[str]:
     final = ", ".join(f"{name} {value:.0f}" for name, value in sorted(r["final"].items()))
     lines.append(f"  final evaluation (every held-out episode): {final}")
     return lines
+
+
+def _trial_name(r: dict, with_folder: bool) -> str:
+    return f"{r['trial']} in {r['runs_dir']}" if with_folder else str(r["trial"])
 
 
 def summary(replays: list[dict]) -> list[str]:
@@ -136,9 +141,12 @@ def summary(replays: list[dict]) -> list[str]:
             if not runs:
                 continue
             differ = [r for r in runs if r["kept"][first] != r["kept"][second]]
-            returns = [(r["trial"], *(r["checks"][r["kept"][rule]][3] for rule in (first, second))) for r in differ]
-            detail = "; ".join(f"trial {trial}: {one:.0f} -> {other:.0f}" for trial, one, other in returns)
-            trials = ", ".join(str(r["trial"]) for r in runs)
+            # A group can pool runs of several folders (a task's runs and a study's): name the folder then.
+            several = len({r["runs_dir"] for r in runs}) > 1
+            returns = [(_trial_name(r, several), *(r["checks"][r["kept"][rule]][3] for rule in (first, second)))
+                       for r in differ]
+            detail = "; ".join(f"trial {name}: {one:.0f} -> {other:.0f}" for name, one, other in returns)
+            trials = ", ".join(_trial_name(r, several) for r in runs)
             lines.append(f"{env} {method}: {len(runs)} runs (trials {trials}), {len(differ)} differ"
                          + (f": {detail}" if detail else ""))
     return lines
