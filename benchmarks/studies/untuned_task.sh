@@ -44,8 +44,8 @@ $cli benchmark --env MountainCarContinuous-v0 --methods bc --trials 0-9 --eval-e
 $cli benchmark --env MountainCarContinuous-v0 --methods cmz-sac --trials 0-4 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # BipedalWalkerHardcore-v3 (stumps, pits and stairs on the course), from the zoo's PPO agent (138.8 +/- 123.2 over the
-# pool's 30 episodes, 9 of them falls; the clone had no model file for its SAC, TD3 and TQC agents): the first
-# task here where cloning one episode fails. BC (trials 0-9), the off-policy method (trials 0-4) and PPO's
+# pool's 30 episodes, 12 of them falls; its A2C agent 110.1 +/- 134.0, and the clone had no model file for its SAC,
+# TD3 and TQC agents): a task nobody tuned for where cloning one episode fails. BC (trials 0-9), the off-policy method (trials 0-4) and PPO's
 # CMZ-DRIL as far as time allowed (its RL ceiling, DRIL and the other methods were not run).
 record_pool BipedalWalkerHardcore-v3 ppo/BipedalWalkerHardcore-v3_1
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
