@@ -45,14 +45,17 @@ $cli benchmark --env MountainCarContinuous-v0 --methods cmz-sac --trials 0-4 --e
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # BipedalWalkerHardcore-v3 (stumps, pits and stairs on the course), from the zoo's PPO agent (138.8 +/- 123.2 over the
 # pool's 30 episodes, 12 of them falls; its A2C agent 110.1 +/- 134.0, and the clone had no model file for its SAC,
-# TD3 and TQC agents): a task nobody tuned for where cloning one episode fails. BC (trials 0-9), the off-policy method (trials 0-4) and PPO's
-# CMZ-DRIL as far as time allowed (its RL ceiling, DRIL and the other methods were not run).
+# TD3 and TQC agents): a task nobody tuned for where cloning one episode fails. BC (trials 0-9), the off-policy
+# method and PPO's CMZ-DRIL (trials 0-4), and the RL ceiling (PPO on the env's reward, trials 0-2 for time: run as
+# --trials 0-0 and then 1-2); DRIL, no reward and env-sac were not run.
 record_pool BipedalWalkerHardcore-v3 ppo/BipedalWalkerHardcore-v3_1
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz-sac --trials 0-4 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 \
+    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+$cli benchmark --env BipedalWalkerHardcore-v3 --methods env --trials 0-2 --timesteps 300000 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
 bash benchmarks/studies/untuned_pendulum.sh
