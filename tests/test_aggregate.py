@@ -63,7 +63,7 @@ def test_a_task_without_all_of_its_methods_trials_is_left_out_and_named(tmp_path
         write_run(tmp_path, "env", t, [1.0], env=TASKS[1], final={"final": [600.0, 600.0]})
     scores = agg.score_matrix(final_table(load_runs(tmp_path)))
     assert scores.trials["env"] == (0, 1, 2) and scores.tasks["env"] == (TASKS[1],)
-    assert scores.left_out == (f"{TASKS[0]} Env. reward: 1 of the 3 trials",)
+    assert scores.left_out == ((TASKS[0], "Env. reward", "1 of the 3 trials"),)
     assert scores.trials["bc"] == (0, 1, 2, 3, 4)  # the other methods keep theirs
 
 
@@ -76,7 +76,15 @@ def test_a_task_without_a_positive_expert_does_not_set_the_trials_the_others_nee
     scores = agg.score_matrix(final_table(load_runs(tmp_path)))
     assert scores.trials["bc"] == (0, 1, 2, 3, 4) and scores.tasks["bc"] == TASKS
     np.testing.assert_allclose(scores.by_method["bc"], _by_hand(0))
-    assert scores.left_out == ("Pendulum-v1 BC: no positive expert mean",)
+    assert scores.left_out == (("Pendulum-v1", "BC", "no positive expert mean"),)
+
+
+def test_the_left_out_note_names_each_task_and_reason_once_with_its_methods():
+    left_out = [agg.LeftOut("Pendulum-v1", "BC", "no positive expert mean"),
+                agg.LeftOut("Ant-v5", "DRIL", "1 of the 5 trials"),
+                agg.LeftOut("Pendulum-v1", "CMZ-DRIL", "no positive expert mean")]
+    assert agg.left_out_text(left_out) == ("Pendulum-v1 (BC, CMZ-DRIL): no positive expert mean; "
+                                           "Ant-v5 (DRIL): 1 of the 5 trials")
 
 
 def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_values(tmp_path):
@@ -89,10 +97,29 @@ def test_iqm_mean_median_and_the_probability_of_improvement_match_hand_computed_
     # rliable's median is over tasks of each task's mean over runs.
     assert result.summary["bc"]["Median"][0] == pytest.approx(np.median(_by_hand(0).mean(axis=0)))
     # CMZ-DRIL's every run scores above every BC run of the same task: P(improvement) = 1.
-    p, p_low, p_high, tasks = result.improvement[("cmz", "bc")]
-    assert (p, p_low, p_high, tasks) == (1.0, 1.0, 1.0, TASKS)
+    pair = result.improvement[("cmz", "bc")]
+    assert (pair.probability, pair.tasks) == ((1.0, 1.0, 1.0), TASKS)
+    assert pair.iqm[0] == pytest.approx(trim_mean(_by_hand(1).ravel(), 0.25)) and pair.baseline_iqm[0] == iqm
     profile, _, _ = result.profiles["bc"]
     assert profile[0] == 1.0 and profile[-1] == 0.0  # every score is above 0, none above 1.25
+
+
+def test_a_pair_on_fewer_tasks_than_its_baseline_has_compares_their_iqms_on_the_shared_tasks_alone(tmp_path):
+    # BC on both tasks, DRIL on the first: the summary's BC IQM pools both, the pair's only the first.
+    rows = _grid(tmp_path, methods=("bc",))
+    for t in range(5):
+        write_run(tmp_path, "dril", t, [1.0], env=TASKS[0], final={"final": [500.0, 500.0]}, expert=1000.0)
+    scores = agg.score_matrix(final_table(load_runs(tmp_path)))
+    result = agg.aggregate(scores, pairs=[("dril", "bc")])
+    pair = result.improvement[("dril", "bc")]
+    assert pair.tasks == (TASKS[0],)
+    assert pair.baseline_iqm[0] == pytest.approx(trim_mean(_by_hand(0)[:, 0], 0.25))
+    assert result.summary["bc"]["IQM"][0] == pytest.approx(trim_mean(_by_hand(0).ravel(), 0.25))
+    assert pair.iqm[0] == pytest.approx(trim_mean([500.0 / (1000.5 + 10 * t) for t in range(5)], 0.25))
+    text = agg.aggregate_markdown(result)
+    assert "the rows do not compare with one another" in text
+    assert "| DRIL | BC | 1.00 [1.00, 1.00] | " in text and f" | {TASKS[0]} |" in text
+    assert "do not compare" not in agg.aggregate_markdown(agg.aggregate(agg.score_matrix(rows)))
 
 
 def test_the_per_task_table_gives_each_methods_mean_over_trials_and_a_dash_where_it_has_no_runs(tmp_path):
@@ -121,7 +148,7 @@ def test_the_report_writes_the_across_task_section_its_csv_and_figure(tmp_path):
     more = [tmp_path / "more"]
     text = write_report(tmp_path / "runs", tmp_path / "docs", references=(), aggregate_runs=more).read_text()
     assert "## Across tasks" in text and "Probability of improvement" in text
-    assert "| CMZ-DRIL | BC | 1.00 [1.00, 1.00] | Hopper-v5, Walker2d-v5 |" in text
+    assert "| CMZ-DRIL | BC | 1.00 [1.00, 1.00] | " in text and "| Hopper-v5, Walker2d-v5 |" in text
     csv = (tmp_path / "docs" / agg.CSV).read_text().splitlines()
     assert csv[0] == "method,task,trial,score" and len(csv) == 1 + (2 + 2 + 1) * 5
     assert (tmp_path / "docs" / agg.FIGURE).read_bytes()[:4] == b"\x89PNG"

@@ -23,6 +23,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,6 +64,23 @@ def normalised_score(columns: dict[str, np.ndarray]) -> float:
     return float(np.mean(np.asarray(columns["return"], dtype=np.float64)) / expert)
 
 
+class LeftOut(NamedTuple):
+    """A task a method has runs of that its aggregate leaves out, and why."""
+
+    task: str
+    label: str  #: the method, as tables name it
+    reason: str
+
+
+def left_out_text(left_out: Sequence[LeftOut]) -> str:
+    """``left_out`` in a sentence, one clause per task and reason: "Pendulum-v1 (BC, CMZ-DRIL): no positive
+    expert mean; ..." rather than the task and reason again for each method."""
+    labels: dict[tuple[str, str], list[str]] = {}
+    for task, label, reason in left_out:
+        labels.setdefault((task, reason), []).append(label)
+    return "; ".join(f"{task} ({', '.join(names)}): {reason}" for (task, reason), names in labels.items())
+
+
 @dataclasses.dataclass(frozen=True)
 class Scores:
     """Normalised scores of the final policies: ``by_method[m]`` is (len(trials[m]), len(tasks[m]))."""
@@ -70,7 +88,7 @@ class Scores:
     trials: dict[str, tuple[int, ...]]
     tasks: dict[str, tuple[str, ...]]
     by_method: dict[str, np.ndarray]
-    left_out: tuple[str, ...] = ()  #: (task, method)s not aggregated, each with the reason
+    left_out: tuple[LeftOut, ...] = ()  #: (task, method)s not aggregated, each with the reason
     #: how tables and figures name each method (a study may compare methods the grid does not have)
     labels: dict[str, str] = dataclasses.field(default_factory=lambda: dict(METHOD_LABELS))
 
@@ -121,15 +139,15 @@ def score_matrix(rows: Sequence[FinalRow]) -> Scores | None:
             if np.isfinite(list(by_trial.values())).all():
                 scored[row.env] = by_trial
             else:
-                left_out.append(f"{row.env} {METHOD_LABELS[method]}: no positive expert mean")
+                left_out.append(LeftOut(row.env, METHOD_LABELS[method], "no positive expert mean"))
         if not scored:
             continue
         # Only a task that can be scored sets the trials: one without a scale must not crowd out the rest.
         wanted = max((tuple(sorted(by_trial)) for by_trial in scored.values()), key=lambda w: _runs_kept(w, scored))
         for env, by_trial in scored.items():
             if not set(wanted) <= set(by_trial):
-                left_out.append(f"{env} {METHOD_LABELS[method]}: {len(set(by_trial) & set(wanted))} of the "
-                                f"{len(wanted)} trials")
+                left_out.append(LeftOut(env, METHOD_LABELS[method],
+                                        f"{len(set(by_trial) & set(wanted))} of the {len(wanted)} trials"))
                 continue
             values = [by_trial[t] for t in wanted]
             trials[method] = wanted
@@ -198,13 +216,27 @@ def batch_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (above + 0.5 * ties).mean(axis=1)
 
 
+Interval = tuple[float, float, float]  #: (point, low, high)
+
+
+@dataclasses.dataclass(frozen=True)
+class Improvement:
+    """A (method, baseline) pair on the tasks both have: the probability of improvement, and each one's
+    IQM on those tasks alone, since the summary's IQMs may pool different tasks and not compare."""
+
+    probability: Interval
+    tasks: tuple[str, ...]
+    iqm: Interval
+    baseline_iqm: Interval
+
+
 @dataclasses.dataclass(frozen=True)
 class Aggregates:
     """IQM, mean and median per method (point, low, high), and the probabilities of improvement."""
 
     scores: Scores
-    summary: dict[str, dict[str, tuple[float, float, float]]]  #: method -> statistic -> (point, low, high)
-    improvement: dict[tuple[str, str], tuple[float, float, float, tuple[str, ...]]]  #: + the tasks used
+    summary: dict[str, dict[str, Interval]]  #: method -> statistic -> (point, low, high)
+    improvement: dict[tuple[str, str], Improvement]
     profiles: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]  #: method -> (profile, low, high)
 
 
@@ -224,10 +256,13 @@ def aggregate(scores: Scores, pairs: Sequence[tuple[str, str]] = IMPROVEMENT_PAI
     def profile(x: np.ndarray) -> np.ndarray:
         return batch_profile(x[None])[0]
 
+    def summarise(matrix: np.ndarray) -> dict[str, Interval]:
+        point, low, high = stratified_bootstrap([matrix], stats, batch_statistics)
+        return {st: (float(point[i]), float(low[i]), float(high[i])) for i, st in enumerate(STATISTICS)}
+
     summary, profiles = {}, {}
     for m, matrix in scores.by_method.items():
-        point, low, high = stratified_bootstrap([matrix], stats, batch_statistics)
-        summary[m] = {st: (float(point[i]), float(low[i]), float(high[i])) for i, st in enumerate(STATISTICS)}
+        summary[m] = summarise(matrix)
         profiles[m] = stratified_bootstrap([matrix], profile, batch_profile)
     improvement = {}
     for a, b in pairs:
@@ -236,12 +271,21 @@ def aggregate(scores: Scores, pairs: Sequence[tuple[str, str]] = IMPROVEMENT_PAI
             point, low, high = stratified_bootstrap(
                 [scores.on(a, shared), scores.on(b, shared)], metrics.probability_of_improvement, batch_improvement
             )
-            improvement[(a, b)] = (float(point[0]), float(low[0]), float(high[0]), shared)
+            improvement[(a, b)] = Improvement(
+                probability=(float(point[0]), float(low[0]), float(high[0])), tasks=shared,
+                iqm=summarise(scores.on(a, shared))["IQM"], baseline_iqm=summarise(scores.on(b, shared))["IQM"],
+            )
     return Aggregates(scores, summary, improvement, profiles)
 
 
 def _pct(point: float, low: float, high: float) -> str:
     return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
+
+
+def _improvement_row(labels: Mapping[str, str], a: str, b: str, pair: Improvement) -> list[str]:
+    p, low, high = pair.probability
+    return [labels[a], labels[b], f"{p:.2f} [{low:.2f}, {high:.2f}]", _pct(*pair.iqm), _pct(*pair.baseline_iqm),
+            ", ".join(pair.tasks)]
 
 
 def per_task_markdown(scores: Scores) -> str:
@@ -272,7 +316,9 @@ def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
         f"task and trial ({trials} trials a task); the median is that of the per-task means, as rliable's. Intervals: "
         f"{CONFIDENCE:.0%} percentile intervals of a stratified bootstrap ({REPS} resamples of the runs within "
         f"each task, seed {SEED}). A method counts on the tasks where it has runs"
-        + (f"; left out: {'; '.join(s.left_out)}." if s.left_out else "."),
+        + (f"; left out: {left_out_text(s.left_out)}." if s.left_out else ".")
+        + (" The methods span different tasks (the Tasks column), so the rows do not compare with one another: "
+           "the pairs below score two methods on the tasks both have." if len(set(s.tasks.values())) > 1 else ""),
         "",
         md_table(
             ["Method", "Tasks", *(f"{st}, % of expert [CI]" for st in STATISTICS)],
@@ -281,12 +327,12 @@ def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
         ),
         "",
         "**Probability of improvement**: the chance that a run of the first method scores above a run of the "
-        "second on a task picked at random (0.5: neither is better), over the tasks both have.",
+        "second on a task picked at random (0.5: neither is better), over the tasks both have, with each "
+        "method's IQM on those tasks alone.",
         "",
         md_table(
-            ["Method", "Over", "P(improvement) [CI]", "Tasks"],
-            [[s.labels[a], s.labels[b], f"{p:.2f} [{lo:.2f}, {hi:.2f}]", ", ".join(tasks)]
-             for (a, b), (p, lo, hi, tasks) in agg.improvement.items()],
+            ["Method", "Over", "P(improvement) [CI]", "Method's IQM, % [CI]", "Baseline's IQM, % [CI]", "Tasks"],
+            [_improvement_row(s.labels, a, b, pair) for (a, b), pair in agg.improvement.items()],
         ),
         "",
         "**Per task**: the mean over trials of the scores pooled above.",

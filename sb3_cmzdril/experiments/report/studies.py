@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from sb3_cmzdril.experiments.report.aggregate import (
+    LeftOut,
     Scores,
     aggregate,
     aggregate_markdown,
@@ -623,11 +624,11 @@ def across_scores(study: AcrossTasks, root: Path, skipped: list[Skipped]) -> Sco
             by_trial = {} if row is None else {run.trial: normalised_score(run.final[policy]) for run in row.runs}
             missing = [t for t in study.trials if t not in by_trial]
             if missing:
-                left_out.append(f"{variant.env} {label}: no finished trial {', '.join(map(str, missing))}")
+                left_out.append(LeftOut(variant.env, label, f"no finished trial {', '.join(map(str, missing))}"))
                 continue
             values = [by_trial[t] for t in study.trials]
             if not np.isfinite(values).all():
-                left_out.append(f"{variant.env} {label}: no positive expert mean")
+                left_out.append(LeftOut(variant.env, label, "no positive expert mean"))
                 continue
             tasks.setdefault(key, []).append(variant.env)
             columns.setdefault(key, []).append(values)
