@@ -158,9 +158,15 @@ def test_percent_of_expert_is_na_without_positive_expert_returns(tmp_path):
     assert f"| 0.02 [0.01, 0.03] | n/a | {expert} |" in text  # and episodes at expert level, as before
     assert f"| {ENV} | CMZ-DRIL | {ret}, n=3 | n/a, n=3 |" in text  # headline
     assert f"| {ENV} | CMZ-DRIL | 3 of 3 | 200 [200, 200] | n/a | — | — | — |" in text  # return: paired; % n/a
-    # One non-positive expert return makes the run's percentage undefined, not a smaller number
-    assert math.isnan(expert_percent({"return": np.array([5.0, 5.0]), "expert_return": np.array([10.0, 0.0])}))
     assert math.isnan(expert_percent({"return": np.array([]), "expert_return": np.array([])}))
+
+
+def test_an_expert_that_fails_now_and_then_keeps_a_percentage_but_not_an_expert_level_share():
+    # Expert returns 300 and -100 on the two held-out episodes (a fall): the mean, 100, still sets the scale.
+    columns = {"return": np.array([150.0, -50.0]), "expert_return": np.array([300.0, -100.0])}
+    assert expert_percent(columns) == 50.0
+    assert math.isnan(expert_level_share(columns))  # half of a negative return is no bar to clear
+    assert math.isnan(expert_percent({"return": np.array([5.0, 5.0]), "expert_return": np.array([10.0, -10.0])}))
 
 
 def test_mean_ci_needs_three_finite_values():

@@ -20,7 +20,6 @@ contributes the same number of runs, as rliable's stratified bootstrap needs.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -28,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.report.final_eval import FinalRow
+from sb3_cmzdril.experiments.report.final_eval import FinalRow, expert_percent
 from sb3_cmzdril.experiments.report.formatting import md_table
 from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, result_policy
 from sb3_cmzdril.io import PathLike, atomic_write_text
@@ -52,16 +51,9 @@ CSV = "across_tasks.csv"
 
 
 def normalised_score(columns: dict[str, np.ndarray]) -> float:
-    """A run's mean return over the expert's mean return on the same held-out episodes; nan when the
-    expert's mean is not positive (no scale to divide by).
-
-    A ratio of means, as the per-task "% of expert": unlike that column it accepts single negative
-    expert episodes (LunarLander's expert crashes now and then), since only the mean sets the scale.
-    """
-    expert = float(np.mean(np.asarray(columns["expert_return"], dtype=np.float64)))
-    if not expert > 0:
-        return math.nan
-    return float(np.mean(np.asarray(columns["return"], dtype=np.float64)) / expert)
+    """A run's mean return over the expert's mean return on the same held-out episodes (the per-task
+    tables' "% of expert" over 100); nan when the expert's mean is not positive (no scale to divide by)."""
+    return expert_percent(columns) / 100
 
 
 class LeftOut(NamedTuple):

@@ -127,12 +127,16 @@ def expert_level_share(columns: dict[str, np.ndarray]) -> float:
 
 def expert_percent(columns: dict[str, np.ndarray]) -> float:
     """100 * the run's mean return / the expert's mean return over the same held-out episodes; nan
-    unless every expert return is positive."""
-    expert = _positive_expert(columns)
-    if expert is None:
+    unless the expert's mean is positive.
+
+    A ratio of means, not a mean of per-episode ratios: one failed episode against a small expert
+    return must not outweigh the rest, and it is the return table's number on the expert's scale. So
+    only the mean sets the scale, and an expert that falls now and then (LunarLander's crashes,
+    BipedalWalkerHardcore's falls) still has one; the across-task aggregate scores runs by this number.
+    """
+    expert = np.asarray(columns["expert_return"], dtype=np.float64)
+    if not (expert.size and np.mean(expert) > 0):
         return math.nan
-    # A ratio of means, not a mean of per-episode ratios: one failed episode against a small expert
-    # return must not outweigh the rest, and it is the return table's number on the expert's scale.
     return float(100 * np.mean(np.asarray(columns["return"], dtype=np.float64)) / np.mean(expert))
 
 
@@ -260,9 +264,9 @@ def method_text(confidence: float = CONFIDENCE) -> str:
         "whose deterministic episodes from fixed starts lasted longest (where the expert ends its episodes "
         "itself, as long as its demonstrations): both chosen without the env reward. "
         f"\"Episodes at expert level\": the share of a run's held-out episodes whose return is at least "
-        f"{EXPERT_LEVEL:g} times the expert's on the same episode. \"% of expert\": 100 times a run's mean "
-        "return over its mean expert return on the same episodes. Both are n/a where the expert's returns are "
-        "not all positive."
+        f"{EXPERT_LEVEL:g} times the expert's on the same episode, n/a where the expert's returns are not all "
+        "positive. \"% of expert\": 100 times a run's mean return over its mean expert return on the same "
+        "episodes, n/a where that mean is not positive."
     )
 
 

@@ -187,7 +187,7 @@ def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | Non
                      f"fewer than {MIN_TRIALS_FOR_CI} trials]; \"(lowest u)\": the policy whose own training rollout "
                      "had the lowest ensemble disagreement (chosen without the env reward); % of expert: 100 times a "
                      "run's mean return over the expert's mean return on the same held-out episodes, mean over "
-                     "trials [CI as above; n/a where the expert's returns are not all positive].")
+                     "trials [CI as above; n/a where the expert's mean return is not positive].")
     missing = [rep.label for rep in reports if not rep.final]
     if missing:
         parts.append(f"{', '.join(missing)}: no final evaluation (its runs have no final_eval.csv).")
