@@ -36,18 +36,23 @@ record_pool Ant-v5 ars/Ant-v3_1
 $cli benchmark --env Ant-v5 --methods bc,cmz --trials 5 --timesteps 300000 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # MountainCarContinuous-v0, from the zoo's SAC agent (94.7 +/- 1.1 over the pool's 30 episodes, 100 steps on
-# average): its expert, like BipedalWalker-v3's, ends the episode at the goal. BC (trials 0-9) and the off-policy method
-# (trials 0-4; its RL ceiling and the PPO methods were not run, for time).
+# average): its expert, like BipedalWalker-v3's, ends the episode at the goal. BC (trials 0-9), the off-policy method
+# and PPO's CMZ-DRIL (trials 0-4), and the RL ceiling (PPO on the env's reward, trials 0-2; DRIL, no reward and
+# env-sac were not run, for time).
 record_pool MountainCarContinuous-v0 sac/MountainCarContinuous-v0_1
 $cli benchmark --env MountainCarContinuous-v0 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env MountainCarContinuous-v0 --methods cmz-sac --trials 0-4 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+$cli benchmark --env MountainCarContinuous-v0 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 \
+    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+$cli benchmark --env MountainCarContinuous-v0 --methods env --trials 0-2 --timesteps 300000 --eval-every 5 \
+    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # BipedalWalkerHardcore-v3 (stumps, pits and stairs on the course), from the zoo's PPO agent (138.8 +/- 123.2 over the
 # pool's 30 episodes, 12 of them falls; its A2C agent 110.1 +/- 134.0, and the clone had no model file for its SAC,
 # TD3 and TQC agents): a task nobody tuned for where cloning one episode fails. BC (trials 0-9), the off-policy
-# method and PPO's CMZ-DRIL (trials 0-4), and the RL ceiling (PPO on the env's reward, trials 0-2 for time: run as
-# --trials 0-0 and then 1-2); DRIL, no reward and env-sac were not run.
+# method, PPO's CMZ-DRIL and the RL ceiling (PPO on the env's reward; run as --trials 0-0, 1-2 and then 0-4),
+# trials 0-4; DRIL, no reward and env-sac were not run.
 record_pool BipedalWalkerHardcore-v3 ppo/BipedalWalkerHardcore-v3_1
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
@@ -55,7 +60,7 @@ $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz-sac --trials 0-4 --e
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
-$cli benchmark --env BipedalWalkerHardcore-v3 --methods env --trials 0-2 --timesteps 300000 --eval-every 5 \
+$cli benchmark --env BipedalWalkerHardcore-v3 --methods env --trials 0-4 --timesteps 300000 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
 bash benchmarks/studies/untuned_pendulum.sh
