@@ -685,6 +685,11 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
             "-- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 1000000 --eval-every 5 --workers 2"),
+    Variant("Walker2d-v5", "cmz", "3M steps, 8 envs per process (n_steps 256), the entry's absorbing state + reward "
+            "normalisation", "results/tuning/W-3m-8env",
+            "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
+            "--methods cmz --trials 0-4 --timesteps 3000000 --eval-every 20 --workers 1 --no-progress (two such "
+            "processes at a time, on an Intel Xeon machine)"),
     Variant("Walker2d-v5", "cmz", "rl-baselines3-zoo's tuned PPO for Walker2d (n_steps 512, batch 32, 20 epochs, "
             "learning rate 5.05e-5, clip range 0.1, its gamma, GAE lambda, entropy and value coefficients, "
             "gradient clip), absorbing state + reward normalisation", "results/tuning/W-zoo-ppo-abs-normrew",
@@ -852,6 +857,8 @@ COST_CURVES: tuple[CostCurves, ...] = (
     CostCurves("Walker2d-v5", "evaluation return against CPU time", "new_tasks_cpu_time.png", (
         Variant("Walker2d-v5", "cmz", "PPO, 1M steps, 8 envs, absorbing state + reward normalisation",
                 "results/tuning/W-1m-8env-abs-normrew", ""),
+        Variant("Walker2d-v5", "cmz", "PPO, 3M steps, 8 envs, absorbing state + reward normalisation (a faster CPU)",
+                "results/tuning/W-3m-8env", ""),
         Variant("Walker2d-v5", "cmz", "CMZDRILSAC, CMZ reward", "results/offpolicy/W-sac-64-abs", ""),
         Variant("Walker2d-v5", "cmz", "CMZDRILSAC, DRIL's reward", "results/offpolicy/W-sac-64-dril-abs", ""),
         Variant("Walker2d-v5", "cmz", "CMZDRILSAC, CMZ reward with u clipped at its 0.98-quantile",
