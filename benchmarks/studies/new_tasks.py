@@ -690,6 +690,11 @@ ABLATIONS: tuple[Variant, ...] = (
             "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
             "--methods cmz --trials 0-4 --timesteps 3000000 --eval-every 20 --workers 1 --no-progress (two such "
             "processes at a time, on an Intel Xeon machine)"),
+    Variant("Walker2d-v5", "env", "PPO on the env's reward (the RL ceiling) at the same 3M steps and settings, "
+            "trials 0-1",
+            "results/tuning/W-3m-8env",
+            "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
+            "--methods env --trials 0-1 --timesteps 3000000 --eval-every 20 --workers 2 --no-progress"),
     Variant("Walker2d-v5", "cmz", "rl-baselines3-zoo's tuned PPO for Walker2d (n_steps 512, batch 32, 20 epochs, "
             "learning rate 5.05e-5, clip range 0.1, its gamma, GAE lambda, entropy and value coefficients, "
             "gradient clip), absorbing state + reward normalisation", "results/tuning/W-zoo-ppo-abs-normrew",
