@@ -256,6 +256,12 @@ def aggregate(scores: Scores, pairs: Sequence[tuple[str, str]] = IMPROVEMENT_PAI
     for m, matrix in scores.by_method.items():
         summary[m] = summarise(matrix)
         profiles[m] = stratified_bootstrap([matrix], profile, batch_profile)
+    def iqm_on(method: str, tasks: tuple[str, ...]) -> Interval:
+        # A pair over all of a method's tasks has the summary's IQM: no second bootstrap of the same runs.
+        if tasks == scores.tasks[method]:
+            return summary[method]["IQM"]
+        return summarise(scores.on(method, tasks))["IQM"]
+
     improvement = {}
     for a, b in pairs:
         shared = scores.shared_tasks(a, b) if a in scores.tasks and b in scores.tasks else ()
@@ -265,7 +271,7 @@ def aggregate(scores: Scores, pairs: Sequence[tuple[str, str]] = IMPROVEMENT_PAI
             )
             improvement[(a, b)] = Improvement(
                 probability=(float(point[0]), float(low[0]), float(high[0])), tasks=shared,
-                iqm=summarise(scores.on(a, shared))["IQM"], baseline_iqm=summarise(scores.on(b, shared))["IQM"],
+                iqm=iqm_on(a, shared), baseline_iqm=iqm_on(b, shared),
             )
     return Aggregates(scores, summary, improvement, profiles)
 
