@@ -59,6 +59,28 @@ def test_bc_epoch_after_each_update_and_disabled(pendulum_demos):
     )  # PPO still updated
 
 
+@pytest.mark.parametrize("update_std", [True, False])
+def test_bc_epochs_fit_the_log_std_only_when_asked(update_std, pendulum_demos):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_update_std=update_std, **TINY)
+    model.pretrain()
+    moved = []
+    original = model.bc.epoch
+
+    def epoch(*args, **kwargs):
+        before = {k: v.clone() for k, v in model.policy.state_dict().items()}
+        result = original(*args, **kwargs)
+        moved.append(_changed(before, model))
+        return result
+
+    model.bc.epoch = epoch
+    model.learn(128)  # two PPO updates, each followed by one NLL epoch
+    assert len(moved) == 2
+    for changed in moved:
+        assert {"action_net.weight", "mlp_extractor.policy_net.0.weight"} <= changed
+        assert ("log_std" in changed) is update_std
+    assert all(p.requires_grad for p in model.policy.parameters())  # PPO's next update moves it again
+
+
 def _changed(before: dict, model: CMZDRIL) -> set[str]:
     return {k for k, v in model.policy.state_dict().items() if not np.array_equal(before[k].cpu(), v.cpu())}
 
