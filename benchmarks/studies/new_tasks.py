@@ -35,6 +35,9 @@ DRIL_TRIALS5_9 = "results/runs_dril_trials5-9"
 NORMREW = "--set 'normalize=dict(norm_obs=False, norm_reward=True)'"
 NORMREW_LABEL = "reward normalisation (VecNormalize norm_reward)"
 ABS_NORMREW = "--set absorbing=auto " + NORMREW
+#: no NLL epochs between PPO updates (Walker2d-v5's entry adds it to ABS_NORMREW)
+BCUPD0 = "--set bc_epochs_per_update=0"
+BCUPD0_LABEL = "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)"
 #: PPO's CMZ-DRIL with u on the members' actions as they are: the expert of WaypointNav-v0, LunarLander-v3 and
 #: Pendulum-v1 holds its actions on a bound, where the members' clipped outputs agree exactly off its states
 PPO_UNCLIPPED = "--set disagreement=std_unclipped"
@@ -43,39 +46,55 @@ AUTO = "--set disagreement=auto"
 #: u's form read from the demonstrations, for either learner
 AUTO_LABEL = ("u's form read from the demonstrations (`disagreement: auto`; the unclipped form on every trial of "
               "this pool, results/tuning/bound_share.txt)")
-#: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's absorbing state and
-#: reward normalisation, HalfCheetah-v5's reward normalisation, WaypointNav-v0's unclipped u): the tune.py runs
-#: folder and its --set flags. Their runs of every method were made by that command and moved into the grid's
+#: Task entries of hyperparams/cmzdril.yml that were tried as a variant first (Walker2d-v5's NLL epochs left out,
+#: HalfCheetah-v5's reward normalisation, WaypointNav-v0's unclipped u): the tune.py runs folder and its --set
+#: flags (on the entry before). Their runs of every method were made by that command and moved into the grid's
 #: folders when it became the entry.
-ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew", ABS_NORMREW), "HalfCheetah-v5": ("HC-normrew", NORMREW),
+ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew-bcupd0", BCUPD0), "HalfCheetah-v5": ("HC-normrew", NORMREW),
                   "WaypointNav-v0": ("WN-unclipped", PPO_UNCLIPPED)}
 #: where those tasks' runs of the entry before moved: the grid's trials 0-4, then trials 5-9 (and BC's trials 0-9)
-ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"),
+ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-trials5-9"),
                 "HalfCheetah-v5": ("results/tuning/HC-no-normrew", "results/tuning/HC-no-normrew-trials5-9"),
                 "WaypointNav-v0": ("results/tuning/WN-clipped", "results/tuning/WN-clipped-trials5-9")}
-WALKER_BEFORE, WALKER_BEFORE_TRIALS5_9 = ENTRY_BEFORE["Walker2d-v5"]
+#: Walker2d-v5's first entry (no absorbing state, no reward normalisation): its runs' folders, trials 0-4 and 5-9
+WALKER_FIRST, WALKER_FIRST_TRIALS5_9 = "results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"
 #: what each entry is, as its rows name it
-ENTRY_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation", "HalfCheetah-v5": "reward normalisation",
+ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}",
+                "HalfCheetah-v5": "reward normalisation",
                 "WaypointNav-v0": "u on the ensemble members' actions unclipped"}
-BEFORE_LABELS = {"Walker2d-v5": "no absorbing state, no reward normalisation",
+BEFORE_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation, one NLL epoch after each PPO update",
                  "HalfCheetah-v5": "no reward normalisation",
                  "WaypointNav-v0": "u on the members' actions clipped to the action bounds"}
+WALKER_FIRST_LABEL = "Walker2d-v5's first entry (no absorbing state, no reward normalisation)"
+#: how a Walker2d-v5 variant made on the first entry says so
+WITH_FIRST = "with the first entry"
 
 
 #: the grid's other RL methods on those tasks, whose rows the entry changed too
 ENTRY_OTHERS = (("dril", "DRIL"), ("env", "PPO on the env's reward"))
 
 
-def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
-    """The command behind ``env``'s runs of ``methods`` on ``trials`` with its entry, and where they ``moved``."""
-    name, sets = ENTRY_VARIANTS[env]
+def variant_command(name: str, sets: str, env: str, methods: str, trials: str, moved: str) -> str:
+    """The tune.py command behind results/tuning/NAME's runs of ``methods`` on ``trials``, and where they ``moved``."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --timesteps 300000 --eval-every 5 "
             f"--workers 2 --no-progress --methods {methods} --trials {trials} ({moved})")
+
+
+def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
+    """The command behind ``env``'s runs of ``methods`` on ``trials`` with its entry, and where they ``moved``."""
+    return variant_command(*ENTRY_VARIANTS[env], env, methods, trials, moved)
 
 
 def walker_entry(methods: str, trials: str, moved_to: str) -> str:
     """:func:`entry_command` for Walker2d-v5's runs, all moved to one folder."""
     return entry_command("Walker2d-v5", methods, trials, f"moved to {moved_to}")
+
+
+def walker_before(methods: str, trials: str, moved_to: str = "results/runs") -> str:
+    """The command behind Walker2d-v5's runs with the entry before (the absorbing state and reward normalisation,
+    tried as results/tuning/W-abs-normrew), which went to ``moved_to`` and came back when the entry changed."""
+    return variant_command("W-abs-normrew", ABS_NORMREW, "Walker2d-v5", methods, trials,
+                           f"moved to {moved_to}, and back here when the entry changed")
 
 
 #: where the runs of trials 0-9 of one command (HalfCheetah-v5's DRIL and BC, WaypointNav-v0's BC) went
@@ -167,6 +186,9 @@ def bc_trials10_command(env: str) -> str:
             f"--workers 1 --hyperparams hyperparams/cmzdril.yml -o {BC_TRIALS10}")
 
 
+#: Walker2d-v5's CMZ-DRIL at 1M steps with 8 envs per process (n_steps 256), a tune.py variant NAME with SETS
+W_1M_8ENV = ("python benchmarks/studies/tune.py {name} --set n_envs=8 --set n_steps=256 {sets} -- --env Walker2d-v5 "
+             "--methods cmz --trials T --timesteps 1000000 --eval-every 5 --workers 2 --no-progress")
 #: rl-baselines3-zoo's tuned PPO for Walker2d (its hyperparams/ppo.yml, entry Walker2d-v4; its `normalize: true` is
 #: ABS_NORMREW's reward normalisation here, the policy's inputs being standardised from the demos already)
 ZOO_PPO_WALKER = ("--set n_steps=512 --set batch_size=32 --set gamma=0.99 --set learning_rate=5.05041e-05 "
@@ -467,17 +489,18 @@ def grid_entry_command(env: str, method: str) -> str:
     return entry_command(env, "env,zero" if method in ("env", "zero") else method, "0-4", "moved to results/runs")
 
 
-def entry_others(env: str) -> tuple[Variant, ...]:
-    """DRIL and PPO on the env's reward with ``env``'s entry and with the entry before: the entry changed them too
-    (its reward normalisation is for every method)."""
+def entry_others(env: str, before_made_by: Callable[[str], str] | None = None) -> tuple[Variant, ...]:
+    """DRIL and PPO on the env's reward with ``env``'s entry and with the entry before (made by
+    ``before_made_by(method)``, the grid's command by default): the entry changed them too."""
     before = ENTRY_BEFORE[env][0]
+    made_before = before_made_by or (lambda method: f"{GRID_MADE_BY} with the entry before (moved here)")
     return (
         *(Variant(env, method, f"{label}, package defaults ({env}'s entry; the published grid)", "results/runs",
                   grid_entry_command(env, method)) for method, label in ENTRY_OTHERS),
         Variant(env, "dril", "DRIL, package defaults: trials 5-9 (the confirmation)",
                 *confirmation_runs(env, "dril"), trials=CONFIRMATION_TRIALS),
-        *(Variant(env, method, f"{label}, the entry before: trials 0-4", before,
-                  f"{GRID_MADE_BY} with the entry before (moved here)") for method, label in ENTRY_OTHERS),
+        *(Variant(env, method, f"{label}, the entry before: trials 0-4", before, made_before(method))
+          for method, label in ENTRY_OTHERS),
     )
 
 
@@ -660,24 +683,28 @@ MOUNTAIN_ROWS: tuple[Variant, ...] = (
 
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
-    *entry_rows("Walker2d-v5", walker_entry("cmz", "0-4", "results/runs") + "; trials 0-1 at commit a3f38d8, "
-                "when `absorbing: auto` was the default, without its --set",
-                tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
-                + " (moved to results/runs, and back here when the entry changed)"),
-    Variant("Walker2d-v5", "cmz", NORMREW_LABEL, "results/tuning/W-normrew",
+    *entry_rows("Walker2d-v5", walker_entry("cmz", "0-4", "results/runs"),
+                walker_before("cmz", "0-4") + "; trials 0-1 at commit a3f38d8, when `absorbing: auto` was the "
+                "default, without its --set", walker_before("cmz", "5-9", CMZ_TRIALS5_9)),
+    Variant("Walker2d-v5", "cmz", f"{WALKER_FIRST_LABEL}: trials 0-4", WALKER_FIRST,
+            tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
+            + " (moved to results/runs, and back here when the entry changed)"),
+    Variant("Walker2d-v5", "cmz", f"{WALKER_FIRST_LABEL}: trials 5-9", WALKER_FIRST_TRIALS5_9,
+            f"{CMZ_TRIALS5_9_GRID} (moved here)"),
+    Variant("Walker2d-v5", "cmz", f"{NORMREW_LABEL}, {WITH_FIRST}", "results/tuning/W-normrew",
             tune_command("W-normrew", NORMREW, "Walker2d-v5") + " (trials 0-2 with --trials 3 --workers 1)"),
-    Variant("Walker2d-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`)",
-            "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "no NLL epochs between PPO updates (`bc_epochs_per_update: 0`)",
+    Variant("Walker2d-v5", "cmz", f"u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), "
+            f"{WITH_FIRST}", "results/tuning/W-clip98", tune_command("W-clip98", CLIP98, "Walker2d-v5")),
+    Variant("Walker2d-v5", "cmz", f"{BCUPD0_LABEL}, {WITH_FIRST}",
             "results/tuning/W-bcupd0", tune_command("W-bcupd0", "--set bc_epochs_per_update=0", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "10 ensemble members (`ensemble_size: 10`)",
+    Variant("Walker2d-v5", "cmz", f"10 ensemble members (`ensemble_size: 10`), {WITH_FIRST}",
             "results/tuning/W-ens10", tune_command("W-ens10", "--set ensemble_size=10", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "EMA rate g = 0.9 (`ema: 0.9`)",
+    Variant("Walker2d-v5", "cmz", f"EMA rate g = 0.9 (`ema: 0.9`), {WITH_FIRST}",
             "results/tuning/W-ema0.9", tune_command("W-ema0.9", "--set ema=0.9", "Walker2d-v5")),
-    Variant("Walker2d-v5", "cmz", "PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4)",
+    Variant("Walker2d-v5", "cmz", f"PPO learning rate 1e-4 (`learning_rate: 1e-4`; SB3's default 3e-4), {WITH_FIRST}",
             "results/tuning/W-lr1e-4", tune_command("W-lr1e-4", "--set learning_rate=1e-4", "Walker2d-v5")),
     critic_warmup_ppo("Walker2d-v5", "W-cwarm10"),
-    Variant("Walker2d-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/W-absorbing",
+    Variant("Walker2d-v5", "cmz", f"absorbing state (`absorbing: auto`), {WITH_FIRST}", "results/tuning/W-absorbing",
             "sb3-cmzdril benchmark --env Walker2d-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8, when `auto` was "
             "the default (moved here)"),
@@ -685,8 +712,8 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-1m-8env-abs-normrew",
             f"python benchmarks/studies/tune.py W-1m-8env-abs-normrew {ABS_NORMREW} --set n_envs=8 --set n_steps=256 "
             "-- --env Walker2d-v5 --methods cmz --trials 5 --timesteps 1000000 --eval-every 5 --workers 2"),
-    Variant("Walker2d-v5", "cmz", "3M steps, 8 envs per process (n_steps 256), the entry's absorbing state + reward "
-            "normalisation", "results/tuning/W-3m-8env",
+    Variant("Walker2d-v5", "cmz", "3M steps, 8 envs per process (n_steps 256), the entry before (absorbing state + "
+            "reward normalisation, NLL epochs)", "results/tuning/W-3m-8env",
             "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
             "--methods cmz --trials 0-4 --timesteps 3000000 --eval-every 20 --workers 1 --no-progress (two such "
             "processes at a time, on an Intel Xeon machine)"),
@@ -695,6 +722,20 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-3m-8env",
             "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
             "--methods env --trials 0-1 --timesteps 3000000 --eval-every 20 --workers 2 --no-progress"),
+    *tuning_rows("Walker2d-v5", "the log-std held in the NLL epochs between PPO updates (`bc_update_std: false`), "
+                 "with the entry before", "W-bcstd-held",
+                 tune_command("W-bcstd-held", "--set bc_update_std=false", "Walker2d-v5", "0-4") + " --no-progress",
+                 firsts=(0,)),
+    *tuning_rows("Walker2d-v5", "1M steps, 8 envs per process (n_steps 256), the entry before, the log-std held in "
+                 "the NLL epochs (`bc_update_std: false`)", "W-1m-8env-bcstd-held",
+                 W_1M_8ENV.format(name="W-1m-8env-bcstd-held", sets="--set bc_update_std=false"), firsts=(0,)),
+    *tuning_rows("Walker2d-v5", f"1M steps, 8 envs per process (n_steps 256), the entry before, {BCUPD0_LABEL} (the "
+                 "entry's setting at 1M steps)", "W-1m-8env-bcupd0",
+                 W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0)),
+    Variant("Walker2d-v5", "env", "PPO on the env's reward (the RL ceiling) at 1M steps, 8 envs per process, "
+            f"{BCUPD0_LABEL}: trials 0-1", "results/tuning/W-1m-8env-bcupd0",
+            W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0).replace("--methods cmz", "--methods env"),
+            trials=(0, 1)),
     Variant("Walker2d-v5", "cmz", "rl-baselines3-zoo's tuned PPO for Walker2d (n_steps 512, batch 32, 20 epochs, "
             "learning rate 5.05e-5, clip range 0.1, its gamma, GAE lambda, entropy and value coefficients, "
             "gradient clip), absorbing state + reward normalisation", "results/tuning/W-zoo-ppo-abs-normrew",
@@ -715,8 +756,12 @@ ABLATIONS: tuple[Variant, ...] = (
                      "--eval-every 5 --workers 2 -o results/runs"),
     no_warmup_walker((5, 6, 7, 8, 9), f"sb3-cmzdril train --env Walker2d-v5 --reward cmz-sac --seed T --eval-every 5 "
                      f"-o {CMZ_SAC_TRIALS5_9}/Walker2d-v5/cmz-sac/trialT (T = 5-9, two at a time)"),
-    *entry_others("Walker2d-v5"),
-    Variant("Walker2d-v5", "dril", "DRIL, the entry before: trials 5-9", WALKER_BEFORE_TRIALS5_9,
+    *entry_others("Walker2d-v5", lambda method: walker_before(method, "0-4")),
+    Variant("Walker2d-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["Walker2d-v5"][1],
+            walker_before("dril", "5-9", DRIL_TRIALS5_9), trials=CONFIRMATION_TRIALS),
+    *(Variant("Walker2d-v5", method, f"{label}, {WALKER_FIRST_LABEL}: trials 0-4", WALKER_FIRST,
+              f"{GRID_MADE_BY} with the first entry (moved here)") for method, label in ENTRY_OTHERS),
+    Variant("Walker2d-v5", "dril", f"DRIL, {WALKER_FIRST_LABEL}: trials 5-9", WALKER_FIRST_TRIALS5_9,
             "sb3-cmzdril train --env Walker2d-v5 --reward dril --seed T --timesteps 300000 --eval-every 5 "
             f"--hyperparams hyperparams/cmzdril.yml -o {DRIL_TRIALS5_9}/Walker2d-v5/dril/trialT (T = 5-9; moved here)",
             trials=CONFIRMATION_TRIALS),
@@ -731,6 +776,11 @@ ABLATIONS: tuple[Variant, ...] = (
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
     Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
+    Variant("Hopper-v5", "cmz", BCUPD0_LABEL, "results/tuning/H-bcupd0",
+            tune_command("H-bcupd0", BCUPD0, "Hopper-v5", "0-4") + " --no-progress", trials=(0, 1, 2, 3, 4)),
+    *tuning_rows("Hopper-v5", f"absorbing state (`absorbing: auto`) + {BCUPD0_LABEL}", "H-abs-bcupd0",
+                 tune_command("H-abs-bcupd0", f"--set absorbing=auto {BCUPD0}", "Hopper-v5", "T") + " --no-progress "
+                 "(T = 0-4, then 5-9)"),
     Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *averaged_rows("Hopper-v5", "H-avg75"),
@@ -1111,24 +1161,26 @@ ACROSS_CMZ_CONFIRMATION = (
 
 SWEEPS: tuple[Sweep, ...] = (
     Sweep("Walker2d-v5", ("bc", "dril", "cmz"), "n_demos", "training demonstrations",
-          (WALKER_BEFORE, "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
-          "the main grid's command (1 demo; Walker2d-v5's entry before its absorbing state and reward normalisation, "
-          f"its runs now in {WALKER_BEFORE}) and, for N in 3 and 10, `sb3-cmzdril benchmark --env "
+          (WALKER_FIRST, "results/runs_demos3", "results/runs_demos10"), "new_tasks_demos.png",
+          f"the main grid's command (1 demo; {WALKER_FIRST_LABEL}, its runs now in {WALKER_FIRST}) and, for N in 3 "
+          "and 10, `sb3-cmzdril benchmark --env "
           "Walker2d-v5 --methods bc,cmz,dril --n-demos N --trials 5 --timesteps 300000 --eval-every 5 --workers 2 "
           "--hyperparams hyperparams/cmzdril.yml -o results/runs_demosN`, with that entry",
-          fixed="Walker2d-v5's entry before (no absorbing state, no reward normalisation)"),
+          fixed=WALKER_FIRST_LABEL),
     Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
-          (WALKER_BEFORE, "results/runs_1m"), "new_tasks_budget.png",
-          f"the main grid's command (300k, with the entry before; its runs now in {WALKER_BEFORE}) and `sb3-cmzdril "
+          (WALKER_FIRST, "results/runs_1m"), "new_tasks_budget.png",
+          f"the main grid's command (300k, with the first entry; its runs now in {WALKER_FIRST}) and `sb3-cmzdril "
           "benchmark --env Walker2d-v5 --methods cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 "
           "--hyperparams hyperparams/cmzdril.yml -o results/runs_1m`, with that entry",
-          fixed="Walker2d-v5's entry before (no absorbing state, no reward normalisation)"),
+          fixed=WALKER_FIRST_LABEL),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
-          ("results/runs", "results/tuning/W-abs-normrew-demos3", "results/tuning/W-abs-normrew-demos10"),
+          (ENTRY_BEFORE["Walker2d-v5"][0], "results/tuning/W-abs-normrew-demos3",
+           "results/tuning/W-abs-normrew-demos10"),
           "new_tasks_demos_abs_normrew.png",
-          "the published grid (1 demo, Walker2d-v5's entry; see its ablation rows) and, for N in 3 and 10, "
+          f"the grid's runs with Walker2d-v5's entry before (1 demo; now in {ENTRY_BEFORE['Walker2d-v5'][0]}, see its "
+          f"ablation rows) and, for N in 3 and 10, "
           f"`{tune_command('W-abs-normrew-demosN', ABS_NORMREW, 'Walker2d-v5 --n-demos N')}`",
-          fixed="absorbing state + reward normalisation, Walker2d-v5's entry"),
+          fixed=f"Walker2d-v5's entry before ({BEFORE_LABELS['Walker2d-v5']})"),
 )
 
 
