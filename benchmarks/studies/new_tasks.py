@@ -51,20 +51,24 @@ AUTO_LABEL = ("u's form read from the demonstrations (`disagreement: auto`; the 
 #: flags (on the entry before). Their runs of every method were made by that command and moved into the grid's
 #: folders when it became the entry.
 ENTRY_VARIANTS = {"Walker2d-v5": ("W-abs-normrew-bcupd0", BCUPD0), "HalfCheetah-v5": ("HC-normrew", NORMREW),
-                  "WaypointNav-v0": ("WN-unclipped", PPO_UNCLIPPED)}
+                  "WaypointNav-v0": ("WN-unclipped", PPO_UNCLIPPED),
+                  "Hopper-v5": ("H-abs-bcupd0", f"--set absorbing=auto {BCUPD0}")}
 #: where those tasks' runs of the entry before moved: the grid's trials 0-4, then trials 5-9 (and BC's trials 0-9)
 ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-abs-normrew", "results/tuning/W-abs-normrew-trials5-9"),
                 "HalfCheetah-v5": ("results/tuning/HC-no-normrew", "results/tuning/HC-no-normrew-trials5-9"),
-                "WaypointNav-v0": ("results/tuning/WN-clipped", "results/tuning/WN-clipped-trials5-9")}
+                "WaypointNav-v0": ("results/tuning/WN-clipped", "results/tuning/WN-clipped-trials5-9"),
+                "Hopper-v5": ("results/tuning/H-no-absorbing", "results/tuning/H-no-absorbing-trials5-9")}
 #: Walker2d-v5's first entry (no absorbing state, no reward normalisation): its runs' folders, trials 0-4 and 5-9
 WALKER_FIRST, WALKER_FIRST_TRIALS5_9 = "results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"
 #: what each entry is, as its rows name it
 ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}",
                 "HalfCheetah-v5": "reward normalisation",
-                "WaypointNav-v0": "u on the ensemble members' actions unclipped"}
+                "WaypointNav-v0": "u on the ensemble members' actions unclipped",
+                "Hopper-v5": f"absorbing state (`absorbing: auto`), {BCUPD0_LABEL}"}
 BEFORE_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation, one NLL epoch after each PPO update",
                  "HalfCheetah-v5": "no reward normalisation",
-                 "WaypointNav-v0": "u on the members' actions clipped to the action bounds"}
+                 "WaypointNav-v0": "u on the members' actions clipped to the action bounds",
+                 "Hopper-v5": "the shared defaults: no absorbing state, one NLL epoch after each PPO update"}
 WALKER_FIRST_LABEL = "Walker2d-v5's first entry (no absorbing state, no reward normalisation)"
 #: how a Walker2d-v5 variant made on the first entry says so
 WITH_FIRST = "with the first entry"
@@ -112,7 +116,7 @@ DRIL_TRIALS5_9_GRID = dril_trials5_9_grid("HalfCheetah-v5,Swimmer-v5")
 DRIL_TRIALS5_9_COMMANDS = {
     "Walker2d-v5": walker_entry("dril", "5-9", DRIL_TRIALS5_9),
     "HalfCheetah-v5": entry_command("HalfCheetah-v5", "dril", "0-9", TEN_SPLIT.format(DRIL_TRIALS5_9)),
-    "Hopper-v5": dril_trials5_9_grid("Hopper-v5"),
+    "Hopper-v5": entry_command("Hopper-v5", "dril", "5-9", f"moved to {DRIL_TRIALS5_9}"),
     "Swimmer-v5": DRIL_TRIALS5_9_GRID,
     "WaypointNav-v0": entry_command("WaypointNav-v0", "dril", "5-9", f"moved to {DRIL_TRIALS5_9}"),
 }
@@ -767,9 +771,8 @@ ABLATIONS: tuple[Variant, ...] = (
             trials=CONFIRMATION_TRIALS),
     sac_tuning("Walker2d-v5", "W-sac-120k", "--set n_timesteps=120000",
                f"{NO_WARMUP_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
-    Variant("Hopper-v5", "cmz", "package defaults (no absorbing state; the published grid)", "results/runs",
-            "the published grid (CONTRIBUTING.md)"),
-    cmz_confirmation("Hopper-v5"),
+    *entry_rows("Hopper-v5", entry_command("Hopper-v5", "cmz", "0-4", "moved to results/runs"),
+                f"{GRID_MADE_BY} (moved here)"),
     bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit"),
     Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
@@ -778,9 +781,6 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
     Variant("Hopper-v5", "cmz", BCUPD0_LABEL, "results/tuning/H-bcupd0",
             tune_command("H-bcupd0", BCUPD0, "Hopper-v5", "0-4") + " --no-progress", trials=(0, 1, 2, 3, 4)),
-    *tuning_rows("Hopper-v5", f"absorbing state (`absorbing: auto`) + {BCUPD0_LABEL}", "H-abs-bcupd0",
-                 tune_command("H-abs-bcupd0", f"--set absorbing=auto {BCUPD0}", "Hopper-v5", "T") + " --no-progress "
-                 "(T = 0-4, then 5-9)"),
     Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *averaged_rows("Hopper-v5", "H-avg75"),
@@ -818,6 +818,9 @@ ABLATIONS: tuple[Variant, ...] = (
     *entry_others("HalfCheetah-v5"),
     Variant("HalfCheetah-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["HalfCheetah-v5"][1],
             f"{DRIL_TRIALS5_9_GRID} (moved here)", trials=CONFIRMATION_TRIALS),
+    *entry_others("Hopper-v5"),
+    Variant("Hopper-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["Hopper-v5"][1],
+            f"{dril_trials5_9_grid('Hopper-v5')} (moved here)", trials=CONFIRMATION_TRIALS),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
     cmz_confirmation("Swimmer-v5"),
     package_cmz_sac("Swimmer-v5", "Swimmer-v5", f"{SWIMMER_SAC} (two such processes side by side)"),
