@@ -72,6 +72,8 @@ BEFORE_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation, one NLL
 WALKER_FIRST_LABEL = "Walker2d-v5's first entry (no absorbing state, no reward normalisation)"
 #: how a Walker2d-v5 variant made on the first entry says so
 WITH_FIRST = "with the first entry"
+#: how a Hopper-v5 variant made before its entry changed says so (it had none: the shared defaults)
+WITH_SHARED = "on the shared defaults (before Hopper-v5's entry)"
 
 
 #: the grid's other RL methods on those tasks, whose rows the entry changed too
@@ -192,7 +194,7 @@ def bc_trials10_command(env: str) -> str:
 
 #: Walker2d-v5's CMZ-DRIL at 1M steps with 8 envs per process (n_steps 256), a tune.py variant NAME with SETS
 W_1M_8ENV = ("python benchmarks/studies/tune.py {name} --set n_envs=8 --set n_steps=256 {sets} -- --env Walker2d-v5 "
-             "--methods cmz --trials T --timesteps 1000000 --eval-every 5 --workers 2 --no-progress")
+             "--methods {methods} --trials {trials} --timesteps 1000000 --eval-every 5 --workers 2 --no-progress")
 #: rl-baselines3-zoo's tuned PPO for Walker2d (its hyperparams/ppo.yml, entry Walker2d-v4; its `normalize: true` is
 #: ABS_NORMREW's reward normalisation here, the policy's inputs being standardised from the demos already)
 ZOO_PPO_WALKER = ("--set n_steps=512 --set batch_size=32 --set gamma=0.99 --set learning_rate=5.05041e-05 "
@@ -732,13 +734,14 @@ ABLATIONS: tuple[Variant, ...] = (
                  firsts=(0,)),
     *tuning_rows("Walker2d-v5", "1M steps, 8 envs per process (n_steps 256), the entry before, the log-std held in "
                  "the NLL epochs (`bc_update_std: false`)", "W-1m-8env-bcstd-held",
-                 W_1M_8ENV.format(name="W-1m-8env-bcstd-held", sets="--set bc_update_std=false"), firsts=(0,)),
-    *tuning_rows("Walker2d-v5", f"1M steps, 8 envs per process (n_steps 256), the entry before, {BCUPD0_LABEL} (the "
-                 "entry's setting at 1M steps)", "W-1m-8env-bcupd0",
-                 W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0)),
+                 W_1M_8ENV.format(name="W-1m-8env-bcstd-held", sets="--set bc_update_std=false", methods="cmz",
+                                  trials="0-4"), firsts=(0,)),
+    *tuning_rows("Walker2d-v5", "1M steps, 8 envs per process (n_steps 256), Walker2d-v5's entry (absorbing state + "
+                 f"reward normalisation, {BCUPD0_LABEL})", "W-1m-8env-bcupd0",
+                 W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0, methods="cmz", trials="T (T = 0-4, then 5-9)")),
     Variant("Walker2d-v5", "env", "PPO on the env's reward (the RL ceiling) at 1M steps, 8 envs per process, "
             f"{BCUPD0_LABEL}: trials 0-1", "results/tuning/W-1m-8env-bcupd0",
-            W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0).replace("--methods cmz", "--methods env"),
+            W_1M_8ENV.format(name="W-1m-8env-bcupd0", sets=BCUPD0, methods="env", trials="0-1"),
             trials=(0, 1)),
     Variant("Walker2d-v5", "cmz", "rl-baselines3-zoo's tuned PPO for Walker2d (n_steps 512, batch 32, 20 epochs, "
             "learning rate 5.05e-5, clip range 0.1, its gamma, GAE lambda, entropy and value coefficients, "
@@ -773,15 +776,17 @@ ABLATIONS: tuple[Variant, ...] = (
                f"{NO_WARMUP_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
     *entry_rows("Hopper-v5", entry_command("Hopper-v5", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)"),
-    bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit"),
-    Variant("Hopper-v5", "cmz", "absorbing state (`absorbing: auto`)", "results/tuning/Hopper-absorbing",
+    bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit", before=True),
+    Variant("Hopper-v5", "cmz", f"absorbing state (`absorbing: auto`), {WITH_SHARED}",
+            "results/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
             "--workers 2 --hyperparams hyperparams/cmzdril.yml -o results/runs at commit a3f38d8 (moved here)"),
-    Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward)",
+    Variant("Hopper-v5", "cmz", "absorbing state + reward normalisation (VecNormalize norm_reward), "
+            f"{WITH_SHARED}",
             "results/tuning/Hopper-abs-normrew", tune_command("Hopper-abs-normrew", ABS_NORMREW, "Hopper-v5")),
-    Variant("Hopper-v5", "cmz", BCUPD0_LABEL, "results/tuning/H-bcupd0",
+    Variant("Hopper-v5", "cmz", f"{BCUPD0_LABEL}, {WITH_SHARED}", "results/tuning/H-bcupd0",
             tune_command("H-bcupd0", BCUPD0, "Hopper-v5", "0-4") + " --no-progress", trials=(0, 1, 2, 3, 4)),
-    Variant("Hopper-v5", "cmz", NORMREW_LABEL, "results/tuning/Hopper-normrew",
+    Variant("Hopper-v5", "cmz", f"{NORMREW_LABEL}, {WITH_SHARED}", "results/tuning/Hopper-normrew",
             tune_command("Hopper-normrew", NORMREW, "Hopper-v5")),
     *averaged_rows("Hopper-v5", "H-avg75"),
     *longest_rows("Hopper-v5", "H-longest", firsts=(0,)),
