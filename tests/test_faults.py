@@ -219,6 +219,26 @@ def test_killed_benchmark_and_train_leave_nothing_behind_and_resume_to_clean_sto
     assert json.loads((out / "done.json").read_text())["num_timesteps"] == TIMESTEPS
 
 
+def test_an_interrupted_local_pool_is_wound_down_before_the_command_returns():
+    """Closed after an interruption, the local backend's pool has ended its workers and its manager
+    thread, and closed the pipe that wakes that thread: Python's exit writes to that pipe of every pool
+    still running, and a close racing that write ended a SIGTERM'd benchmark with "Bad file descriptor"
+    after its last line."""
+    backend = grid._LocalBackend(1)
+    job = backend.pool.submit(time.sleep, 60)
+    deadline = time.time() + 60
+    while not job.running():
+        assert time.time() < deadline, "the worker never started"
+        time.sleep(0.05)
+    processes = list(backend.pool._processes.values())
+    manager = backend.pool._executor_manager_thread
+    wakeup = backend.pool._executor_manager_thread_wakeup
+    backend.close(interrupted=True)
+    assert not any(p.is_alive() for p in processes)
+    assert not manager.is_alive()
+    assert wakeup._closed
+
+
 def test_run_held_by_another_process_is_skipped_not_failed(tiny, tmp_path, capsys):
     runs = tmp_path / "runs"
     run = runs / ENV / "cmz" / "trial0"

@@ -226,6 +226,8 @@ class _LocalBackend:
         """Shut the pool down; interrupted, end the running workers too (shutdown only cancels the
         queued runs, and a worker left running would hold its run's lock)."""
         workers = list((getattr(self.pool, "_processes", None) or {}).values()) if interrupted else []
+        # shutdown() forgets the pool's manager thread; kept here to be joined below.
+        manager = getattr(self.pool, "_executor_manager_thread", None) if interrupted else None
         for process in workers:
             with contextlib.suppress(OSError, ValueError):
                 process.terminate()
@@ -235,6 +237,12 @@ class _LocalBackend:
                 process.join(timeout=5)
                 if process.is_alive():
                     process.kill()
+        if manager is not None:
+            # The manager thread closes its wakeup pipe once it sees the ended workers. At interpreter
+            # exit concurrent.futures writes to every live pool's pipe without the pool's lock (CPython
+            # 3.11-3.13 here), so a thread still closing it then races the exit: "OSError: [Errno 9] Bad
+            # file descriptor", printed after the command's last line. Joined, the pipe is closed first.
+            manager.join(timeout=10)
 
 
 class _RayBackend:
