@@ -41,6 +41,7 @@ from stable_baselines3.common.callbacks import (
 )
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import update_learning_rate
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
@@ -48,6 +49,7 @@ from sb3_cmzdril.bc import BehaviourCloner
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError, check_finite
+from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.imitation import (
     check_imitation_options,
     parameters_to_set,
@@ -128,7 +130,10 @@ class CMZDRIL(PPO):
         code does, by mean-squared error), and PPO alone sets the spread. Pretraining fits it either
         way. Discrete actions have no log-std: no effect.
     :param bc_batch_size: minibatch size of the NLL epochs.
-    :param bc_learning_rate: Adam step size of the NLL epochs.
+    :param bc_learning_rate: Adam step size of the NLL epochs: a number, a schedule of the progress
+        remaining (1 -> 0, as PPO's ``learning_rate``) or ``"lin_<float>"``, which falls linearly to
+        0 over ``learn()``: the pull toward the demonstrations then fades as PPO's own updates go on.
+        Pretraining runs at its start value.
     :param log_std_floor: after pretraining, raise the Gaussian policy's log-std to at least this
         (None keeps what NLL learned). NLL on a few demos collapses it (HalfCheetah/Hopper: about
         -2, std 0.13), and PPO then barely leaves the cloned trajectory, so the disagreement reward
@@ -190,7 +195,7 @@ class CMZDRIL(PPO):
         bc_epochs_per_update: int = 1,
         bc_update_std: bool = True,
         bc_batch_size: int = 64,
-        bc_learning_rate: float = 1e-3,
+        bc_learning_rate: float | Schedule | str = 1e-3,
         log_std_floor: float | None = -1.0,
         absorbing: bool | str = False,
         absorbing_score: str = "highest",
@@ -261,7 +266,8 @@ class CMZDRIL(PPO):
         self.bc_epochs_per_update = int(bc_epochs_per_update)
         self.bc_update_std = bool(bc_update_std)
         self.bc_batch_size = int(bc_batch_size)
-        self.bc_learning_rate = float(bc_learning_rate)
+        #: a number or a schedule of the progress remaining (see :meth:`_bc_learning_rate`)
+        self.bc_learning_rate: float | Schedule = parse_schedule(bc_learning_rate, "bc_learning_rate")
         self.log_std_floor = None if log_std_floor is None else float(log_std_floor)
         self.absorbing = absorbing
         self.absorbing_score = absorbing_score
@@ -369,7 +375,8 @@ class CMZDRIL(PPO):
         self.ensemble = BCEnsemble(
             self.observation_space, self.action_space, self.ensemble_size, self.ensemble_hidden, self.disagreement, seed
         ).to(self.device)
-        self.bc = BehaviourCloner(self.policy, self.bc_batch_size, self.bc_learning_rate, self.max_grad_norm, seed=seed)
+        self.bc = BehaviourCloner(self.policy, self.bc_batch_size, self._bc_learning_rate(1.0), self.max_grad_norm,
+                                  seed=seed)
         self.reward_rule: RewardRule | None = None
         for name in _SAVED_TENSORS:
             setattr(self, name, th.zeros(0))
@@ -774,6 +781,11 @@ class CMZDRIL(PPO):
             # How much a termination costs depends on it: the run's highest u so far.
             self.logger.record("rollout/absorbing_u", self.absorbing_u)
 
+    def _bc_learning_rate(self, progress_remaining: float) -> float:
+        """The NLL epochs' step size at ``progress_remaining`` (1 at the start of ``learn()``, 0 at its end)."""
+        rate = self.bc_learning_rate
+        return float(rate(progress_remaining)) if callable(rate) else float(rate)
+
     def train(self) -> None:
         if self.critic_warmup_done < self.critic_warmup_updates:
             with _critic_only(self.policy):
@@ -785,6 +797,9 @@ class CMZDRIL(PPO):
         if self.bc_epochs_per_update and self.demonstrations is not None:
             transform = self._demo_obs_transform()
             held = [] if self.bc_update_std else _log_std_parameters(self.policy)
+            bc_lr = self._bc_learning_rate(self._current_progress_remaining)
+            update_learning_rate(self.bc.optimizer, bc_lr)
+            self.logger.record("train/bc_learning_rate", bc_lr)
             with _without_gradient(held):
                 for _ in range(self.bc_epochs_per_update):
                     nll = self.bc.epoch(transform)

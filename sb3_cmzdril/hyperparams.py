@@ -5,8 +5,8 @@ The format is rl-baselines3-zoo's (``hyperparams/<algo>.yml``): top-level keys a
 *special keys* (how to build the environment and how long to train); every other key goes straight to
 the algorithm's constructor, after the zoo's pre-processing:
 
-* ``learning_rate`` (and ``clip_range``, ``clip_range_vf``) may be ``lin_<float>``: a schedule that
-  decreases linearly from ``<float>`` to 0 over training, as in the zoo;
+* ``learning_rate`` (and ``clip_range``, ``clip_range_vf``, and CMZDRIL's ``bc_learning_rate``) may be
+  ``lin_<float>``: a schedule that decreases linearly from ``<float>`` to 0 over training, as in the zoo;
 * ``train_freq: [1, "episode"]`` becomes a tuple;
 * ``policy_kwargs`` / ``replay_buffer_kwargs`` / ``env_kwargs`` / ``normalize`` may be strings such as
   ``"dict(log_std_init=-3, net_arch=[400, 300], activation_fn=nn.ReLU)"``. The zoo ``eval``s them; we
@@ -46,7 +46,7 @@ SPECIAL_KEYS = (
     "frame_stack",
 )
 #: Keys that may hold a zoo schedule string (``lin_<float>``).
-SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "bc_learning_rate")
 #: Keys that may hold a python-expression string in the zoo (parsed safely here).
 EXPRESSION_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "env_kwargs", "normalize")
 

@@ -284,6 +284,9 @@ class CMZDRILSAC(SAC):
         self.bc_weight = float(bc_weight)
         self.q_weight = float(q_weight)
         self.bc_batch_size = int(bc_batch_size)
+        if callable(bc_learning_rate) or isinstance(bc_learning_rate, str):  # e.g. a YAML 'lin_1e-3'
+            raise UserError(f"CMZDRILSAC's bc_learning_rate is a number (its BC optimiser runs only before SAC), "
+                            f"got {bc_learning_rate!r}")
         self.bc_learning_rate = float(bc_learning_rate)
         self.critic_warmup_steps = int(critic_warmup_steps)
         self.log_std_init = None if log_std_init is None else float(log_std_init)

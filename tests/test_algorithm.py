@@ -14,6 +14,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from helpers import TINY
 from sb3_cmzdril import CMZDRIL, CMZReward, DisagreementReward, DRILReward
 from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.hyperparams import LinearSchedule
 
 
 @pytest.mark.slow
@@ -79,6 +81,29 @@ def test_bc_epochs_fit_the_log_std_only_when_asked(update_std, pendulum_demos):
         assert {"action_net.weight", "mlp_extractor.policy_net.0.weight"} <= changed
         assert ("log_std" in changed) is update_std
     assert all(p.requires_grad for p in model.policy.parameters())  # PPO's next update moves it again
+
+
+def test_a_bc_learning_rate_schedule_sets_each_nll_epochs_step_size(pendulum_demos, tmp_path):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_learning_rate="lin_1e-3", **TINY)
+    rates = []
+    original = model.bc.epoch
+
+    def epoch(*args, **kwargs):
+        rates.append(model.bc.optimizer.param_groups[0]["lr"])
+        return original(*args, **kwargs)
+
+    model.bc.epoch = epoch
+    model.learn(128)  # pretraining, then PPO updates after 64 and 128 of 128 steps (progress remaining 0.5, 0)
+    pretraining, after_updates = rates[:-2], rates[-2:]
+    assert pretraining and pretraining == pytest.approx([1e-3] * len(pretraining))  # the start value
+    assert after_updates == pytest.approx([5e-4, 0.0])
+    model.save(tmp_path / "scheduled.zip")
+    assert CMZDRIL.load(tmp_path / "scheduled.zip").bc_learning_rate == LinearSchedule(1e-3)
+
+
+def test_a_bc_learning_rate_that_is_no_schedule_is_one_line_naming_it(pendulum_demos):
+    with pytest.raises(UserError, match="invalid schedule for bc_learning_rate: 'exp_1e-3'"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_learning_rate="exp_1e-3", **TINY)
 
 
 def _changed(before: dict, model: CMZDRIL) -> set[str]:

@@ -458,6 +458,7 @@ def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_sav
         (dict(n_steps=3), "n_steps must be 1, got 3"),
         (dict(critic_warmup_steps=-1), "critic_warmup_steps must be a whole number >= 0, got -1"),
         (dict(critic_warmup_steps=2.5), "critic_warmup_steps must be a whole number >= 0, got 2.5"),
+        (dict(bc_learning_rate="lin_1e-3"), "CMZDRILSAC's bc_learning_rate is a number .*, got 'lin_1e-3'"),
     ],
 )
 def test_bad_options_are_refused_naming_them(pendulum_demos, kwargs, message):
