@@ -803,9 +803,8 @@ ABLATIONS: tuple[Variant, ...] = (
                   "--workers 2)"),
     *entry_rows("HalfCheetah-v5", entry_command("HalfCheetah-v5", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)"),
-    Variant("HalfCheetah-v5", "cmz", f"{BCUPD0_LABEL}, with the entry (reward normalisation)",
-            "results/tuning/HC-bcupd0",
-            tune_command("HC-bcupd0", BCUPD0, "HalfCheetah-v5", "0-4") + " --no-progress", trials=(0, 1, 2, 3, 4)),
+    *tuning_rows("HalfCheetah-v5", f"{BCUPD0_LABEL}, with the entry (reward normalisation)", "HC-bcupd0",
+                 tune_command("HC-bcupd0", BCUPD0, "HalfCheetah-v5", "T") + " --no-progress (T = 0-4, then 5-9)"),
     bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
     *averaged_rows("HalfCheetah-v5", "HC-avg75", firsts=(0,), note=AVERAGED_STOPPED),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
