@@ -430,6 +430,12 @@ def tuning_rows(env: str, label: str, name: str, made_by: str,
     return trial_set_rows(env, label, f"results/tuning/{name}", made_by, firsts)
 
 
+#: WaypointNav-v0 without the NLL epochs between PPO updates, on its entry: CMZ-DRIL's trials 0-4 alone, then
+#: CMZ-DRIL and DRIL on trials 5-9 by one command, then DRIL's trials 0-4
+WN_BCUPD0 = tune_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", "T", methods="M") + " --no-progress"
+WN_BCUPD0_CMZ = WN_BCUPD0 + " (M = cmz with T = 0-4, then M = cmz,dril with T = 5-9)"
+WN_BCUPD0_DRIL = WN_BCUPD0 + " (M = cmz,dril with T = 5-9, then M = dril with T = 0-4)"
+
 AVERAGED = "--set average_from=0.75"
 AVERAGED_LABEL = "weights averaged over the last quarter of updates (`average_from: 0.75`)"
 #: where the averaged policy gained nothing on the tuning trials, the confirmation trials were not run
@@ -845,6 +851,9 @@ ABLATIONS: tuple[Variant, ...] = (
                  tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
                  + " --no-progress (trials 5-9: the same with --trials 5-9)"),
     *averaged_rows("WaypointNav-v0", "WN-avg75", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
+    *tuning_rows("WaypointNav-v0", f"{BCUPD0_LABEL}, with the entry (u unclipped)", "WN-bcupd0", WN_BCUPD0_CMZ),
+    *trial_set_rows("WaypointNav-v0", f"DRIL, {BCUPD0_LABEL}, with the entry (u unclipped)", "results/tuning/WN-bcupd0",
+                    WN_BCUPD0_DRIL, method="dril"),
     Variant("WaypointNav-v0", "cmz", f"{PPO_TERMINAL_LABEL}, with the entry before", "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
