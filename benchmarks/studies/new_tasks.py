@@ -430,6 +430,8 @@ def tuning_rows(env: str, label: str, name: str, made_by: str,
     return trial_set_rows(env, label, f"results/tuning/{name}", made_by, firsts)
 
 
+#: the NLL epochs between PPO updates back, their step size falling linearly to 0 over the run (a fading anchor)
+FADING_ANCHOR = "--set bc_epochs_per_update=1 --set bc_learning_rate=lin_0.001"
 #: WaypointNav-v0 without the NLL epochs between PPO updates, on its entry: CMZ-DRIL's trials 0-4 alone, then
 #: CMZ-DRIL and DRIL on trials 5-9 by one command, then DRIL's trials 0-4
 WN_BCUPD0 = tune_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", "T", methods="M") + " --no-progress"
@@ -734,6 +736,9 @@ ABLATIONS: tuple[Variant, ...] = (
             "results/tuning/W-3m-8env",
             "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
             "--methods env --trials 0-1 --timesteps 3000000 --eval-every 20 --workers 2 --no-progress"),
+    *tuning_rows("Walker2d-v5", "the NLL epochs between PPO updates with a step size falling linearly from 1e-3 to 0 "
+                 "(`bc_epochs_per_update: 1`, `bc_learning_rate: lin_1e-3`), on the entry", "W-bclin",
+                 tune_command("W-bclin", FADING_ANCHOR, "Walker2d-v5", "0-4") + " --no-progress", firsts=(0,)),
     *tuning_rows("Walker2d-v5", "the log-std held in the NLL epochs between PPO updates (`bc_update_std: false`), "
                  "with the entry before", "W-bcstd-held",
                  tune_command("W-bcstd-held", "--set bc_update_std=false", "Walker2d-v5", "0-4") + " --no-progress",
@@ -854,6 +859,11 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_rows("WaypointNav-v0", f"{BCUPD0_LABEL}, with the entry (u unclipped)", "WN-bcupd0", WN_BCUPD0_CMZ),
     *trial_set_rows("WaypointNav-v0", f"DRIL, {BCUPD0_LABEL}, with the entry (u unclipped)", "results/tuning/WN-bcupd0",
                     WN_BCUPD0_DRIL, method="dril"),
+    *(Variant("WaypointNav-v0", method, f"{label}, {BCUPD0_LABEL}, with the entry (u unclipped): trials 0-4",
+              "results/tuning/WN-bcupd0", tune_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", "0-4", methods="zero,env")
+              + " --no-progress",
+              trials=(0, 1, 2, 3, 4))
+      for method, label in (("zero", "PPO with no reward"), ("env", "PPO on the env's reward"))),
     Variant("WaypointNav-v0", "cmz", f"{PPO_TERMINAL_LABEL}, with the entry before", "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
