@@ -51,6 +51,9 @@ SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "bc_learning_ra
 EXPRESSION_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "env_kwargs", "normalize")
 
 DEFAULT_KEY = "default"
+#: An env entry's key for settings that only some methods take: ``{method: {key: value}}``, laid over
+#: the entry for a run of that method (a grid can run each method at the setting it was measured best at).
+PER_METHOD_KEY = "per_method"
 
 
 class LinearSchedule:
@@ -216,6 +219,9 @@ class Hyperparams:
     callback: Any = None
     frame_stack: Any = None
     algo_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: The methods the entry's ``per_method`` block names (whichever one was resolved), for the
+    #: caller that knows the method names to check them.
+    per_method_names: tuple[str, ...] = ()
 
     def model_kwargs(self) -> dict[str, Any]:
         """Constructor kwargs: ``algo_kwargs`` plus ``policy_kwargs`` when there are any."""
@@ -428,8 +434,31 @@ def read_hyperparams_file(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def load_hyperparams(path: str | Path, env_id: str) -> Hyperparams:
-    """Load the entry for ``env_id`` from a zoo YAML file (exact id, id without ``module:``, ``default``)."""
+def resolve_per_method(entry: Any, method: str | None, where: str) -> tuple[Any, tuple[str, ...]]:
+    """``entry`` without its :data:`PER_METHOD_KEY` block, with ``method``'s settings from it laid over
+    the rest (none for ``method=None`` or a method the block does not name), and the names the block has.
+
+    ``raw`` of the result is what a run of ``method`` used, so a run's record never carries the settings
+    of the other methods.
+    """
+    if not isinstance(entry, dict) or PER_METHOD_KEY not in entry:
+        return entry, ()
+    entry = dict(entry)
+    block = entry.pop(PER_METHOD_KEY)
+    if not isinstance(block, dict) or not all(isinstance(v, dict) for v in block.values()):
+        raise UserError(f"{where}: {PER_METHOD_KEY} must map method names to settings, "
+                        f"e.g. {{cmz: {{bc_epochs_per_update: 0}}}}, got {block!r}")
+    for name, settings in block.items():
+        if PER_METHOD_KEY in settings:
+            raise UserError(f"{where}: {PER_METHOD_KEY}.{name} cannot hold another {PER_METHOD_KEY}")
+    if method is not None and method in block:
+        entry.update(copy.deepcopy(block[method]))
+    return entry, tuple(map(str, block))
+
+
+def load_hyperparams(path: str | Path, env_id: str, method: str | None = None) -> Hyperparams:
+    """Load the entry for ``env_id`` from a zoo YAML file (exact id, id without ``module:``, ``default``),
+    with ``method``'s settings from its ``per_method`` block (:func:`resolve_per_method`)."""
     data = read_hyperparams_file(path)
     key = _entry_key(data.keys(), env_id)
     if key is None:
@@ -437,7 +466,10 @@ def load_hyperparams(path: str | Path, env_id: str) -> Hyperparams:
             f"no hyperparameters for {env_id!r} in {path} and no {DEFAULT_KEY!r} entry; "
             f"available: {sorted(map(str, data.keys()))}"
         )
-    return split_hyperparams(data[key] or {}, env_id=env_id, key=key, path=str(path))
+    entry, names = resolve_per_method(data[key] or {}, method, f"hyperparameters {key!r} in {path}")
+    hp = split_hyperparams(entry, env_id=env_id, key=key, path=str(path))
+    hp.per_method_names = names
+    return hp
 
 
 def default_hyperparams_path(algo: str) -> Path:

@@ -212,6 +212,7 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
 
     from sb3_cmzdril.algorithm import CMZDRIL
     from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
+    from sb3_cmzdril.experiments.run.spec import PAPER_METHODS
     from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
     from sb3_cmzdril.sac import CMZDRILSAC
 
@@ -220,7 +221,8 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
         check_constructor_kwargs(load_hyperparams(sac, key), [SAC])
     cmzdril = default_hyperparams_path("cmzdril")
     for key in read_hyperparams_file(cmzdril):
-        check_constructor_kwargs(load_run_hyperparams(cmzdril, key)[0], [CMZDRIL, PPO])
+        for method in PAPER_METHODS:  # an entry's per_method settings are constructor arguments too
+            check_constructor_kwargs(load_run_hyperparams(cmzdril, key, method)[0], [CMZDRIL, PPO])
     cmzdril_sac = default_hyperparams_path("cmzdril_sac")
     for key in read_hyperparams_file(cmzdril_sac):
         hp, settings = load_run_hyperparams(cmzdril_sac, key, "cmz-sac")
@@ -257,3 +259,65 @@ def test_check_constructor_kwargs_names_the_key(entry, message):
 
     with pytest.raises(ValueError, match=message):
         check_constructor_kwargs(split_hyperparams(entry, "Pendulum-v1", "k", path="f.yml"), [CMZDRIL, PPO])
+
+
+PER_METHOD_YAML = """
+default:
+  n_timesteps: 1000
+  bc_epochs_per_update: 1
+  gamma: 0.99
+  per_method:
+    cmz: {bc_epochs_per_update: 0, ent_coef: 0.01}
+    env: {bc_epochs_per_update: 2}
+"""
+
+
+def test_a_per_method_block_lays_one_methods_settings_over_the_entry(tmp_path):
+    path = tmp_path / "cmzdril.yml"
+    path.write_text(PER_METHOD_YAML)
+    cmz = load_hyperparams(path, "X-v0", "cmz")
+    assert cmz.algo_kwargs == {"bc_epochs_per_update": 0, "gamma": 0.99, "ent_coef": 0.01}
+    # the record of a run holds what that run used, never the other methods' settings
+    assert cmz.raw == {"n_timesteps": 1000, "bc_epochs_per_update": 0, "gamma": 0.99, "ent_coef": 0.01}
+    assert load_hyperparams(path, "X-v0", "env").algo_kwargs == {"bc_epochs_per_update": 2, "gamma": 0.99}
+    for method in ("dril", None):  # a method the block does not name, or none, gets the entry alone
+        hp = load_hyperparams(path, "X-v0", method)
+        assert hp.raw == {"n_timesteps": 1000, "bc_epochs_per_update": 1, "gamma": 0.99}
+        assert hp.per_method_names == ("cmz", "env")
+
+
+@pytest.mark.parametrize("block", ["[cmz]", "{cmz: 0}", "{cmz: {per_method: {}}}"])
+def test_a_malformed_per_method_block_is_one_line_naming_it(tmp_path, block):
+    from sb3_cmzdril.errors import UserError
+
+    path = tmp_path / "cmzdril.yml"
+    path.write_text(f"default:\n  gamma: 0.99\n  per_method: {block}\n")
+    with pytest.raises(UserError, match="per_method") as info:
+        load_hyperparams(path, "X-v0", "cmz")
+    assert "\n" not in str(info.value)
+
+
+def test_a_run_refuses_a_per_method_block_naming_an_unknown_method(tmp_path):
+    from sb3_cmzdril.errors import UserError
+    from sb3_cmzdril.experiments.run.spec import load_run_hyperparams
+
+    path = tmp_path / "cmzdril.yml"
+    path.write_text("default:\n  gamma: 0.99\n  per_method: {cmzz: {gamma: 0.9}}\n")
+    with pytest.raises(UserError, match=r"unknown methods \['cmzz'\]"):
+        load_run_hyperparams(path, "X-v0", "cmz")
+
+
+def test_tune_sets_a_value_for_every_method_over_the_per_method_blocks(monkeypatch):
+    import importlib
+
+    import yaml
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks" / "studies"))
+    tune = importlib.import_module("tune")
+    base = yaml.safe_load(PER_METHOD_YAML)
+    base["Y-v0"] = {"gamma": 0.9}
+    tune.apply_sets(base, {"bc_epochs_per_update": 3})
+    assert base["default"]["per_method"] == {"cmz": {"ent_coef": 0.01}}  # env's only setting was overridden
+    assert base["default"]["bc_epochs_per_update"] == 3 and base["Y-v0"] == {"gamma": 0.9, "bc_epochs_per_update": 3}
+    tune.apply_sets(base, {"ent_coef": 0.0})
+    assert "per_method" not in base["default"]

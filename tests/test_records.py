@@ -43,7 +43,7 @@ def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
         for path in sorted((ROOT / "results" / folder).glob("*/*/trial*/config.json")):
             config = json.loads(path.read_text())
             shipped = ROOT / "hyperparams" / f"{default_hyperparams_name(config['method'])}.yml"
-            entry = load_hyperparams(shipped, config["env_id"])
+            entry = load_hyperparams(shipped, config["env_id"], config["method"])
             checked += 1
             if as_stored({"values": entry.raw})["values"] != config["hyperparams_values"]:
                 stale.append(str(path.relative_to(ROOT)))

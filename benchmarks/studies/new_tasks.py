@@ -61,9 +61,19 @@ ENTRY_BEFORE = {"Walker2d-v5": ("results/tuning/W-abs-normrew", "results/tuning/
 #: Walker2d-v5's first entry (no absorbing state, no reward normalisation): its runs' folders, trials 0-4 and 5-9
 WALKER_FIRST, WALKER_FIRST_TRIALS5_9 = "results/tuning/W-no-absorbing", "results/tuning/W-no-absorbing-trials5-9"
 #: what each entry is, as its rows name it
+#: WaypointNav-v0's per_method block: the methods its entry runs without NLL epochs between PPO updates, and the
+#: study whose runs of them moved into the grid's folders (the runs of those methods with the epochs: WN_EPOCHS)
+WN_PER_METHOD = ("cmz", "env")
+WN_PER_METHOD_LABEL = ("CMZ-DRIL and PPO on the env's reward without NLL epochs between PPO updates "
+                       "(`per_method: {cmz: {bc_epochs_per_update: 0}, env: ...}`)")
+WN_EPOCHS, WN_EPOCHS_TRIALS5_9 = "results/tuning/WN-epochs", "results/tuning/WN-epochs-trials5-9"
+WN_EPOCHS_LABEL = ("the entry before its `per_method` block (u unclipped, one NLL epoch after each PPO update for "
+                   "every method)")
+#: how WaypointNav-v0's rows name its first entry (u clipped), whose runs are ENTRY_BEFORE's
+WN_FIRST = "the first entry"
 ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}",
                 "HalfCheetah-v5": "reward normalisation",
-                "WaypointNav-v0": "u on the ensemble members' actions unclipped",
+                "WaypointNav-v0": f"u on the ensemble members' actions unclipped; {WN_PER_METHOD_LABEL}",
                 "Hopper-v5": f"absorbing state (`absorbing: auto`), {BCUPD0_LABEL}"}
 BEFORE_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation, one NLL epoch after each PPO update",
                  "HalfCheetah-v5": "no reward normalisation",
@@ -89,6 +99,12 @@ def variant_command(name: str, sets: str, env: str, methods: str, trials: str, m
 def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
     """The command behind ``env``'s runs of ``methods`` on ``trials`` with its entry, and where they ``moved``."""
     return variant_command(*ENTRY_VARIANTS[env], env, methods, trials, moved)
+
+
+def wn_bcupd0_command(methods: str, trials: str, moved: str) -> str:
+    """The study (WN-bcupd0: no NLL epochs between PPO updates) behind WaypointNav-v0's grid runs of the methods
+    its per_method block names (:data:`WN_PER_METHOD`), and where they ``moved``."""
+    return variant_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", methods, trials, moved)
 
 
 def walker_entry(methods: str, trials: str, moved_to: str) -> str:
@@ -134,11 +150,12 @@ CMZ_TRIALS5_9_GRID = ("sb3-cmzdril benchmark --env Hopper-v5,Walker2d-v5,HalfChe
 CMZ_TRIALS5_9_COMMANDS = {
     "Hopper-v5": CMZ_TRIALS5_9_GRID,
     **{env: entry_command(env, "cmz", "5-9", f"moved to {CMZ_TRIALS5_9}") for env in ENTRY_VARIANTS},
+    "WaypointNav-v0": wn_bcupd0_command("cmz,dril", "5-9", f"CMZ-DRIL's moved to {CMZ_TRIALS5_9}"),
     "Swimmer-v5": ("sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz --trials 5-9 --timesteps 300000 "
                    "--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
                    f"-o {CMZ_TRIALS5_9}"),
 }
-#: the command behind WaypointNav-v0's CMZ-DRIL and DRIL on trials 5-9 with the entry before
+#: the command behind WaypointNav-v0's CMZ-DRIL and DRIL on trials 5-9 with its first entry (u clipped)
 WAYPOINT_TRIALS5_9_BEFORE = ("sb3-cmzdril benchmark --env sb3_cmzdril:WaypointNav-v0 --methods cmz,dril --trials 5-9 "
                              "--timesteps 300000 --eval-every 1 --workers 2 --no-progress --hyperparams "
                              f"hyperparams/cmzdril.yml -o {CMZ_TRIALS5_9} (moved here)")
@@ -204,10 +221,10 @@ BC_REFIT_LABEL = "BC pretraining refit on every demo step (`bc_refit: true`; doc
 CLIP98 = "--set cmz_clip_quantile=0.98"
 
 
-def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5, before: bool = False) -> Variant:
-    """The grid's CMZ-DRIL on ``env``'s trials 0-4 with ``bc_refit: true``, the only change (to ``env``'s entry
-    before its last change, if ``before``)."""
-    label = BC_REFIT_LABEL + (", with the entry before" if before else "")
+def bc_refit_cmz(env: str, name: str, env_id: str | None = None, eval_every: int = 5, before: str = "") -> Variant:
+    """The grid's CMZ-DRIL on ``env``'s trials 0-4 with ``bc_refit: true``, the only change (to the entry
+    ``before`` names, where it is not ``env``'s entry now)."""
+    label = BC_REFIT_LABEL + (f", with {before}" if before else "")
     return Variant(env, "cmz", label, f"results/tuning/{name}",
                    f"python benchmarks/studies/tune.py {name} --set bc_refit=true -- --env {env_id or env} --methods "
                    f"cmz --trials 0-4 --timesteps 300000 --eval-every {eval_every} --workers 1 --no-progress")
@@ -435,7 +452,6 @@ FADING_ANCHOR = "--set bc_epochs_per_update=1 --set bc_learning_rate=lin_0.001"
 #: WaypointNav-v0 without the NLL epochs between PPO updates, on its entry: CMZ-DRIL's trials 0-4 alone, then
 #: CMZ-DRIL and DRIL on trials 5-9 by one command, then DRIL's trials 0-4
 WN_BCUPD0 = tune_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", "T", methods="M") + " --no-progress"
-WN_BCUPD0_CMZ = WN_BCUPD0 + " (M = cmz with T = 0-4, then M = cmz,dril with T = 5-9)"
 WN_BCUPD0_DRIL = WN_BCUPD0 + " (M = cmz,dril with T = 5-9, then M = dril with T = 0-4)"
 
 AVERAGED = "--set average_from=0.75"
@@ -480,11 +496,13 @@ def longest_rows(env: str, name: str, firsts: tuple[int, ...] = (0, 5)) -> tuple
 
 
 def entry_rows(env: str, cmz_made_by: str, before_made_by: str,
-               before_trials5_9_made_by: str = f"{CMZ_TRIALS5_9_GRID} (moved here)") -> tuple[Variant, ...]:
+               before_trials5_9_made_by: str = f"{CMZ_TRIALS5_9_GRID} (moved here)",
+               before_name: str = "the entry before") -> tuple[Variant, ...]:
     """The rows of a task whose entry in hyperparams/cmzdril.yml changed (:data:`ENTRY_VARIANTS`): CMZ-DRIL with
-    the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets."""
+    the entry (the reference row), on the confirmation trials, and the entry before's runs on both trial sets
+    (``before_name``: how the rows name that entry)."""
     before, before_trials5_9 = ENTRY_BEFORE[env]
-    label = f"the entry before ({BEFORE_LABELS[env]})"
+    label = f"{before_name} ({BEFORE_LABELS[env]})"
     return (
         Variant(env, "cmz", f"package defaults ({env}'s entry: {ENTRY_LABELS[env]})", "results/runs", cmz_made_by),
         cmz_confirmation(env),
@@ -499,21 +517,26 @@ def grid_entry_command(env: str, method: str) -> str:
         return walker_entry(method, "0-4", "results/runs")
     if env == "HalfCheetah-v5" and method == "dril":
         return DRIL_TRIALS5_9_COMMANDS[env]
+    if env == "WaypointNav-v0" and method in WN_PER_METHOD:
+        # PPO on the env's reward and with none were one command; the run without reward stayed in the study
+        return wn_bcupd0_command("zero,env", "0-4", "PPO on the env's reward's moved to results/runs")
     # PPO on the env's reward and with none were one command
     return entry_command(env, "env,zero" if method in ("env", "zero") else method, "0-4", "moved to results/runs")
 
 
-def entry_others(env: str, before_made_by: Callable[[str], str] | None = None) -> tuple[Variant, ...]:
+def entry_others(env: str, before_made_by: Callable[[str], str] | None = None,
+                 before_name: str = "the entry before") -> tuple[Variant, ...]:
     """DRIL and PPO on the env's reward with ``env``'s entry and with the entry before (made by
-    ``before_made_by(method)``, the grid's command by default): the entry changed them too."""
+    ``before_made_by(method)``, the grid's command by default; ``before_name``: how the rows name that entry):
+    the entry changed them too."""
     before = ENTRY_BEFORE[env][0]
-    made_before = before_made_by or (lambda method: f"{GRID_MADE_BY} with the entry before (moved here)")
+    made_before = before_made_by or (lambda method: f"{GRID_MADE_BY} with {before_name} (moved here)")
     return (
         *(Variant(env, method, f"{label}, package defaults ({env}'s entry; the published grid)", "results/runs",
                   grid_entry_command(env, method)) for method, label in ENTRY_OTHERS),
         Variant(env, "dril", "DRIL, package defaults: trials 5-9 (the confirmation)",
                 *confirmation_runs(env, "dril"), trials=CONFIRMATION_TRIALS),
-        *(Variant(env, method, f"{label}, the entry before: trials 0-4", before, made_before(method))
+        *(Variant(env, method, f"{label}, {before_name}: trials 0-4", before, made_before(method))
           for method, label in ENTRY_OTHERS),
     )
 
@@ -787,7 +810,7 @@ ABLATIONS: tuple[Variant, ...] = (
                f"{NO_WARMUP_LABEL}, 120,000 steps (`n_timesteps: 120000`, where 70,000 ship)", (1, 2), "1,2"),
     *entry_rows("Hopper-v5", entry_command("Hopper-v5", "cmz", "0-4", "moved to results/runs"),
                 f"{GRID_MADE_BY} (moved here)"),
-    bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit", before=True),
+    bc_refit_cmz("Hopper-v5", "Hopper-cmz-refit", before="the entry before"),
     Variant("Hopper-v5", "cmz", f"absorbing state (`absorbing: auto`), {WITH_SHARED}",
             "results/tuning/Hopper-absorbing",
             "sb3-cmzdril benchmark --env Hopper-v5 --methods cmz --trials 5 --timesteps 300000 --eval-every 5 "
@@ -816,7 +839,7 @@ ABLATIONS: tuple[Variant, ...] = (
                 f"{GRID_MADE_BY} (moved here)"),
     *tuning_rows("HalfCheetah-v5", f"{BCUPD0_LABEL}, with the entry (reward normalisation)", "HC-bcupd0",
                  tune_command("HC-bcupd0", BCUPD0, "HalfCheetah-v5", "T") + " --no-progress (T = 0-4, then 5-9)"),
-    bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before=True),
+    bc_refit_cmz("HalfCheetah-v5", "HC-cmz-refit", before="the entry before"),
     *averaged_rows("HalfCheetah-v5", "HC-avg75", firsts=(0,), note=AVERAGED_STOPPED),
     Variant("HalfCheetah-v5", "cmz", "u clipped at its 0.98-quantile on the demos (`cmz_clip_quantile: 0.98`), with "
             "the entry before", "results/tuning/HC-clip98", tune_command("HC-clip98", CLIP98, "HalfCheetah-v5")),
@@ -849,22 +872,24 @@ ABLATIONS: tuple[Variant, ...] = (
     *auto_tie_u("Swimmer-v5", "S-sac-auto-tie-u", " (trials 5-9 by a second such process with --trials 5-9; both "
                 "stopped for the session's time after trials 0-3 and 5-7; trials 4 and 8 by the same command with "
                 "--trials 4-4 and --trials 8-8, two processes side by side, then trial 9 by --trials 9-9)"),
-    *entry_rows("WaypointNav-v0", entry_command("WaypointNav-v0", "cmz", "0-4", "moved to results/runs"),
-                f"{GRID_MADE_BY} (moved here)", WAYPOINT_TRIALS5_9_BEFORE),
-    bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1, before=True),
-    *tuning_rows("WaypointNav-v0", f"{NORMREW_LABEL}, with the entry before", "WN-normrew",
+    *entry_rows("WaypointNav-v0", wn_bcupd0_command("cmz", "0-4", "moved to results/runs"),
+                f"{GRID_MADE_BY} (moved here)", WAYPOINT_TRIALS5_9_BEFORE, before_name=WN_FIRST),
+    *(Variant("WaypointNav-v0", "cmz", f"{WN_EPOCHS_LABEL}: trials {trials}", folder,
+              entry_command("WaypointNav-v0", "cmz", trials, moved))
+      for trials, folder, moved in (
+          ("0-4", WN_EPOCHS, "moved to results/runs, and here when the per_method block came"),
+          ("5-9", WN_EPOCHS_TRIALS5_9, f"moved to {CMZ_TRIALS5_9}, and here when the per_method block came"))),
+    bc_refit_cmz("WaypointNav-v0", "WN-cmz-refit", "sb3_cmzdril:WaypointNav-v0", eval_every=1, before=WN_FIRST),
+    *tuning_rows("WaypointNav-v0", f"{NORMREW_LABEL}, with {WN_FIRST}", "WN-normrew",
                  tune_command("WN-normrew", NORMREW, "sb3_cmzdril:WaypointNav-v0", "0-4", eval_every=1)
                  + " --no-progress (trials 5-9: the same with --trials 5-9)"),
     *averaged_rows("WaypointNav-v0", "WN-avg75", "sb3_cmzdril:WaypointNav-v0", eval_every=1),
-    *tuning_rows("WaypointNav-v0", f"{BCUPD0_LABEL}, with the entry (u unclipped)", "WN-bcupd0", WN_BCUPD0_CMZ),
     *trial_set_rows("WaypointNav-v0", f"DRIL, {BCUPD0_LABEL}, with the entry (u unclipped)", "results/tuning/WN-bcupd0",
                     WN_BCUPD0_DRIL, method="dril"),
-    *(Variant("WaypointNav-v0", method, f"{label}, {BCUPD0_LABEL}, with the entry (u unclipped): trials 0-4",
-              "results/tuning/WN-bcupd0", tune_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", "0-4", methods="zero,env")
-              + " --no-progress",
-              trials=(0, 1, 2, 3, 4))
-      for method, label in (("zero", "PPO with no reward"), ("env", "PPO on the env's reward"))),
-    Variant("WaypointNav-v0", "cmz", f"{PPO_TERMINAL_LABEL}, with the entry before", "results/tuning/WN-abs-terminal",
+    Variant("WaypointNav-v0", "zero", f"PPO with no reward, {BCUPD0_LABEL}, with the entry (u unclipped): trials 0-4",
+            "results/tuning/WN-bcupd0", wn_bcupd0_command("zero,env", "0-4", "PPO on the env's reward's moved to "
+                                                          "results/runs"), trials=(0, 1, 2, 3, 4)),
+    Variant("WaypointNav-v0", "cmz", f"{PPO_TERMINAL_LABEL}, with {WN_FIRST}", "results/tuning/WN-abs-terminal",
             tune_command("WN-abs-terminal", PPO_TERMINAL, "WaypointNav-v0") + " --no-progress"),
     Variant("WaypointNav-v0", "cmz", SAC_AUTO_LABEL, "results/offpolicy/WN-sac-64-clip98-auto",
             offpolicy_command("WN-sac-64-clip98-auto", "WaypointNav-v0", CLIP_AUTO)),
@@ -872,9 +897,12 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("WN-sac-64-clip98-abs-terminal", "WaypointNav-v0", CLIP_TERMINAL)),
     *tuning_and_confirmation(SAC_UNCLIPPED_LABEL, "WN-sac-64-clip98-abs-terminal-unclipped", CLIP_TERMINAL_UNCLIPPED,
                              "WaypointNav-v0"),
-    *entry_others("WaypointNav-v0"),
-    Variant("WaypointNav-v0", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["WaypointNav-v0"][1],
+    *entry_others("WaypointNav-v0", before_name=WN_FIRST),
+    Variant("WaypointNav-v0", "dril", f"DRIL, {WN_FIRST}: trials 5-9", ENTRY_BEFORE["WaypointNav-v0"][1],
             WAYPOINT_TRIALS5_9_BEFORE, trials=CONFIRMATION_TRIALS),
+    Variant("WaypointNav-v0", "env", f"PPO on the env's reward, {WN_EPOCHS_LABEL}: trials 0-4", WN_EPOCHS,
+            entry_command("WaypointNav-v0", "env,zero", "0-4", "moved to results/runs, and here when the per_method "
+                          "block came")),
     Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations (benchmarks/studies/outside_env.py)",
             OUTSIDE, OUTSIDE_MADE_BY),
     cmz_confirmation("LunarLander-v3"),

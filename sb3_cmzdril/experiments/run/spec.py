@@ -185,7 +185,11 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
     """
     from sb3_cmzdril.hyperparams import load_hyperparams
 
-    hp = load_hyperparams(Path(path), env_id)
+    hp = load_hyperparams(Path(path), env_id, method)
+    unknown_methods = [name for name in hp.per_method_names if name not in METHODS]
+    if unknown_methods:
+        raise UserError(f"hyperparameters {hp.key!r} in {path}: per_method names unknown methods "
+                        f"{unknown_methods}; choose from {', '.join(METHODS)}")
     hp.check_supported(
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
