@@ -74,7 +74,8 @@ WN_FIRST = "the first entry"
 ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}",
                 "HalfCheetah-v5": "reward normalisation",
                 "WaypointNav-v0": f"u on the ensemble members' actions unclipped; {WN_PER_METHOD_LABEL}",
-                "Hopper-v5": f"absorbing state (`absorbing: auto`), {BCUPD0_LABEL}"}
+                "Hopper-v5": f"absorbing state (`absorbing: auto`), {BCUPD0_LABEL}; PPO on the env's reward with "
+                             "the epochs (`per_method: {env: {bc_epochs_per_update: 1}}`)"}
 BEFORE_LABELS = {"Walker2d-v5": "absorbing state + reward normalisation, one NLL epoch after each PPO update",
                  "HalfCheetah-v5": "no reward normalisation",
                  "WaypointNav-v0": "u on the members' actions clipped to the action bounds",
@@ -99,6 +100,13 @@ def variant_command(name: str, sets: str, env: str, methods: str, trials: str, m
 def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
     """The command behind ``env``'s runs of ``methods`` on ``trials`` with its entry, and where they ``moved``."""
     return variant_command(*ENTRY_VARIANTS[env], env, methods, trials, moved)
+
+
+#: Hopper-v5's PPO on the env's reward with the NLL epochs (its entry's per_method block), and the folder its runs
+#: without them moved to
+HOPPER_ENV_EPOCHS = variant_command("H-env-epochs", "--set bc_epochs_per_update=1", "Hopper-v5", "env", "0-4",
+                                    "{moved}")
+HOPPER_ENV_NOEPOCHS = "results/tuning/H-env-noepochs"
 
 
 def wn_bcupd0_command(methods: str, trials: str, moved: str) -> str:
@@ -517,6 +525,8 @@ def grid_entry_command(env: str, method: str) -> str:
         return walker_entry(method, "0-4", "results/runs")
     if env == "HalfCheetah-v5" and method == "dril":
         return DRIL_TRIALS5_9_COMMANDS[env]
+    if env == "Hopper-v5" and method == "env":
+        return HOPPER_ENV_EPOCHS.format(moved="moved to results/runs")
     if env == "WaypointNav-v0" and method in WN_PER_METHOD:
         # PPO on the env's reward and with none were one command; the run without reward stayed in the study
         return wn_bcupd0_command("zero,env", "0-4", "PPO on the env's reward's moved to results/runs")
@@ -762,6 +772,10 @@ ABLATIONS: tuple[Variant, ...] = (
     *tuning_rows("Walker2d-v5", "the NLL epochs between PPO updates with a step size falling linearly from 1e-3 to 0 "
                  "(`bc_epochs_per_update: 1`, `bc_learning_rate: lin_1e-3`), on the entry", "W-bclin",
                  tune_command("W-bclin", FADING_ANCHOR, "Walker2d-v5", "0-4") + " --no-progress", firsts=(0,)),
+    *tuning_rows("Walker2d-v5", "ensemble members of 512x512 units, as DRIL's code (`ensemble_hidden: [512, 512]`), "
+                 "on the entry", "W-ens512",
+                 tune_command("W-ens512", "--set 'ensemble_hidden=[512, 512]'", "Walker2d-v5", "0-4")
+                 + " --no-progress", firsts=(0,)),
     *tuning_rows("Walker2d-v5", "the log-std held in the NLL epochs between PPO updates (`bc_update_std: false`), "
                  "with the entry before", "W-bcstd-held",
                  tune_command("W-bcstd-held", "--set bc_update_std=false", "Walker2d-v5", "0-4") + " --no-progress",
@@ -857,6 +871,10 @@ ABLATIONS: tuple[Variant, ...] = (
     Variant("HalfCheetah-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["HalfCheetah-v5"][1],
             f"{DRIL_TRIALS5_9_GRID} (moved here)", trials=CONFIRMATION_TRIALS),
     *entry_others("Hopper-v5"),
+    Variant("Hopper-v5", "env", "PPO on the env's reward, the entry before its `per_method` block (no NLL epochs for "
+            "every PPO method): trials 0-4", HOPPER_ENV_NOEPOCHS,
+            entry_command("Hopper-v5", "env,zero", "0-4", "moved to results/runs, and here when the per_method block "
+                          "came")),
     Variant("Hopper-v5", "dril", "DRIL, the entry before: trials 5-9", ENTRY_BEFORE["Hopper-v5"][1],
             f"{dril_trials5_9_grid('Hopper-v5')} (moved here)", trials=CONFIRMATION_TRIALS),
     Variant("Swimmer-v5", "cmz", "package defaults (the published grid)", "results/runs", GRID_MADE_BY),
