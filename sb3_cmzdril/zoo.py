@@ -7,8 +7,9 @@ registration: ``rl_zoo3.ALGOS["cmzdril"]``.
 
 The class the zoo builds is :class:`ZooCMZDRIL`, a :class:`~sb3_cmzdril.CMZDRIL` that also takes
 what a zoo YAML holds besides constructor arguments: ``n_demos`` (train on the first ``n_demos``
-episodes of the demonstrations) and no ``demonstrations`` at all (the shipped pool
-``experts/<EnvId>/demos.npz``, looked up in the working directory, then among the shipped pools).
+episodes of the demonstrations), no ``demonstrations`` at all (the shipped pool
+``experts/<EnvId>/demos.npz``, looked up in the working directory, then among the shipped pools) and an
+entry's ``per_method`` block, whose ``cmz`` settings it takes (the zoo trains CMZ-DRIL).
 Its saved models load with ``CMZDRIL.load`` as well. Needs the ``zoo`` extra.
 """
 from __future__ import annotations
@@ -25,8 +26,11 @@ from sb3_cmzdril.algorithm import CMZDRIL, DemosLike
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.extras import require_extra
+from sb3_cmzdril.hyperparams import PER_METHOD_KEY, SPECIAL_KEYS, resolve_per_method, split_hyperparams
 
 ALGO = "cmzdril"
+#: The method of a grid the zoo's CMZDRIL is: whose settings it takes from an entry's ``per_method`` block.
+METHOD = "cmz"
 #: Where ``collect-demos`` puts an env's demo pool, relative to the working directory.
 DEMOS_DIR = Path("experts")
 #: rl-zoo3 modules that hold an ``ALGOS`` table (all the same dict in rl-zoo3 2.x, but updated one
@@ -61,6 +65,20 @@ def default_demos_path(env: Any) -> Path:
     return path
 
 
+def method_settings(per_method: Any) -> dict[str, Any]:
+    """The constructor arguments an entry's ``per_method`` block gives CMZ-DRIL (:data:`METHOD`), with the
+    schedules and expressions read as the zoo reads the entry's own. A key the zoo handles itself
+    (``normalize``, ``n_envs``, ``policy_kwargs``...) is refused: the zoo has used the entry's already."""
+    if per_method is None:
+        return {}
+    where = f"hyperparameters, {PER_METHOD_KEY}"
+    settings, _ = resolve_per_method({PER_METHOD_KEY: per_method}, METHOD, where)
+    special = [key for key in SPECIAL_KEYS if key in settings]
+    if special:
+        raise UserError(f"{where}.{METHOD} sets {special}, which the zoo reads only at the entry's top level")
+    return split_hyperparams(settings, key=f"{PER_METHOD_KEY}.{METHOD}").algo_kwargs
+
+
 def first_episodes(demos: Demonstrations, n_demos: int | None) -> Demonstrations:
     """The first ``n_demos`` episodes (all of them for None)."""
     if n_demos is None:
@@ -85,8 +103,10 @@ class ZooCMZDRIL(CMZDRIL):
         env: Any,
         demonstrations: DemosLike = None,
         n_demos: int | None = None,
+        per_method: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
+        kwargs.update(method_settings(per_method))
         # load() builds the object with _init_setup_model=False and then restores the saved demos.
         if kwargs.get("_init_setup_model", True):
             if demonstrations is None:
@@ -106,10 +126,13 @@ class ZooCMZDRIL(CMZDRIL):
         force_reset: bool = True,
         demonstrations: DemosLike = None,
         n_demos: int | None = None,
+        per_method: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> ZooCMZDRIL:
         """CMZDRIL's load; the zoo's ``-i agent.zip`` passes the YAML's keys, so ``n_demos`` applies to
-        ``demonstrations`` when those are given (otherwise the saved demos are kept)."""
+        ``demonstrations`` when those are given (otherwise the saved demos are kept), and ``per_method``'s
+        ``cmz`` settings to the loaded model as the entry's own do."""
+        kwargs.update(method_settings(per_method))
         if demonstrations is not None:
             demonstrations = first_episodes(as_demonstrations(demonstrations), n_demos)
         return super().load(

@@ -12,7 +12,8 @@ import yaml
 from helpers import TINY, zoo_hyperparams
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.hyperparams import default_hyperparams_path
+from sb3_cmzdril.errors import UserError
+from sb3_cmzdril.hyperparams import default_hyperparams_path, load_hyperparams
 
 rl_zoo3 = pytest.importorskip("rl_zoo3", reason="rl-zoo3 is in the 'zoo' and 'test' extras")
 from rl_zoo3.exp_manager import ExperimentManager  # noqa: E402  (needs the importorskip above)
@@ -64,7 +65,19 @@ def test_the_shipped_yaml_builds_the_model_in_the_zoo(env_id):
     pool = Demonstrations.load(REPO / "experts" / env_id / "demos.npz")
     assert model.demonstrations.n_episodes == kwargs["n_demos"] < pool.n_episodes
     assert np.array_equal(model.demonstrations.observations, pool.select(range(kwargs["n_demos"])).observations)
+    # the entry's per_method block gives CMZ-DRIL its own settings (the grid's "cmz" method), and no other's
+    method = load_hyperparams(default_hyperparams_path("cmzdril"), env_id, "cmz").algo_kwargs
+    assert model.bc_epochs_per_update == method["bc_epochs_per_update"]
     env.close()
+
+
+def test_a_per_method_block_gives_the_zoo_cmzdril_its_cmz_settings_and_refuses_a_zoo_key():
+    assert zoo.method_settings(None) == {}
+    assert zoo.method_settings({"env": {"gamma": 0.9}}) == {}
+    settings = zoo.method_settings({"cmz": {"bc_epochs_per_update": 0, "learning_rate": "lin_3e-4"}})
+    assert settings["bc_epochs_per_update"] == 0 and settings["learning_rate"](0.5) == pytest.approx(1.5e-4)
+    with pytest.raises(UserError, match=r"per_method.cmz sets \['n_envs'\]"):
+        zoo.method_settings({"cmz": {"n_envs": 4}})
 
 
 @pytest.mark.slow
