@@ -71,7 +71,13 @@ WN_EPOCHS_LABEL = ("the entry before its `per_method` block (u unclipped, one NL
                    "every method)")
 #: how WaypointNav-v0's rows name its first entry (u clipped), whose runs are ENTRY_BEFORE's
 WN_FIRST = "the first entry"
-ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}",
+#: Walker2d-v5's per_method block: CMZ-DRIL's u clipped at its 0.98-quantile on the demos, made by tune.py W-abs-clip98;
+#: the runs of the entry before it (its CMZ-DRIL unclipped) moved to W_NOCLIP
+W_CLIP_LABEL = "CMZ-DRIL's u clipped at its 0.98-quantile on the demos (`per_method: {cmz: {cmz_clip_quantile: 0.98}}`)"
+W_NOCLIP, W_NOCLIP_TRIALS5_9 = "results/tuning/W-no-clip98", "results/tuning/W-no-clip98-trials5-9"
+#: how Walker2d-v5's rows name the entry before its per_method block
+W_BEFORE_CLIP = "the entry before its `per_method` block (CMZ-DRIL's u not clipped)"
+ENTRY_LABELS = {"Walker2d-v5": f"absorbing state + reward normalisation, {BCUPD0_LABEL}; {W_CLIP_LABEL}",
                 "HalfCheetah-v5": "reward normalisation",
                 "WaypointNav-v0": f"u on the ensemble members' actions unclipped; {WN_PER_METHOD_LABEL}",
                 "Hopper-v5": f"absorbing state (`absorbing: auto`), {BCUPD0_LABEL}; PPO on the env's reward with "
@@ -113,6 +119,11 @@ def wn_bcupd0_command(methods: str, trials: str, moved: str) -> str:
     """The study (WN-bcupd0: no NLL epochs between PPO updates) behind WaypointNav-v0's grid runs of the methods
     its per_method block names (:data:`WN_PER_METHOD`), and where they ``moved``."""
     return variant_command("WN-bcupd0", BCUPD0, "WaypointNav-v0", methods, trials, moved)
+
+
+def walker_clip_command(trials: str, moved: str) -> str:
+    """The study behind Walker2d-v5's CMZ-DRIL runs with its entry's per_method block, and where they ``moved``."""
+    return variant_command("W-abs-clip98", "--set cmz_clip_quantile=0.98", "Walker2d-v5", "cmz", trials, moved)
 
 
 def walker_entry(methods: str, trials: str, moved_to: str) -> str:
@@ -159,6 +170,7 @@ CMZ_TRIALS5_9_COMMANDS = {
     "Hopper-v5": CMZ_TRIALS5_9_GRID,
     **{env: entry_command(env, "cmz", "5-9", f"moved to {CMZ_TRIALS5_9}") for env in ENTRY_VARIANTS},
     "WaypointNav-v0": wn_bcupd0_command("cmz,dril", "5-9", f"CMZ-DRIL's moved to {CMZ_TRIALS5_9}"),
+    "Walker2d-v5": walker_clip_command("5-9", f"moved to {CMZ_TRIALS5_9}"),
     "Swimmer-v5": ("sb3-cmzdril benchmark --env Swimmer-v5 --methods cmz --trials 5-9 --timesteps 300000 "
                    "--eval-every 5 --workers 2 --no-progress --hyperparams hyperparams/cmzdril.yml "
                    f"-o {CMZ_TRIALS5_9}"),
@@ -730,9 +742,14 @@ MOUNTAIN_ROWS: tuple[Variant, ...] = (
 
 #: The variants, reference first per env. Add a variant by adding a line.
 ABLATIONS: tuple[Variant, ...] = (
-    *entry_rows("Walker2d-v5", walker_entry("cmz", "0-4", "results/runs"),
+    *entry_rows("Walker2d-v5", walker_clip_command("0-4", "moved to results/runs"),
                 walker_before("cmz", "0-4") + "; trials 0-1 at commit a3f38d8, when `absorbing: auto` was the "
-                "default, without its --set", walker_before("cmz", "5-9", CMZ_TRIALS5_9)),
+                "default, without its --set", walker_before("cmz", "5-9", CMZ_TRIALS5_9),
+                before_name="the entry before its NLL epochs were left out"),
+    Variant("Walker2d-v5", "cmz", f"{W_BEFORE_CLIP}: trials 0-4", W_NOCLIP,
+            walker_entry("cmz", "0-4", "results/runs, and here when the per_method block came")),
+    Variant("Walker2d-v5", "cmz", f"{W_BEFORE_CLIP}: trials 5-9", W_NOCLIP_TRIALS5_9,
+            walker_entry("cmz", "5-9", f"{CMZ_TRIALS5_9}, and here when the per_method block came")),
     Variant("Walker2d-v5", "cmz", f"{WALKER_FIRST_LABEL}: trials 0-4", WALKER_FIRST,
             tune_command("W-no-absorbing", "--set absorbing=false", "Walker2d-v5")
             + " (moved to results/runs, and back here when the entry changed)"),
@@ -770,10 +787,10 @@ ABLATIONS: tuple[Variant, ...] = (
             "python benchmarks/studies/tune.py W-3m-8env --set n_envs=8 --set n_steps=256 -- --env Walker2d-v5 "
             "--methods env --trials 0-1 --timesteps 3000000 --eval-every 20 --workers 2 --no-progress"),
     *tuning_rows("Walker2d-v5", "the NLL epochs between PPO updates with a step size falling linearly from 1e-3 to 0 "
-                 "(`bc_epochs_per_update: 1`, `bc_learning_rate: lin_1e-3`), on the entry", "W-bclin",
+                 "(`bc_epochs_per_update: 1`, `bc_learning_rate: lin_1e-3`), on " + W_BEFORE_CLIP, "W-bclin",
                  tune_command("W-bclin", FADING_ANCHOR, "Walker2d-v5", "0-4") + " --no-progress", firsts=(0,)),
     *tuning_rows("Walker2d-v5", "ensemble members of 512x512 units, as DRIL's code (`ensemble_hidden: [512, 512]`), "
-                 "on the entry", "W-ens512",
+                 "on " + W_BEFORE_CLIP, "W-ens512",
                  tune_command("W-ens512", "--set 'ensemble_hidden=[512, 512]'", "Walker2d-v5", "0-4")
                  + " --no-progress", firsts=(0,)),
     *tuning_rows("Walker2d-v5", "the log-std held in the NLL epochs between PPO updates (`bc_update_std: false`), "
