@@ -438,8 +438,8 @@ def resolve_per_method(entry: Any, method: str | None, where: str) -> tuple[Any,
     """``entry`` without its :data:`PER_METHOD_KEY` block, with ``method``'s settings from it laid over
     the rest (none for ``method=None`` or a method the block does not name), and the names the block has.
 
-    ``raw`` of the result is what a run of ``method`` used, so a run's record never carries the settings
-    of the other methods.
+    The entry returned is what a run of ``method`` uses (its :attr:`Hyperparams.raw`, which the run
+    records), so a run's record never carries the settings of the other methods.
     """
     if not isinstance(entry, dict) or PER_METHOD_KEY not in entry:
         return entry, ()

@@ -71,11 +71,11 @@ def method_settings(per_method: Any) -> dict[str, Any]:
     (``normalize``, ``n_envs``, ``policy_kwargs``...) is refused: the zoo has used the entry's already."""
     if per_method is None:
         return {}
-    where = f"hyperparameters, {PER_METHOD_KEY}"
-    settings, _ = resolve_per_method({PER_METHOD_KEY: per_method}, METHOD, where)
+    settings, _ = resolve_per_method({PER_METHOD_KEY: per_method}, METHOD, "the zoo's hyperparameters")
     special = [key for key in SPECIAL_KEYS if key in settings]
     if special:
-        raise UserError(f"{where}.{METHOD} sets {special}, which the zoo reads only at the entry's top level")
+        raise UserError(f"the zoo's hyperparameters: {PER_METHOD_KEY}.{METHOD} sets {special}, which the zoo reads "
+                        "only at the entry's top level")
     return split_hyperparams(settings, key=f"{PER_METHOD_KEY}.{METHOD}").algo_kwargs
 
 

@@ -108,10 +108,10 @@ def entry_command(env: str, methods: str, trials: str, moved: str) -> str:
     return variant_command(*ENTRY_VARIANTS[env], env, methods, trials, moved)
 
 
-#: Hopper-v5's PPO on the env's reward with the NLL epochs (its entry's per_method block), and the folder its runs
-#: without them moved to
+#: the command behind Hopper-v5's PPO on the env's reward with the NLL epochs (its entry's per_method block), and
+#: the folder its runs without them moved to
 HOPPER_ENV_EPOCHS = variant_command("H-env-epochs", "--set bc_epochs_per_update=1", "Hopper-v5", "env", "0-4",
-                                    "{moved}")
+                                    "moved to results/runs")
 HOPPER_ENV_NOEPOCHS = "results/tuning/H-env-noepochs"
 
 
@@ -538,9 +538,9 @@ def grid_entry_command(env: str, method: str) -> str:
     if env == "HalfCheetah-v5" and method == "dril":
         return DRIL_TRIALS5_9_COMMANDS[env]
     if env == "Hopper-v5" and method == "env":
-        return HOPPER_ENV_EPOCHS.format(moved="moved to results/runs")
+        return HOPPER_ENV_EPOCHS
     if env == "WaypointNav-v0" and method in WN_PER_METHOD:
-        # PPO on the env's reward and with none were one command; the run without reward stayed in the study
+        # the runs without reward stayed in the study
         return wn_bcupd0_command("zero,env", "0-4", "PPO on the env's reward's moved to results/runs")
     # PPO on the env's reward and with none were one command
     return entry_command(env, "env,zero" if method in ("env", "zero") else method, "0-4", "moved to results/runs")
