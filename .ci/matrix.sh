@@ -54,7 +54,7 @@ job() {
     # torch first and pinned, as in .ci/run (unpinned, the newest build), and pinned again beside the
     # package so that resolving its extras cannot move it.
     "${pip[@]}" "torch==$torch"
-    "${pip[@]}" -e "$repo[$extras]" "torch==$torch" "$@"
+    "${pip[@]}" -e "$repo[$extras]" -e "$repo/lab" "torch==$torch" "$@"
     "$venv/bin/python" -c 'import gymnasium, numpy, scipy, stable_baselines3, torch, yaml
 print("   ", ", ".join(f"{m.__name__} {m.__version__}" for m in (torch, stable_baselines3, gymnasium, numpy, scipy, yaml)))'
     (cd "$repo" && PATH="$venv/bin:$PATH" "$venv/bin/python" -m pytest -m "not slow" -p no:cacheprovider -q)

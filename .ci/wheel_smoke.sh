@@ -13,6 +13,9 @@ step "build the sdist, and the wheel from it"
 python3 -m pip install --quiet build
 python3 -m build --outdir "$work/dist" "$repo" > "$work/build.log" 2>&1 || { cat "$work/build.log"; exit 1; }
 wheel=$(ls "$work"/dist/sb3_cmzdril-*.whl)
+python3 -m build --wheel --outdir "$work/labdist" "$repo/lab" > "$work/build.log" 2>&1 || { cat "$work/build.log"; exit 1; }
+labwheel=$(ls "$work"/labdist/sb3_cmzdril_lab-*.whl)
+if python3 -m zipfile -l "$wheel" | grep -q cmzdril_lab; then echo "the library's wheel carries the lab"; exit 1; fi
 # The README's Python blocks, shrunk exactly as tests/test_readme.py runs them.
 python3 "$repo/tests/test_readme.py" "$work/readme" > /dev/null
 
@@ -44,6 +47,13 @@ HalfCheetah-v5:
 YAML
 sb3-cmzdril train --env HalfCheetah-v5 --reward cmz --hyperparams "$work/tiny.yml" --eval-episodes 2 --no-progress
 test -f runs/HalfCheetah-v5/cmz/trial0/done.json
+
+step "benchmark without the lab: one line, exit 2"
+rc=0; sb3-cmzdril benchmark --env HalfCheetah-v5 2> "$work/moved.txt" || rc=$?
+test "$rc" = 2 && grep -q "moved to the lab" "$work/moved.txt"
+
+step "the lab's wheel beside the library's"
+python -m pip install --quiet "${wheel}[experiments,zoo]" "$labwheel"
 
 step "benchmark (one BC trial)"
 sb3-cmzdril benchmark --env HalfCheetah-v5 --methods bc --trials 1 --hyperparams "$work/tiny.yml" --no-progress \

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 #: The logger above every module of the package.
 LIBRARY_LOGGER = "sb3_cmzdril"
@@ -40,20 +40,23 @@ class StdoutHandler(logging.Handler):
 
 
 @contextlib.contextmanager
-def show_library_messages(level: int = logging.INFO) -> Iterator[StdoutHandler]:
-    """Within the block, messages of ``level`` and above of the package's loggers go to stdout.
+def show_library_messages(level: int = logging.INFO, also: Iterable[str] = ()) -> Iterator[StdoutHandler]:
+    """Within the block, messages of ``level`` and above of the package's loggers (and of the loggers
+    named in ``also``: the packages that add commands) go to stdout.
 
-    The logger's level and handlers are restored afterwards, so a program (or test) that calls the
+    The loggers' levels and handlers are restored afterwards, so a program (or test) that calls the
     CLI's ``main`` keeps its own logging configuration.
     """
-    logger = logging.getLogger(LIBRARY_LOGGER)
+    loggers = [logging.getLogger(name) for name in dict.fromkeys((LIBRARY_LOGGER, *also))]
     handler = StdoutHandler(level)
-    previous = logger.level
-    if previous == logging.NOTSET or previous > level:
-        logger.setLevel(level)
-    logger.addHandler(handler)
+    previous = [logger.level for logger in loggers]
+    for logger, before in zip(loggers, previous, strict=True):
+        if before == logging.NOTSET or before > level:
+            logger.setLevel(level)
+        logger.addHandler(handler)
     try:
         yield handler
     finally:
-        logger.removeHandler(handler)
-        logger.setLevel(previous)
+        for logger, before in zip(loggers, previous, strict=True):
+            logger.removeHandler(handler)
+            logger.setLevel(before)

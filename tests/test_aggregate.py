@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy.stats import trim_mean
 
+from cmzdril_lab.report import aggregate as agg
+from cmzdril_lab.report.final_eval import final_table
+from cmzdril_lab.report.records import load_runs
 from helpers import write_run
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.report import aggregate as agg
-from sb3_cmzdril.experiments.report.final_eval import final_table
-from sb3_cmzdril.experiments.report.records import load_runs
 
 pytest.importorskip("rliable")
 
@@ -141,7 +141,7 @@ def test_the_same_runs_give_the_same_intervals(tmp_path):
 
 
 def test_the_report_writes_the_across_task_section_its_csv_and_figure(tmp_path):
-    from sb3_cmzdril.experiments.report.report import write_report
+    from cmzdril_lab.report.report import write_report
 
     _grid(tmp_path / "runs")
     _grid(tmp_path / "more", methods=("bc",), tasks=("Swimmer-v5",))

@@ -255,7 +255,7 @@ def test_benchmark_runs_the_trials_it_names(setup, tmp_path):
 
 
 def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun(setup, tmp_path):
-    from sb3_cmzdril.experiments.run import runs
+    from sb3_cmzdril.training import runs
 
     out = tmp_path / "run"
     spec = runs.plan_run(ENV, "bc", 0, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
@@ -496,7 +496,7 @@ def test_train_expert_keeps_an_expert_it_cannot_resume(setup, tmp_path, capsys):
 
 # -- Ctrl-C --------------------------------------------------------------------------------------------------
 def test_keyboard_interrupt_is_one_line_and_130(setup, tmp_path, capsys, monkeypatch):
-    from sb3_cmzdril.experiments.run import runs
+    from sb3_cmzdril.training import runs
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
@@ -570,7 +570,7 @@ def test_halfcheetah_settotalmass_warning_and_log_file_are_gone(tmp_path):
 
 def test_train_shows_progress_unless_told_not_to(setup, tmp_path, monkeypatch):
     """The progress display (PPO steps; pretraining where the algorithm supports it) is on by default."""
-    from sb3_cmzdril.experiments.run import runs
+    from sb3_cmzdril.training import runs
 
     seen = []
     monkeypatch.setattr(

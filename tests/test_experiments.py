@@ -18,17 +18,18 @@ import numpy as np
 import pytest
 import torch as th
 
+from cmzdril_lab import report
+from cmzdril_lab.run import grid
+from cmzdril_lab.run.grid import plan_grid, run_grid
 from helpers import ENV, POOL_EPISODES, Interrupt
 from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.run import grid, runs
-from sb3_cmzdril.experiments.run.grid import plan_grid, run_grid
-from sb3_cmzdril.experiments.run.run_folder import RunState, check_finished
-from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
-from sb3_cmzdril.experiments.run.spec import RunSpec
 from sb3_cmzdril.io import cpu_model
+from sb3_cmzdril.training import runs
+from sb3_cmzdril.training.run_folder import RunState, check_finished
+from sb3_cmzdril.training.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.training.spec import RunSpec
 
 GRID = dict(timesteps=256, n_eval_episodes=2, eval_every=1, checkpoint_every=2)
 
@@ -599,7 +600,7 @@ def test_a_published_run_folder_is_still_the_same_run():
 def test_an_env_id_with_its_module_prefix_names_the_same_run(tmp_path):
     """gymnasium's ``module:Env-v0`` is ``Env-v0`` once the module is imported: a run asked either way is the
     run in the folder; another env id, or another run's identity, still refuses."""
-    from sb3_cmzdril.experiments.run.run_folder import check_same_run
+    from sb3_cmzdril.training.run_folder import check_same_run
 
     saved = {"env_id": "WaypointNav-v0", "method": "cmz", "seed": 3}
     check_same_run(tmp_path, saved, {**saved, "env_id": "sb3_cmzdril:WaypointNav-v0"})

@@ -23,11 +23,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from cmzdril_lab.run import grid, worker
 from helpers import ENV, TINY, Interrupt, pendulum_expert
 from sb3_cmzdril import io
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.experiments.run import grid, worker
-from sb3_cmzdril.experiments.run.runs import latest_epoch, plan_run, run_experiment
+from sb3_cmzdril.training.runs import latest_epoch, plan_run, run_experiment
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and process groups")
 
@@ -403,7 +403,7 @@ def test_an_interrupted_first_segment_keeps_pretrain_csv_and_the_record_says_a_r
     """Issue 30, causes 3 and 18: pretrain.csv was written only when the first segment's learn()
     returned, so a resumed run had none; and config.json did not say that a resume reseeds (its
     train_command does not reproduce a resumed run), nor state.json with which seed."""
-    from sb3_cmzdril.experiments.run.run_folder import RESUME_NOTE
+    from sb3_cmzdril.training.run_folder import RESUME_NOTE
 
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):

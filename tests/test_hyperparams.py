@@ -211,10 +211,10 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     from stable_baselines3 import PPO, SAC
 
     from sb3_cmzdril.algorithm import CMZDRIL
-    from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
-    from sb3_cmzdril.experiments.run.spec import PAPER_METHODS
     from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
     from sb3_cmzdril.sac import CMZDRILSAC
+    from sb3_cmzdril.training.runs import load_run_hyperparams
+    from sb3_cmzdril.training.spec import PAPER_METHODS
 
     sac = default_hyperparams_path("sac")
     for key in read_hyperparams_file(sac):
@@ -299,7 +299,7 @@ def test_a_malformed_per_method_block_is_one_line_naming_it(tmp_path, block):
 
 def test_a_run_refuses_a_per_method_block_naming_an_unknown_method(tmp_path):
     from sb3_cmzdril.errors import UserError
-    from sb3_cmzdril.experiments.run.spec import load_run_hyperparams
+    from sb3_cmzdril.training.spec import load_run_hyperparams
 
     path = tmp_path / "cmzdril.yml"
     path.write_text("default:\n  gamma: 0.99\n  per_method: {cmzz: {gamma: 0.9}}\n")

@@ -1,4 +1,6 @@
-"""The package's import structure: no import circles, and no module importing from a higher layer.
+"""The import structure of the library and the lab beside it: no import circles, no module importing
+from a higher layer, and the lab (``lab/cmzdril_lab``) a block above the library that the library never
+imports (as rl-baselines3-zoo stands beside stable-baselines3).
 
 Read from the source with ``ast`` (nothing is imported), every import counts: at module level,
 inside functions (the lazy imports of optional extras) and under ``TYPE_CHECKING``. An import of a
@@ -11,7 +13,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 PACKAGE = "sb3_cmzdril"
-ROOT = Path(__file__).resolve().parent.parent / PACKAGE
+LAB = "cmzdril_lab"
+REPO = Path(__file__).resolve().parent.parent
+ROOT = REPO / PACKAGE
+LAB_ROOT = REPO / "lab" / LAB
 
 #: The layers, lowest first. A module may import from its own layer and the ones below, never from a
 #: higher one; a module belongs to the entry that names it or the package holding it (longest match).
@@ -26,17 +31,19 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("measuring and experts", {"metrics", "experts"}),
     ("environments (they register their scripted experts)", {"envs"}),
     ("the public face", {""}),
-    ("the paper's experiment", {"experiments"}),
-    ("entry points", {"cli", "zoo", "__main__"}),
+    ("one run of the command line", {"training"}),
+    ("entry points (and the deprecated paths of what moved)", {"cli", "zoo", "__main__", "experiments"}),
+    # Everything of the lab: above the whole library, which never imports it.
+    ("the lab", {LAB}),
 ]
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
+def module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-MODULES = {module_name(path): path for path in sorted(ROOT.rglob("*.py"))}
+MODULES = {module_name(path, root): path for root in (ROOT, LAB_ROOT) for path in sorted(root.rglob("*.py"))}
 
 
 def imported(module: str) -> Iterator[str]:
@@ -66,6 +73,8 @@ GRAPH = {module: sorted(set(imported(module))) for module in MODULES}
 
 
 def layer_of(module: str) -> int:
+    if module == LAB or module.startswith(LAB + "."):
+        return len(LAYERS) - 1
     relative = module[len(PACKAGE) + 1:] if module != PACKAGE else ""
     best: tuple[int, int] | None = None  # (length of the matching entry, layer)
     for index, (_, names) in enumerate(LAYERS):
@@ -75,6 +84,19 @@ def layer_of(module: str) -> int:
                     best = (len(name), index)
     assert best is not None, f"{module} is in no layer: add it to LAYERS in {Path(__file__).name}"
     return best[1]
+
+
+def test_the_library_never_imports_the_lab():
+    # Every import the library's files write, by name, whether or not the lab is installed.
+    offenders = []
+    for module, path in MODULES.items():
+        if module.startswith(PACKAGE):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                         else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+                offenders += [f"{module} imports {name}" for name in names if name.split(".")[0] == LAB]
+    assert offenders == []
+    assert f"{PACKAGE}.cli.train" in GRAPH[f"{LAB}.cli"]  # the check sees the lab's imports of the library
 
 
 def test_every_module_has_a_layer():
@@ -133,6 +155,7 @@ def test_no_import_circles():
 
 def test_the_checks_see_a_circle_and_an_upward_import():
     assert cycles({"a": ["b"], "b": ["c"], "c": ["a"], "d": ["a"]}) == [["a", "b", "c"]]
-    assert layer_of(f"{PACKAGE}.io") < layer_of(f"{PACKAGE}.algorithm") < layer_of(f"{PACKAGE}.experiments.run.grid")
+    assert layer_of(f"{PACKAGE}.io") < layer_of(f"{PACKAGE}.algorithm") < layer_of(f"{LAB}.run.grid")
+    assert layer_of(f"{PACKAGE}.cli") < layer_of(f"{LAB}.cli")
     assert f"{PACKAGE}.scoring" in GRAPH[f"{PACKAGE}.algorithm"]  # imports inside functions count too
-    assert f"{PACKAGE}.experiments.run.remote" in GRAPH[f"{PACKAGE}.experiments.run.grid"]
+    assert f"{LAB}.run.remote" in GRAPH[f"{LAB}.run.grid"]

@@ -1,4 +1,4 @@
-"""The study tables of docs/new_tasks.md (sb3_cmzdril.experiments.report.studies), paired by trial,
+"""The study tables of docs/new_tasks.md (cmzdril_lab.report.studies), paired by trial,
 and benchmarks/studies/new_tasks.py, the script that writes the page, run as a user runs it."""
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmzdril_lab.report import studies
 from helpers import write_run
-from sb3_cmzdril.experiments.report import studies
 
 REPO = Path(__file__).resolve().parent.parent
 

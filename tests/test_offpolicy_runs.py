@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmzdril_lab.run.grid import plan_grid
 from helpers import ENV, POOL_EPISODES, SHORT_EPISODES, TINY_SAC, Interrupt, zoo_yaml
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.run import spec as spec_module
-from sb3_cmzdril.experiments.run.grid import plan_grid
-from sb3_cmzdril.experiments.run.runs import plan_run, run_experiment, split_episodes
-from sb3_cmzdril.experiments.run.spec import PAPER_METHODS, train_command
 from sb3_cmzdril.sac import CMZDRILSAC
+from sb3_cmzdril.training import spec as spec_module
+from sb3_cmzdril.training.runs import plan_run, run_experiment, split_episodes
+from sb3_cmzdril.training.spec import PAPER_METHODS, train_command
 
 EPOCH = 64
 #: CMZDRILSAC's imitation options at the tests' size, and the shipped file's settings that matter here
@@ -39,7 +39,7 @@ TINY_CMZ_SAC = dict(
 def short_epochs(monkeypatch):
     """An off-policy epoch of 64 steps (the runs execute in this process, so the patch reaches them)."""
     monkeypatch.setattr(spec_module, "OFFPOLICY_EPOCH_STEPS", EPOCH)
-    from sb3_cmzdril.experiments.run import runs
+    from sb3_cmzdril.training import runs
 
     monkeypatch.setattr(runs, "OFFPOLICY_EPOCH_STEPS", EPOCH)
 
@@ -158,7 +158,7 @@ def test_cmz_sac_reads_its_own_hyperparameter_file(tiny_experiment, sac_yaml, tm
 def test_longest_tie_break_in_the_yaml_reaches_the_runs_choice_and_is_refused_where_it_cannot_apply(
     tiny_experiment, sac_yaml, tmp_path
 ):
-    from sb3_cmzdril.experiments.run.runs import resolve_run
+    from sb3_cmzdril.training.runs import resolve_run
 
     tie_yaml = tmp_path / "tie.yml"
     tie_yaml.write_text(sac_yaml.read_text().replace("n_demos: 1", "n_demos: 1\n  longest_tie_break: lowest_u"))
@@ -207,7 +207,7 @@ def test_episode_length_in_the_yaml_is_refused_before_a_file_is_written_where_it
 
 
 def test_episode_length_in_the_yaml_reaches_the_runs_choice(tiny_experiment, sac_yaml, tmp_path):
-    from sb3_cmzdril.experiments.run.runs import _longest_policy, resolve_run
+    from sb3_cmzdril.training.runs import _longest_policy, resolve_run
 
     yaml = tmp_path / "length.yml"
     yaml.write_text(sac_yaml.read_text().rstrip("\n") + "\n  episode_length: expert\n")

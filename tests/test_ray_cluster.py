@@ -19,12 +19,12 @@ from types import SimpleNamespace
 
 import pytest
 
+from cmzdril_lab import report
+from cmzdril_lab.run import remote
+from cmzdril_lab.run.grid import held_elsewhere, plan_grid, run_grid
 from helpers import ENV, POOL_EPISODES, Interrupt, pendulum_expert, record
 from helpers import TINY_PPO_YAML as TINY_YAML
-from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.run import remote
-from sb3_cmzdril.experiments.run.grid import held_elsewhere, plan_grid, run_grid
-from sb3_cmzdril.experiments.run.runs import run_experiment, train_command
+from sb3_cmzdril.training.runs import run_experiment, train_command
 
 ray = pytest.importorskip("ray")
 # Every test starts or uses a two-node Ray cluster. The "ray" group keeps every Ray test of the suite on

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cmzdril.experiments.run._ray_watchdog import descendants
+from cmzdril_lab.run._ray_watchdog import descendants
 
 pytestmark = [pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="the watchdog reads /proc (Linux)"),
               pytest.mark.xdist_group("ray")]  # one worker for every Ray test (tests/test_ray_cluster.py)
@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="
 DRIVER = textwrap.dedent(
     """
     import subprocess, sys, time
-    from sb3_cmzdril.experiments.run.grid import start_ray_watchdog, stop_ray_watchdog
+    from cmzdril_lab.run.grid import start_ray_watchdog, stop_ray_watchdog
 
     watchdog = start_ray_watchdog()
     child = subprocess.Popen(["sleep", "300"])
@@ -130,14 +130,14 @@ def test_a_killed_benchmark_leaves_no_ray_process():
     import subprocess
     import sys
 
-    from sb3_cmzdril.experiments.run._ray_watchdog import descendants
+    from cmzdril_lab.run._ray_watchdog import descendants
 
     pytest.importorskip("ray", reason="the Ray backend is in the 'ray' and 'test' extras")
     if not Path("/proc/self/stat").is_file():
         pytest.skip("the watchdog reads /proc (Linux)")
     script = (
         "import time\n"
-        "from sb3_cmzdril.experiments.run.grid import _RayBackend\n"
+        "from cmzdril_lab.run.grid import _RayBackend\n"
         "backend = _RayBackend(1, None)\n"
         "print('UP', flush=True)\n"
         "time.sleep(600)\n"

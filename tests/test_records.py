@@ -34,9 +34,9 @@ DEFAULTS_FOLDERS = ("runs", "runs_cmz_trials5-9", "runs_dril_trials5-9", "runs_s
 def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
     # A row labelled "package defaults" must come from the shipped YAML as it is now: a default that
     # changes moves the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
-    from sb3_cmzdril.experiments.run.run_folder import as_stored
-    from sb3_cmzdril.experiments.run.spec import default_hyperparams_name
     from sb3_cmzdril.hyperparams import load_hyperparams
+    from sb3_cmzdril.training.run_folder import as_stored
+    from sb3_cmzdril.training.spec import default_hyperparams_name
 
     checked, stale = 0, []
     for folder in DEFAULTS_FOLDERS:

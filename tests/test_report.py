@@ -17,17 +17,17 @@ import numpy as np
 import pytest
 from scipy.stats import bootstrap
 
-from helpers import write_run
-from sb3_cmzdril.cli import main
-from sb3_cmzdril.experiments import report
-from sb3_cmzdril.experiments.report.final_eval import (
+from cmzdril_lab import report
+from cmzdril_lab.report.final_eval import (
     expert_level_share,
     expert_percent,
     final_table,
     mean_ci,
     paired_markdown,
 )
-from sb3_cmzdril.experiments.report.records import NOT_SET, load_runs, read_final_eval, setting_differences
+from cmzdril_lab.report.records import NOT_SET, load_runs, read_final_eval, setting_differences
+from helpers import write_run
+from sb3_cmzdril.cli import main
 
 ENV = "HalfCheetah-v5"
 PNG = b"\x89PNG\r\n\x1a\n"

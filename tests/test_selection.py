@@ -12,8 +12,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from helpers import ENV
 from sb3_cmzdril import UserError
-from sb3_cmzdril.experiments.run.runs import plan_run, resolve_run, run_experiment
 from sb3_cmzdril.selection import AveragedPolicy
+from sb3_cmzdril.training.runs import plan_run, resolve_run, run_experiment
 
 N_STEPS = 32
 

@@ -17,9 +17,9 @@ import argparse
 import time
 from pathlib import Path
 
-from sb3_cmzdril.experiments.report.final_eval import final_table, find, mean_ci, paired
-from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
-from sb3_cmzdril.experiments.report.records import load_runs
+from cmzdril_lab.report.final_eval import final_table, find, mean_ci, paired
+from cmzdril_lab.report.formatting import fmt, fmt_ci, md_table
+from cmzdril_lab.report.records import load_runs
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]

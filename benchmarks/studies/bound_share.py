@@ -22,10 +22,10 @@ import argparse
 
 import gymnasium as gym
 
-from sb3_cmzdril.cli.experiment import trial_indices
+from cmzdril_lab.cli import trial_indices
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, auto_disagreement_form, share_on_bound
-from sb3_cmzdril.experiments.run.runs import check_env_id, default_demos_path, load_run_hyperparams, split_episodes
+from sb3_cmzdril.training.runs import check_env_id, default_demos_path, load_run_hyperparams, split_episodes
 
 MUJOCO_AND_GRID = "HalfCheetah-v5,Hopper-v5,Walker2d-v5,Swimmer-v5,sb3_cmzdril:WaypointNav-v0"
 

@@ -44,14 +44,14 @@ import torch
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
-from sb3_cmzdril.experiments.run.runs import (
+from sb3_cmzdril.experts.envs import env_name
+from sb3_cmzdril.spaces import Observations
+from sb3_cmzdril.training.runs import (
     check_env_id,
     default_demos_path,
     load_run_hyperparams,
     split_episodes,
 )
-from sb3_cmzdril.experts.envs import env_name
-from sb3_cmzdril.spaces import Observations
 
 #: per set of states: mean u, mean u on the members' unclipped actions (``disagreement="std_unclipped"``), true
 #: return, episode length, share of steps with u exactly 0

@@ -49,9 +49,9 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from sb3_cmzdril.experiments.run.run_folder import DONE_FILE, LONGEST_FILE
 from sb3_cmzdril.io import read_json
 from sb3_cmzdril.selection import TIE_BREAKS, LongestEpisodesPolicy, kept_check
+from sb3_cmzdril.training.run_folder import DONE_FILE, LONGEST_FILE
 
 #: The replayed rule that compares no lengths: the lowest u over every check.
 U_ALONE = "u alone"

@@ -11,7 +11,7 @@ Each variant (:data:`ABLATIONS`) is a runs folder made by ``sb3-cmzdril benchmar
 ``benchmarks/studies/tune.py``) for one env and method; the rollout tables (:data:`ROLLOUT_TABLES`)
 compare what the agent logged in training. This script holds the study's data, which folders and
 why; the tables, figures and the page's text come from
-:mod:`sb3_cmzdril.experiments.report.studies`, which says how variants are paired by trial.
+:mod:`cmzdril_lab.report.studies`, which says how variants are paired by trial.
 """
 from __future__ import annotations
 
@@ -21,8 +21,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS
-from sb3_cmzdril.experiments.report.studies import GRID, AcrossTasks, CostCurves, RolloutTable, Sweep, Variant, render
+from cmzdril_lab.report.records import METHOD_LABELS
+from cmzdril_lab.report.studies import GRID, AcrossTasks, CostCurves, RolloutTable, Sweep, Variant, render
 from sb3_cmzdril.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]

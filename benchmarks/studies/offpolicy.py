@@ -55,9 +55,14 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.monitor import Monitor
 from tune import parse_sets  # the sibling script's (its folder is on sys.path when this one runs)
 
+from cmzdril_lab.report.records import relative
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.report.records import relative
-from sb3_cmzdril.experiments.run.run_folder import (
+from sb3_cmzdril.experts import env_name
+from sb3_cmzdril.io import atomic_path, atomic_write_text, deferred_signals, read_json, write_json
+from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
+from sb3_cmzdril.sac import CMZDRILSAC
+from sb3_cmzdril.selection import LongestEpisodesPolicy
+from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
     DONE_FILE,
@@ -69,13 +74,8 @@ from sb3_cmzdril.experiments.run.run_folder import (
     RunState,
     discard_rows_after,
 )
-from sb3_cmzdril.experiments.run.runs import LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED, final_eval_rows
-from sb3_cmzdril.experiments.run.spec import plan_run, resolve_run
-from sb3_cmzdril.experts import env_name
-from sb3_cmzdril.io import atomic_path, atomic_write_text, deferred_signals, read_json, write_json
-from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
-from sb3_cmzdril.sac import CMZDRILSAC
-from sb3_cmzdril.selection import LongestEpisodesPolicy
+from sb3_cmzdril.training.runs import LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED, final_eval_rows
+from sb3_cmzdril.training.spec import plan_run, resolve_run
 
 ROOT = Path(__file__).resolve().parents[2]
 #: SB3's log_interval: a row of logs/progress_0.csv every this many episodes

@@ -31,7 +31,7 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
    registered as the scripted expert ``lunar-heuristic``): ``--pool-episodes`` deterministic episodes,
    episode ``i`` reset with seed ``--pool-seed + i``; provenance in the NAME.json beside it. An
    existing pool is kept if it is the one asked for (same expert, episodes and seeds);
-2. runs the package's trial grid (:func:`sb3_cmzdril.experiments.run.grid.benchmark`) for ``bc``, ``cmz``,
+2. runs the package's trial grid (:func:`cmzdril_lab.run.grid.benchmark`) for ``bc``, ``cmz``,
    ``zero``, ``dril`` and ``env`` (the RL ceiling: PPO on the env's reward) x trials 0..T-1 with the
    hyperparameters of ``benchmarks/studies/outside_env.yml`` (CMZDRIL's constructor defaults, PPO's
    defaults): trial t trains on ``--n-demos`` pool episodes drawn with
@@ -39,7 +39,7 @@ What it does, into OUTPUT (default results/outside_env), resumable at every step
    are skipped, interrupted ones continue from their checkpoints. Each run ends with the final
    evaluation: every pool episode it did not train on, replayed from its reset seed (final_eval.csv);
 3. writes ``OUTPUT/results.md`` and ``OUTPUT/results.csv`` with the report's own tables
-   (:mod:`sb3_cmzdril.experiments.report.final_eval`): per method, the mean over trials of the final
+   (:mod:`cmzdril_lab.report.final_eval`): per method, the mean over trials of the final
    evaluation (return, Fréchet distance, action MSE) with a 95% bootstrap confidence interval, also
    for the reward-free lowest-disagreement policy; trial by trial, each RL method against BC and
    against no reward; the share of episodes with return >= 200 (gymnasium's "solved"
@@ -58,7 +58,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_cmzdril.experiments.run.spec import METHODS  # the grid's methods, the env's reward included
+from sb3_cmzdril.training.spec import METHODS  # the grid's methods, the env's reward included
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "LunarLander-v3"
@@ -102,7 +102,7 @@ def register_expert() -> None:
 
 def env_kwargs() -> dict[str, Any]:
     """The env's kwargs from benchmarks/studies/outside_env.yml: the pool and the runs use the same ones."""
-    from sb3_cmzdril.experiments.run.runs import load_run_hyperparams
+    from sb3_cmzdril.training.runs import load_run_hyperparams
 
     hp, _ = load_run_hyperparams(HYPERPARAMS, ENV_ID)
     return dict(hp.env_kwargs or {})
@@ -111,8 +111,8 @@ def env_kwargs() -> dict[str, Any]:
 # -- 1. the demo pool ---------------------------------------------------------------------------------
 def record_pool(output: Path, n_episodes: int, seed: int) -> Path:
     """The pool ``OUTPUT/LunarLander-v3/demos.npz``: recorded, or kept if it is the one asked for."""
-    from sb3_cmzdril.experiments.run.runs import default_demos_path
     from sb3_cmzdril.experts import collect_demos, load_demonstrations
+    from sb3_cmzdril.training.runs import default_demos_path
 
     path = default_demos_path(ENV_ID, output)
     if not path.is_file():
@@ -155,7 +155,7 @@ def _box2d_version() -> str:
 # -- 3. the results -----------------------------------------------------------------------------------
 def finished_runs(output: Path) -> list:
     """The finished runs (done.json) of :data:`METHODS` on the env below ``output``, as the report reads them."""
-    from sb3_cmzdril.experiments.report.records import load_runs
+    from cmzdril_lab.report.records import load_runs
     from sb3_cmzdril.experts import env_name
 
     if not (output / env_name(ENV_ID)).is_dir():
@@ -166,8 +166,8 @@ def finished_runs(output: Path) -> list:
 def solved_markdown(rows: Sequence) -> str:
     """Per method (final policies) and for the expert on the same episodes: the share of held-out
     episodes with return >= :data:`SOLVED_RETURN`, mean [CI] over trials."""
-    from sb3_cmzdril.experiments.report.final_eval import mean_ci
-    from sb3_cmzdril.experiments.report.formatting import fmt_ci, md_table
+    from cmzdril_lab.report.final_eval import mean_ci
+    from cmzdril_lab.report.formatting import fmt_ci, md_table
 
     def share(returns) -> float:
         return 100.0 * float(np.mean(np.asarray(returns) >= SOLVED_RETURN))
@@ -186,7 +186,7 @@ def solved_markdown(rows: Sequence) -> str:
 
 def runs_markdown(records: Sequence, output: Path) -> str:
     """One line per run: its steps, wall time and final evaluation (the numbers behind the tables)."""
-    from sb3_cmzdril.experiments.report.formatting import fmt, md_table
+    from cmzdril_lab.report.formatting import fmt, md_table
 
     body = []
     for r in records:
@@ -201,16 +201,16 @@ def runs_markdown(records: Sequence, output: Path) -> str:
 
 def render_results(output: Path, pool_path: Path, command: str) -> tuple[str, str]:
     """(results.md, results.csv) from the finished runs below ``output`` and the demo pool."""
-    from sb3_cmzdril.experiments.report.final_eval import (
+    from cmzdril_lab.report.final_eval import (
         final_csv,
         final_markdown,
         final_table,
         method_text,
         paired_markdown,
     )
-    from sb3_cmzdril.experiments.report.formatting import fmt, fmt_mean_std, md_table
-    from sb3_cmzdril.experiments.report.records import label, relative
-    from sb3_cmzdril.experiments.report.tables import table_one
+    from cmzdril_lab.report.formatting import fmt, fmt_mean_std, md_table
+    from cmzdril_lab.report.records import label, relative
+    from cmzdril_lab.report.tables import table_one
     from sb3_cmzdril.experts import load_demonstrations
 
     records = finished_runs(output)
@@ -288,7 +288,7 @@ def write_results(output: Path, pool_path: Path, command: str) -> Path:
 
 # -- the command ----------------------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    from sb3_cmzdril.experiments.run.grid import parse_list
+    from cmzdril_lab.run.grid import parse_list
     from sb3_cmzdril.experts import command_line
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -322,7 +322,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     pool_path = record_pool(output, args.pool_episodes, args.pool_seed)
     status = 0
     if not args.report_only:
-        from sb3_cmzdril.experiments.run.grid import benchmark, summarize_outcomes
+        from cmzdril_lab.run.grid import benchmark, summarize_outcomes
 
         outcomes = benchmark(
             ENV_ID, args.methods, args.trials, output, workers=args.workers, command=command,

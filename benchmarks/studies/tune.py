@@ -21,9 +21,9 @@ from typing import Any
 
 import yaml
 
-from sb3_cmzdril.experiments.run.spec import is_off_policy
 from sb3_cmzdril.hyperparams import PER_METHOD_KEY
 from sb3_cmzdril.io import atomic_write_text
+from sb3_cmzdril.training.spec import is_off_policy
 
 ROOT = Path(__file__).resolve().parents[2]
 

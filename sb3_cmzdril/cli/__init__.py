@@ -5,9 +5,12 @@ and a ``_run_<command>`` function that only translates arguments into calls of t
 lives in the library's modules:
 
 - :mod:`~sb3_cmzdril.cli.experts`: ``train-expert``, ``collect-demos``
-- :mod:`~sb3_cmzdril.cli.experiment`: ``train``, ``benchmark``
+- :mod:`~sb3_cmzdril.cli.train`: ``train``
 - :mod:`~sb3_cmzdril.cli.evaluate`: ``evaluate``
-- :mod:`~sb3_cmzdril.cli.report`: ``report``
+
+``benchmark`` and ``report`` belong to the lab beside the library (``lab/`` in the repository, the
+package ``sb3-cmzdril-lab``); it adds them here through the entry point group
+:data:`PLUGIN_GROUP`, and without it they answer with one line saying where they went.
 
 Here: the parser of all commands and :func:`main`, the console script ``sb3-cmzdril`` (also
 ``python -m sb3_cmzdril``), which turns a user's error into one line and an exit code.
@@ -19,28 +22,72 @@ import contextlib
 import signal
 import sys
 from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
 
 from sb3_cmzdril.cli.evaluate import add_evaluate
-from sb3_cmzdril.cli.experiment import add_benchmark, add_train
 from sb3_cmzdril.cli.experts import add_collect_demos, add_train_expert
-from sb3_cmzdril.cli.report import add_report
+from sb3_cmzdril.cli.train import add_train
 from sb3_cmzdril.errors import UserError
 
-#: The commands, in the order ``--help`` lists them.
-_COMMANDS = (add_train_expert, add_collect_demos, add_train, add_evaluate, add_benchmark, add_report)
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    AddCommand = Callable[[Any], None]
+
+#: The library's commands, in the order ``--help`` lists them.
+_COMMANDS: tuple[AddCommand, ...] = (add_train_expert, add_collect_demos, add_train, add_evaluate)
+#: Entry point group through which another package adds commands (each entry: a function that adds its
+#: subparser, as the ``add_<command>`` functions here do).
+PLUGIN_GROUP = "sb3_cmzdril.commands"
+#: Commands that lived in this package until 0.2.0 and now come from the lab, with where to get it.
+MOVED_TO_LAB = {
+    "benchmark": "the trial grid",
+    "report": "results.md, its tables and figures from runs folders",
+}
+LAB_INSTALL = "pip install -e lab/ in a clone of the sb3-cmzdril repository (the package sb3-cmzdril-lab)"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``sb3-cmzdril`` parser, one subcommand each of :data:`_COMMANDS`."""
+def _plugin_commands() -> dict[str, AddCommand]:
+    """The ``add_<command>`` functions that installed packages register under :data:`PLUGIN_GROUP`."""
+    from importlib.metadata import entry_points
+
+    return {entry.name: entry.load() for entry in entry_points(group=PLUGIN_GROUP)}
+
+
+def _moved(name: str, what: str) -> AddCommand:
+    """A stand-in for a command of the lab that is not installed: any arguments, one line, exit 2."""
+
+    def add(sub) -> None:
+        # No options of its own (no prefix characters): whatever follows the command is taken as it is.
+        p = sub.add_parser(name, help=f"{what} (needs the lab: sb3-cmzdril-lab)", add_help=False, prefix_chars="\0")
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+
+        def run(args) -> int:
+            raise UserError(f"`{name}` moved to the lab beside the library in 0.2.0; install it: {LAB_INSTALL}")
+
+        p.set_defaults(func=run)
+
+    return add
+
+
+def build_parser(
+    prog: str = "sb3-cmzdril", commands: Sequence[AddCommand] | None = None
+) -> argparse.ArgumentParser:
+    """The ``sb3-cmzdril`` parser: the library's :data:`_COMMANDS` and those the lab adds (or their
+    stand-ins); ``commands`` gives another console script its own list."""
     parser = argparse.ArgumentParser(
-        prog="sb3-cmzdril",
+        prog=prog,
         description="CMZ-DRIL imitation learning for stable-baselines3: experts, demos, training, benchmarks.",
     )
     from sb3_cmzdril._version import __version__
 
-    parser.add_argument("--version", action="version", version=f"sb3-cmzdril {__version__}")
+    parser.add_argument("--version", action="version", version=f"{prog} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_COMMANDS):
+    if commands is None:
+        plugins = _plugin_commands()
+        moved = [plugins.pop(name, _moved(name, what)) for name, what in MOVED_TO_LAB.items()]
+        commands = (*_COMMANDS, *moved, *plugins.values())
+    for add in commands:
         add(sub)
     return parser
 
@@ -98,14 +145,17 @@ def _check_output_option(args: argparse.Namespace) -> None:
         raise UserError(f"-o/--output is empty ({output!r}); name the output explicitly (an unset variable?)")
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(
+    argv: list[str] | None = None, *, prog: str = "sb3-cmzdril", commands: Sequence[AddCommand] | None = None
+) -> int:
     """Run one command; every user error ends here as one line on stderr and exit code 2, an
-    interruption as one line and exit code 130 (Ctrl-C, SIGINT) or 143 (SIGTERM)."""
+    interruption as one line and exit code 130 (Ctrl-C, SIGINT) or 143 (SIGTERM). ``prog`` and
+    ``commands`` serve another console script (the lab's ``cmzdril-lab``)."""
     from sb3_cmzdril._mujoco_log import route_mujoco_warnings
     from sb3_cmzdril.console import show_library_messages
     from sb3_cmzdril.extras import require_extra
 
-    parser = build_parser()
+    parser = build_parser(prog, commands)
     args = parser.parse_args(argv)
     route_mujoco_warnings()
     again = "resume" if args.command in RESUMABLE else "start again"
@@ -113,17 +163,19 @@ def main(argv: list[str] | None = None) -> int:
         # Progress displays and tables are rich's: the command line is the experiments extra's tooling.
         require_extra("rich", "experiments", "the sb3-cmzdril command line")
         _check_output_option(args)
-        with _signal_handlers(), show_library_messages():  # the CLI shows the library's notes
+        # The CLI shows the library's notes, and those of the package that gave the command (the lab).
+        command_package = (args.func.__module__ or "").split(".")[0]
+        with _signal_handlers(), show_library_messages(also=(command_package,)):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"sb3-cmzdril {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)
+        print(f"{prog} {args.command}: interrupted; rerun the same command to {again}", file=sys.stderr)
         return 130
     except Terminated:
-        print(f"sb3-cmzdril {args.command}: terminated (SIGTERM); rerun the same command to {again}", file=sys.stderr)
+        print(f"{prog} {args.command}: terminated (SIGTERM); rerun the same command to {again}", file=sys.stderr)
         return 128 + signal.SIGTERM
     except USER_ERRORS as e:
-        print(f"sb3-cmzdril {args.command}: error: {_one_line(e)}", file=sys.stderr)
+        print(f"{prog} {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
 
 
-__all__ = ["RESUMABLE", "USER_ERRORS", "Terminated", "build_parser", "main"]
+__all__ = ["MOVED_TO_LAB", "PLUGIN_GROUP", "RESUMABLE", "USER_ERRORS", "Terminated", "build_parser", "main"]

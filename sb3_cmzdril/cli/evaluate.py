@@ -48,13 +48,13 @@ def add_evaluate(sub) -> None:
 def _run_evaluate(args) -> int:
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import CONFIG_FILE
-    from sb3_cmzdril.experiments.run.runs import load_evaluation_model
-    from sb3_cmzdril.experiments.run.spec import default_demos_path
     from sb3_cmzdril.experts import check_env_id, load_demonstrations
     from sb3_cmzdril.hyperparams import parse_env_kwargs
     from sb3_cmzdril.metrics import evaluate_against_expert
     from sb3_cmzdril.metrics.evaluation import make_env
+    from sb3_cmzdril.training.run_folder import CONFIG_FILE
+    from sb3_cmzdril.training.runs import load_evaluation_model
+    from sb3_cmzdril.training.spec import default_demos_path
 
     check_env_id(args.env)
     model_path = Path(args.model)
@@ -161,7 +161,7 @@ def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: 
     """
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import file_sha256
+    from sb3_cmzdril.training.run_folder import file_sha256
 
     if text:
         try:
@@ -199,7 +199,7 @@ def _evaluation_statistics(path: str | None, model_path, run_config: dict):
     """
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import VECNORMALIZE_FILE
+    from sb3_cmzdril.training.run_folder import VECNORMALIZE_FILE
 
     if path is not None:
         if not Path(path).is_file():

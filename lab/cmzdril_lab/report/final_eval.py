@@ -2,7 +2,7 @@
 
 Five evaluation episodes per epoch cannot tell methods apart on HalfCheetah (one BC policy scored 188
 on one machine and 242 on another), so each run ends with an evaluation on every pool episode not
-used for training (final_eval.csv, written by :mod:`sb3_cmzdril.experiments.run.runs`). Here:
+used for training (final_eval.csv, written by :mod:`sb3_cmzdril.training.runs`). Here:
 
 * :func:`final_table` — per env, method and policy ("final", or "lowest_u": the policy whose own
   training rollout had the lowest ensemble disagreement), the mean over trials of each run's mean
@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.report.formatting import fmt_ci, md_table
-from sb3_cmzdril.experiments.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
+from cmzdril_lab.report.formatting import fmt_ci, md_table
+from cmzdril_lab.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
 
 #: Final-evaluation metrics: (final_eval.csv column, table header).
 FINAL_METRICS: tuple[tuple[str, str], ...] = (

@@ -1,7 +1,7 @@
 """The paper's trial grid (envs x methods x trials), run by a local process pool or by Ray.
 
 Trial ``t`` draws its training and evaluation episodes from the env's demo pool with
-``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.experiments.run.spec.split_episodes`) and uses ``t``
+``numpy.random.default_rng(t)`` (:func:`~sb3_cmzdril.training.spec.split_episodes`) and uses ``t``
 as network and env seed, so every method of a trial sees the same data and starts from the same
 BC-pretrained policy (the paper: "The same training and evaluation data were used for BC, DRIL, and
 CMZ-DRIL"). Runs go to ``RUNS_DIR/<EnvName>/<method>/trial<t>/`` (layout: :mod:`.run_folder`).
@@ -46,10 +46,13 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from cmzdril_lab.run.progress import GridProgress
+from cmzdril_lab.run.worker import RunOutcome, RunStatus, execute_run, init_worker, write_error
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.run.progress import GridProgress
-from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, check_finished
-from sb3_cmzdril.experiments.run.spec import (
+from sb3_cmzdril.experts import check_env_id, env_name
+from sb3_cmzdril.io import LockHeld, PathLike, lock_output, unlock_output
+from sb3_cmzdril.training.run_folder import ERROR_FILE, check_finished
+from sb3_cmzdril.training.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     PAPER_METHODS,
@@ -61,9 +64,6 @@ from sb3_cmzdril.experiments.run.spec import (
     missing_pool_error,
     plan_run,
 )
-from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus, execute_run, init_worker, write_error
-from sb3_cmzdril.experts import check_env_id, env_name
-from sb3_cmzdril.io import LockHeld, PathLike, lock_output, unlock_output
 
 BACKENDS = ("local", "ray")
 #: One line per benchmark invocation in RUNS_DIR (command, grid, outcome): the runs' history.
@@ -269,7 +269,7 @@ class _RayBackend:
                 # Started first, so that it records Ray's processes from the moment they exist.
                 self.watchdog = start_ray_watchdog()
                 ray.init(num_cpus=workers, include_dashboard=False)
-        from sb3_cmzdril.experiments.run.remote import RemoteRuns
+        from cmzdril_lab.run.remote import RemoteRuns
 
         self.runs = RemoteRuns(ray)
 

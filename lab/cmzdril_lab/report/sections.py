@@ -2,7 +2,7 @@
 
 :func:`analyse` computes every table of one grid (a :class:`GridReport`); the ``*_sections``
 functions render them as markdown; :func:`headline_markdown` puts each grid's final evaluation and
-Table I beside a reference table (the paper's). :mod:`~sb3_cmzdril.experiments.report` assembles them.
+Table I beside a reference table (the paper's). :mod:`~cmzdril_lab.report` assembles them.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_cmzdril.experiments.report.final_eval import (
+from cmzdril_lab.report.final_eval import (
     CONFIDENCE,
     MIN_TRIALS_FOR_CI,
     FinalRow,
@@ -24,10 +24,10 @@ from sb3_cmzdril.experiments.report.final_eval import (
     paired_markdown,
     trials_text,
 )
-from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, fmt_mean_std, md_table
-from sb3_cmzdril.experiments.report.paper import PAPER_ENV_NAMES, ReferenceTable
-from sb3_cmzdril.experiments.report.readme import short_command
-from sb3_cmzdril.experiments.report.records import (
+from cmzdril_lab.report.formatting import fmt, fmt_ci, fmt_mean_std, md_table
+from cmzdril_lab.report.paper import PAPER_ENV_NAMES, ReferenceTable
+from cmzdril_lab.report.readme import short_command
+from cmzdril_lab.report.records import (
     METHOD_LABELS,
     METHOD_ORDER,
     Grid,
@@ -38,7 +38,7 @@ from sb3_cmzdril.experiments.report.records import (
     result_policy,
     setting_differences,
 )
-from sb3_cmzdril.experiments.report.tables import (
+from cmzdril_lab.report.tables import (
     METRICS,
     SIGNAL_EPOCHS,
     TableRow,
@@ -48,8 +48,8 @@ from sb3_cmzdril.experiments.report.tables import (
     reward_signal,
     table_one,
 )
-from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, STATE_FILE, run_status
 from sb3_cmzdril.io import read_json_or_empty
+from sb3_cmzdril.training.run_folder import ERROR_FILE, STATE_FILE, run_status
 
 
 @dataclasses.dataclass

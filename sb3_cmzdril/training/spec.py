@@ -7,8 +7,8 @@ checked once (hyperparameters, demo pool, split), and refuses whatever would fai
 is written, down to building the run's env and model once (:func:`make_training_env`, which the run
 itself uses too) and checking the values the constructors accept but training cannot use.
 :func:`split_episodes` is the demo split every method of a trial shares; :func:`train_command` is the
-``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.experiments.run.runs` and
-writes the files of :mod:`sb3_cmzdril.experiments.run.run_folder`.
+``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.training.runs` and
+writes the files of :mod:`sb3_cmzdril.training.run_folder`.
 """
 from __future__ import annotations
 
@@ -345,7 +345,7 @@ def plan_run(
 
 @dataclasses.dataclass(frozen=True)
 class ResolvedRun:
-    """A run with every input read and checked: what :func:`~sb3_cmzdril.experiments.run.runs.run_experiment`
+    """A run with every input read and checked: what :func:`~sb3_cmzdril.training.runs.run_experiment`
     trains and evaluates, and what its config.json records. Build it with :func:`resolve_run`."""
 
     spec: RunSpec

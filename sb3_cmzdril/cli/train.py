@@ -1,24 +1,25 @@
-"""The experiment's commands: ``train`` (one run) and ``benchmark`` (the trial grid), which share the
-options of a run (:func:`_add_run_options`)."""
+"""The ``train`` command: one run (an env, a method, a trial seed) into its run folder.
+
+Its run options (:func:`add_run_options`) and method list (:data:`METHODS_HELP`) are public: the lab's
+``benchmark`` command (``cmzdril_lab.cli``) offers the same options for a grid of runs."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from sb3_cmzdril.errors import UserError
-
 if TYPE_CHECKING:  # the CLI imports its heavy modules only when a command runs
     from sb3_cmzdril.io import PathLike
 
-_METHODS_HELP = (
+#: The methods a run can use, as the help of ``--reward`` (and the lab's ``--methods``) lists them.
+METHODS_HELP = (
     "bc (pretrained policy only), zero, env, dril or cmz (CMZDRIL, PPO), or cmz-sac (CMZ-DRIL's reward with the "
     "off-policy learner CMZDRILSAC) and its comparisons dril-sac, zero-sac and env-sac (the same learner with "
     "DRIL's reward, none, the env's)"
 )
 
 
-def _add_run_options(p, what: str) -> None:
+def add_run_options(p, what: str) -> None:
     """Options shared by train and benchmark: the data split, the evaluation and the checkpoints."""
-    from sb3_cmzdril.experiments.run.spec import (
+    from sb3_cmzdril.training.spec import (
         DEFAULT_CHECKPOINT_EVERY,
         DEFAULT_EVAL_EPISODES,
         OFFPOLICY_EPOCH_STEPS,
@@ -76,10 +77,10 @@ def add_train(sub) -> None:
         ),
     )
     p.add_argument("--env", required=True, help="environment id (anything gym.make accepts)")
-    p.add_argument("--reward", required=True, metavar="METHOD", help=_METHODS_HELP)
+    p.add_argument("--reward", required=True, metavar="METHOD", help=METHODS_HELP)
     p.add_argument("--demos", default=None, help="demo pool npz (default: experts/<EnvName>/demos.npz)")
     p.add_argument("--seed", type=int, default=0, help="trial seed: data split, networks and env (default 0)")
-    _add_run_options(p, "progress bar")
+    add_run_options(p, "progress bar")
     p.add_argument("-o", "--output", default=None, help="run folder (default: runs/<EnvName>/<method>/trial<seed>)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("-v", "--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
@@ -89,9 +90,9 @@ def add_train(sub) -> None:
 def _run_train(args) -> int:
     import torch
 
-    from sb3_cmzdril.experiments.run.runs import run_experiment
-    from sb3_cmzdril.experiments.run.spec import plan_run
     from sb3_cmzdril.experts import check_threads, command_line
+    from sb3_cmzdril.training.runs import run_experiment
+    from sb3_cmzdril.training.spec import plan_run
 
     threads = check_threads(args.threads)
     if threads is not None:
@@ -134,8 +135,8 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, m
     policy)."""
     from pathlib import Path
 
-    from sb3_cmzdril.experiments.run.run_folder import AVERAGED_MODEL, LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
-    from sb3_cmzdril.experiments.run.spec import result_policy
+    from sb3_cmzdril.training.run_folder import AVERAGED_MODEL, LONGEST_MODEL, LOWEST_U_MODEL, MODEL_FILE
+    from sb3_cmzdril.training.spec import result_policy
 
     files = {
         "final": ("final policy", MODEL_FILE),
@@ -161,92 +162,4 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, m
     return lines
 
 
-def add_benchmark(sub) -> None:
-    p = sub.add_parser(
-        "benchmark",
-        help="the paper's trial grid (envs x methods x trials) on local processes or Ray; resumable",
-        description=(
-            "Run every method on every env for --trials trials. Trial t splits the env's demo pool "
-            "(DEMOS_DIR/<EnvName>/demos.npz) with numpy default_rng(t) into --n-demos training and "
-            "--eval-episodes evaluation episodes and uses t as network/env seed: all methods of a trial "
-            "share data and seeds. Runs go to OUTPUT/<EnvName>/<method>/trial<t>/ (see `train`), --workers "
-            "at a time, one torch thread each. Running the command again skips finished runs and continues "
-            "interrupted ones from their checkpoints; a failed run leaves error.txt and the others go on."
-        ),
-    )
-    p.add_argument("--env", required=True, help="environment id(s), comma-separated")
-    from sb3_cmzdril.experiments.run.spec import PAPER_METHODS
-
-    p.add_argument(
-        "--methods",
-        default=",".join(PAPER_METHODS),
-        help=f"comma-separated, from: {_METHODS_HELP} (default: the paper's {','.join(PAPER_METHODS)})",
-    )
-    p.add_argument(
-        "--sac-hyperparams",
-        default=None,
-        help="zoo-format YAML of the cmz-sac runs (default: the shipped hyperparams/cmzdril_sac.yml)",
-    )
-    p.add_argument(
-        "--trials",
-        default="5",
-        help="a count T (trials 0..T-1; default 5, as the paper), or trial indices and ranges: 5-9, 0,3,7",
-    )
-    p.add_argument("--workers", type=int, default=1, help="runs at a time (default 1)")
-    _add_run_options(p, "progress display")
-    p.add_argument("--demos-dir", default="experts", help="folder holding <EnvName>/demos.npz (default: experts)")
-    p.add_argument("--backend", default="local", help="local (process pool, default) or ray")
-    p.add_argument("--ray-address", default=None, help="Ray cluster address for ray.init (default: start a local Ray)")
-    p.add_argument("-o", "--output", default="runs", help="runs folder (default: runs)")
-    p.set_defaults(func=_run_benchmark)
-
-
-def trial_indices(text: str) -> int | list[int]:
-    """``--trials``: a count T (trials 0..T-1), or indices and ranges (``5-9``, ``0,3,7``, ``0-2,7``),
-    so that a study's confirmation trials run apart from its tuning trials."""
-    text = text.strip()
-    if text.isdigit():
-        return int(text)
-    indices: list[int] = []
-    for part in text.split(","):
-        first, dash, last = (s.strip() for s in part.partition("-"))
-        if not first.isdigit() or (dash and not last.isdigit()):
-            raise UserError(f"--trials {text!r}: write a count (5), a range (5-9) or trial indices (0,3,7)")
-        start, stop = int(first), int(last if dash else first)
-        if stop < start:
-            raise UserError(f"--trials {text!r}: the range {part.strip()} runs backwards")
-        indices.extend(range(start, stop + 1))
-    if len(set(indices)) != len(indices):
-        raise UserError(f"--trials {text!r} names a trial twice")
-    return indices
-
-
-def _run_benchmark(args) -> int:
-    from sb3_cmzdril.experiments.run.grid import benchmark, summarize_outcomes
-    from sb3_cmzdril.experiments.run.worker import RunStatus
-    from sb3_cmzdril.experts import command_line
-
-    outcomes = benchmark(
-        args.env,
-        args.methods,
-        trial_indices(args.trials),
-        args.output,
-        workers=args.workers,
-        backend=args.backend,
-        ray_address=args.ray_address,
-        progress=not args.no_progress,
-        command=command_line(),
-        timesteps=args.timesteps,
-        n_demos=args.n_demos,
-        n_eval_episodes=args.eval_episodes,
-        eval_every=args.eval_every,
-        checkpoint_every=args.checkpoint_every,
-        demos_dir=args.demos_dir,
-        hyperparams=args.hyperparams,
-        offpolicy_hyperparams=args.sac_hyperparams,
-    )
-    print(summarize_outcomes(outcomes))
-    return 1 if any(o.status is RunStatus.FAILED for o in outcomes) else 0
-
-
-__all__ = ["add_benchmark", "add_train", "trial_indices"]
+__all__ = ["METHODS_HELP", "add_run_options", "add_train", "final_evaluation_lines"]

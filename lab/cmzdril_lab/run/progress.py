@@ -2,7 +2,7 @@
 
 On a terminal a rich progress bar with one line per running run; elsewhere (nohup, CI, a notebook
 log) one plain line per event with the grid's status, and a heartbeat line while nothing happens.
-:func:`~sb3_cmzdril.experiments.run.grid.run_grid` drives it.
+:func:`~cmzdril_lab.run.grid.run_grid` drives it.
 """
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, latest_epoch
-from sb3_cmzdril.experiments.run.spec import RunSpec
-from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus
+from cmzdril_lab.run.worker import RunOutcome, RunStatus
 from sb3_cmzdril.io import LOCK_FILE
+from sb3_cmzdril.training.run_folder import ERROR_FILE, latest_epoch
+from sb3_cmzdril.training.spec import RunSpec
 
 
 class GridProgress:

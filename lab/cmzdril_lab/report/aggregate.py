@@ -26,10 +26,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cmzdril_lab.report.final_eval import FinalRow, expert_percent
+from cmzdril_lab.report.formatting import md_table
+from cmzdril_lab.report.records import METHOD_LABELS, METHOD_ORDER, result_policy
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.report.final_eval import FinalRow, expert_percent
-from sb3_cmzdril.experiments.report.formatting import md_table
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, result_policy
 from sb3_cmzdril.io import PathLike, atomic_write_text
 
 #: Seed of every bootstrap here: the same runs give the same intervals on every report.
@@ -361,7 +361,7 @@ def aggregate_csv(agg: Aggregates) -> str:
 
 def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
     """Performance profiles and the IQM per method, side by side."""
-    from sb3_cmzdril.experiments.report.figures import COLORS, new_figure, save_png
+    from cmzdril_lab.report.figures import COLORS, new_figure, save_png
 
     fig = new_figure(11.0, 4.0)
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})

@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
+from cmzdril_lab.report.records import RunRecord, group, progress_rows
 from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.experiments.report.records import RunRecord, group, progress_rows
-from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW, window_means
 from sb3_cmzdril.io import PathLike
+from sb3_cmzdril.training.run_folder import TABLE_WINDOW, window_means
 
 #: Table metrics: (key in window_means, column header, eval.csv column).
 METRICS: tuple[tuple[str, str, str], ...] = (

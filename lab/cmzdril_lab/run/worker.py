@@ -15,10 +15,10 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.experiments.run.run_folder import ERROR_FILE, LOG_FILE
-from sb3_cmzdril.experiments.run.runs import run_experiment
-from sb3_cmzdril.experiments.run.spec import RunSpec
 from sb3_cmzdril.io import LockHeld, atomic_write_text
+from sb3_cmzdril.training.run_folder import ERROR_FILE, LOG_FILE
+from sb3_cmzdril.training.runs import run_experiment
+from sb3_cmzdril.training.spec import RunSpec
 
 
 class RunStatus(str, enum.Enum):

@@ -2,12 +2,12 @@
 
 A task carries everything its run reads, and its run folder comes back to the driver:
 
-* the driver packs a :class:`RunPackage` (the :class:`~sb3_cmzdril.experiments.run.spec.RunSpec`,
+* the driver packs a :class:`RunPackage` (the :class:`~sb3_cmzdril.training.spec.RunSpec`,
   the hyperparameter YAML's text and the run folder's current files, so that a partial run continues
   from its checkpoint as on the local backend); the demo pool's bytes go to Ray's object store once
   per pool file and reach every task of that env from there;
 * the worker writes them into a temporary directory of its own, points the spec there
-  (:func:`relocate`) and calls :func:`~sb3_cmzdril.experiments.run.worker.execute_run`, as the local backend does;
+  (:func:`relocate`) and calls :func:`~cmzdril_lab.run.worker.execute_run`, as the local backend does;
 * after every checkpoint the worker sends the run folder's changed files to a small actor on the
   driver's node (:class:`FolderSink`), so that checkpoints outlive a lost worker or an interrupted
   driver; at the end the task returns the files changed since it started (:class:`RunResult`), and
@@ -32,11 +32,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+from cmzdril_lab.run.worker import RunOutcome, RunStatus, execute_run
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.run.run_folder import STATE_FILE
-from sb3_cmzdril.experiments.run.spec import RunSpec, file_mtime_ns
-from sb3_cmzdril.experiments.run.worker import RunOutcome, RunStatus, execute_run
 from sb3_cmzdril.io import LOCK_FILE, OutputLock, PathLike, atomic_path, lock_output, unlock_output
+from sb3_cmzdril.training.run_folder import STATE_FILE
+from sb3_cmzdril.training.spec import RunSpec, file_mtime_ns
 
 logger = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """What the report reads from a runs folder: each run's records, named and ordered for tables.
 
-A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.experiments.run.run_folder`).
+A grid's runs live in ``<RUNS_DIR>/<EnvName>/<method>/trial<t>/`` (see :mod:`sb3_cmzdril.training.run_folder`).
 :func:`load_runs` reads, per run: eval.csv (the per-epoch evaluation), final_eval.csv when the run has
 one (the final evaluation on every held-out pool episode; grids made before it existed have none),
 config.json and done.json. A run is known by its config.json (env, method, trial seed), not by its
@@ -21,8 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from cmzdril_lab.records_store import materialize
 from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.experiments.run.run_folder import (
+from sb3_cmzdril.experts import env_name
+from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
+from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
     EVAL_CSV,
@@ -31,9 +34,7 @@ from sb3_cmzdril.experiments.run.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.experiments.run.spec import METHODS, result_policy
-from sb3_cmzdril.experts import env_name
-from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
+from sb3_cmzdril.training.spec import METHODS, result_policy
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +60,7 @@ ENV_ORDER: tuple[str, ...] = ("WaypointNav-v0", "HalfCheetah-v5", "Hopper-v5")
 #: hyperparameters name ``average_from``, the average of the policy's weights over the last updates.
 POLICIES: tuple[str, ...] = ("final", "lowest_u", "longest", "averaged")
 #: How a table names a policy, after its method's label (none for the method's result,
-#: :func:`~sb3_cmzdril.experiments.run.spec.result_policy`).
+#: :func:`~sb3_cmzdril.training.spec.result_policy`).
 POLICY_SUFFIXES: dict[str, str] = {"final": " (last weights)", "lowest_u": " (lowest u)",
                                    "longest": " (longest episodes)", "averaged": " (averaged)"}
 #: Numeric columns of final_eval.csv that the report averages (per run, over its episodes).
@@ -222,7 +223,7 @@ def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[
 
     :raises ValueError: an eval.csv or final_eval.csv that is no such file, naming it.
     """
-    root = Path(runs_dir)
+    root = materialize(runs_dir)
     if not root.is_dir():
         raise MissingFileError(f"runs folder not found: {root}")
     notes: list[Skipped] = []

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_cmzdril.experiments.report.final_eval import (
+from cmzdril_lab.report.final_eval import (
     CONFIDENCE,
     FinalRow,
     baselines,
@@ -24,7 +24,7 @@ from sb3_cmzdril.experiments.report.final_eval import (
     paired,
     trials_text,
 )
-from sb3_cmzdril.experiments.report.records import (
+from cmzdril_lab.report.records import (
     METHOD_LABELS,
     METHOD_ORDER,
     RunRecord,
@@ -32,7 +32,7 @@ from sb3_cmzdril.experiments.report.records import (
     group,
     result_policy,
 )
-from sb3_cmzdril.experiments.report.tables import METRICS
+from cmzdril_lab.report.tables import METRICS
 from sb3_cmzdril.io import PathLike, atomic_path
 
 #: The paper's figures: which methods each compares.

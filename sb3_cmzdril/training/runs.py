@@ -1,10 +1,10 @@
 """One run of the paper's experiment: one env, one method, one trial seed.
 
-A run is described by a :class:`~sb3_cmzdril.experiments.run.spec.RunSpec` (built and validated by
-:func:`~sb3_cmzdril.experiments.run.spec.plan_run`) and executed here by :func:`run_experiment`, top to
-bottom: the spec resolved once into a :class:`~sb3_cmzdril.experiments.run.spec.ResolvedRun` (every
+A run is described by a :class:`~sb3_cmzdril.training.spec.RunSpec` (built and validated by
+:func:`~sb3_cmzdril.training.spec.plan_run`) and executed here by :func:`run_experiment`, top to
+bottom: the spec resolved once into a :class:`~sb3_cmzdril.training.spec.ResolvedRun` (every
 input read and checked before a file is written), its
-:class:`~sb3_cmzdril.experiments.run.run_folder.RunFolder` opened (the folder owns every file), the
+:class:`~sb3_cmzdril.training.run_folder.RunFolder` opened (the folder owns every file), the
 model built or resumed, trained, evaluated on the held-out episodes, done.json written.
 
 Resuming: with ``done.json`` the run is skipped. With ``model.zip`` the run continues from that
@@ -33,7 +33,10 @@ from pathlib import Path
 from typing import Any
 
 from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.experiments.run.run_folder import (
+from sb3_cmzdril.experts import check_env_id
+from sb3_cmzdril.experts.callbacks import ProgressCallback
+from sb3_cmzdril.io import PathLike, portable_path
+from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
     DONE_FILE,
@@ -59,7 +62,7 @@ from sb3_cmzdril.experiments.run.run_folder import (
     run_status,
     window_means,
 )
-from sb3_cmzdril.experiments.run.spec import (
+from sb3_cmzdril.training.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     EXPERIMENT_KEYS,
@@ -82,9 +85,6 @@ from sb3_cmzdril.experiments.run.spec import (
     split_episodes,
     train_command,
 )
-from sb3_cmzdril.experts import check_env_id
-from sb3_cmzdril.experts.callbacks import ProgressCallback
-from sb3_cmzdril.io import PathLike, portable_path
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -100,7 +100,7 @@ def run_experiment(
     ``status`` is ``"skipped"`` (done.json was there: its content is returned), ``"done"`` (the
     summary just written to done.json) or ``"stopped"`` (a callback ended training early: no
     done.json, the checkpoint allows resuming). Exceptions propagate; the last checkpoint stays.
-    Whatever :func:`~sb3_cmzdril.experiments.run.spec.resolve_run` or the folder refuses is refused
+    Whatever :func:`~sb3_cmzdril.training.spec.resolve_run` or the folder refuses is refused
     before a file is written.
 
     :param callbacks: extra SB3 callbacks for the PPO training (not used by ``bc``).

@@ -1,6 +1,6 @@
 """A run folder's files: their names, how they are read, and the checks that keep one run per folder.
 
-:func:`~sb3_cmzdril.experiments.run.runs.run_experiment` writes into the run's own folder::
+:func:`~sb3_cmzdril.training.runs.run_experiment` writes into the run's own folder::
 
     DIR/config.json        everything needed to reproduce it: env, method, seeds, the train/eval
                            episode indices of the demo pool (and its sha256), hyperparameters,
@@ -54,7 +54,6 @@ from typing import Any
 import numpy as np
 
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.experiments.run.spec import ResolvedRun, RunSpec, resolve_run, train_command
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import (
     LOCK_FILE,
@@ -73,6 +72,7 @@ from sb3_cmzdril.io import (
     versions,
     write_json,
 )
+from sb3_cmzdril.training.spec import ResolvedRun, RunSpec, resolve_run, train_command
 
 #: Table I averages each run over its last this-many epochs (paper, Table I caption).
 TABLE_WINDOW = 100

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cmzdril.experiments.report.aggregate import (
+from cmzdril_lab.records_store import materialize_all
+from cmzdril_lab.report.aggregate import (
     LeftOut,
     Scores,
     aggregate,
@@ -32,10 +33,10 @@ from sb3_cmzdril.experiments.report.aggregate import (
     normalised_score,
     plot_aggregate,
 )
-from sb3_cmzdril.experiments.report.figures import COLORS, SMOOTHING_SIGMA, new_figure, save_png, smoothed_band
-from sb3_cmzdril.experiments.report.final_eval import FinalRow, expert_by_env, final_table, find, mean_ci
-from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, md_table
-from sb3_cmzdril.experiments.report.records import (
+from cmzdril_lab.report.figures import COLORS, SMOOTHING_SIGMA, new_figure, save_png, smoothed_band
+from cmzdril_lab.report.final_eval import FinalRow, expert_by_env, final_table, find, mean_ci
+from cmzdril_lab.report.formatting import fmt, fmt_ci, md_table
+from cmzdril_lab.report.records import (
     METHOD_LABELS,
     METHOD_ORDER,
     POLICIES,
@@ -688,6 +689,7 @@ def render(
     ``cost_curves`` the variants drawn against CPU time; ``selections`` the variants whose runs
     chose their final policy reward-free (:func:`selection_markdown`); ``across`` the comparisons
     across tasks (:func:`across_markdown`)."""
+    materialize_all(root / "results")
     skipped: list[Skipped] = []
     sweep_tables = sweeps_markdown(root, skipped, figures, sweeps)
     tables = ablation_markdown(root, skipped, ablations, grid)

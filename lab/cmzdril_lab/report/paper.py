@@ -7,8 +7,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 
-from sb3_cmzdril.experiments.report.formatting import fmt_mean_std, md_table
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, METHOD_ORDER, env_key
+from cmzdril_lab.report.formatting import fmt_mean_std, md_table
+from cmzdril_lab.report.records import METHOD_LABELS, METHOD_ORDER, env_key
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,21 +1,21 @@
 """results.md, its tables' CSVs and its figures, from one runs folder or two side by side.
 
 :func:`write_report` reads a grid (``<RUNS_DIR>/<EnvName>/<method>/trial<t>/``, see
-:mod:`~sb3_cmzdril.experiments.report.records`) and, optionally, a reference grid (``reference_runs``: e.g.
+:mod:`~cmzdril_lab.report.records`) and, optionally, a reference grid (``reference_runs``: e.g.
 the paper-faithful grid of an earlier version), and writes into the output folder:
 
 * results.md — the headline (each grid's final evaluation with its confidence interval and its Table I,
   beside the paper's Table I), then per grid: the final evaluation
-  (:mod:`~sb3_cmzdril.experiments.report.final_eval`), Table I, the gap closed by CMZ-DRIL, the expert's scale
-  and the reward signal (:mod:`~sb3_cmzdril.experiments.report.tables`); the figures; the reference numbers
-  (:mod:`~sb3_cmzdril.experiments.report.paper`); the run folders behind every number; the commands.
+  (:mod:`~cmzdril_lab.report.final_eval`), Table I, the gap closed by CMZ-DRIL, the expert's scale
+  and the reward signal (:mod:`~cmzdril_lab.report.tables`); the figures; the reference numbers
+  (:mod:`~cmzdril_lab.report.paper`); the run folders behind every number; the commands.
 * table1.csv and final_table.csv (``table1_reference.csv``, ``final_table_reference.csv`` for the
   reference grid): the tables at full precision, with their run folders.
 * fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves) and fig3_final_eval.png (the
-  final evaluation; :mod:`~sb3_cmzdril.experiments.report.figures`).
+  final evaluation; :mod:`~cmzdril_lab.report.figures`).
 
 With ``readme`` the README's results block is replaced by a small headline: the main grid's final
-evaluation as % of the expert, env by method (:mod:`~sb3_cmzdril.experiments.report.readme`). Reference
+evaluation as % of the expert, env by method (:mod:`~cmzdril_lab.report.readme`). Reference
 numbers from elsewhere (the paper's Table I: :data:`PAPER_TABLE_I`) enter only through ``references``
 and are printed labelled, apart from ours.
 """
@@ -25,11 +25,10 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.experiments.report.aggregate import CSV as ACROSS_CSV
-from sb3_cmzdril.experiments.report.aggregate import FIGURE as ACROSS_FIGURE
-from sb3_cmzdril.experiments.report.aggregate import write_aggregate
-from sb3_cmzdril.experiments.report.figures import (
+from cmzdril_lab.report.aggregate import CSV as ACROSS_CSV
+from cmzdril_lab.report.aggregate import FIGURE as ACROSS_FIGURE
+from cmzdril_lab.report.aggregate import write_aggregate
+from cmzdril_lab.report.figures import (
     FIGURES,
     FINAL_FIGURE,
     FINAL_FIGURE_REFERENCE,
@@ -37,10 +36,10 @@ from sb3_cmzdril.experiments.report.figures import (
     plot_figure,
     plot_final,
 )
-from sb3_cmzdril.experiments.report.final_eval import final_csv, final_table, mean_ci
-from sb3_cmzdril.experiments.report.formatting import fmt, fmt_ci, fmt_mean_std
-from sb3_cmzdril.experiments.report.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
-from sb3_cmzdril.experiments.report.readme import (
+from cmzdril_lab.report.final_eval import final_csv, final_table, mean_ci
+from cmzdril_lab.report.formatting import fmt, fmt_ci, fmt_mean_std
+from cmzdril_lab.report.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
+from cmzdril_lab.report.readme import (
     README_BEGIN,
     README_END,
     link,
@@ -48,8 +47,8 @@ from sb3_cmzdril.experiments.report.readme import (
     short_command,
     update_readme,
 )
-from sb3_cmzdril.experiments.report.records import METHOD_LABELS, RunRecord, load_grid, load_runs
-from sb3_cmzdril.experiments.report.sections import (
+from cmzdril_lab.report.records import METHOD_LABELS, RunRecord, load_grid, load_runs
+from cmzdril_lab.report.sections import (
     GridReport,
     analyse,
     differences_markdown,
@@ -62,7 +61,7 @@ from sb3_cmzdril.experiments.report.sections import (
     status_lines,
     table_sections,
 )
-from sb3_cmzdril.experiments.report.tables import (
+from cmzdril_lab.report.tables import (
     expert_returns,
     gap_closed,
     gap_trials,
@@ -70,8 +69,9 @@ from sb3_cmzdril.experiments.report.tables import (
     table_csv,
     table_one,
 )
-from sb3_cmzdril.experiments.run.run_folder import TABLE_WINDOW
+from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.io import PathLike, atomic_write_text
+from sb3_cmzdril.training.run_folder import TABLE_WINDOW
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
 SUFFIXES: tuple[str, str] = ("", "_reference")
@@ -116,7 +116,7 @@ def render_markdown(
     parts = [
         "# Results",
         "",
-        f"Computed by `sb3_cmzdril.experiments.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from these files. "
+        f"Computed by `cmzdril_lab.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from these files. "
         "Every number in the tables is computed from them, none is typed in, except the paper's numbers, which "
         "are copied from the paper and labelled as such. The Discussion, if any, is written by hand.",
         "",
@@ -231,7 +231,7 @@ def write_report(
         ``reference_label`` the same for ``reference_runs``.
     :param figures: False writes the tables only (quicker: each figure takes a second or two).
     :param aggregate_runs: more runs folders (e.g. a benchmark of another env) whose final evaluations
-        join the main grid's in the across-task aggregate (:mod:`~sb3_cmzdril.experiments.report.aggregate`,
+        join the main grid's in the across-task aggregate (:mod:`~cmzdril_lab.report.aggregate`,
         rliable), written when the main grid has final evaluations.
     """
     _check_inputs(window, discussion, readme)

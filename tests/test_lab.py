@@ -1,0 +1,117 @@
+"""The lab beside the library: its commands reached from ``sb3-cmzdril`` (or a one-line pointer where it
+is not installed), the old import paths of what moved, and the compact run records it reads."""
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+import tarfile
+
+import pytest
+
+from sb3_cmzdril import UserError
+from sb3_cmzdril.cli import main
+
+
+def test_the_lab_commands_are_reached_from_the_library_command_line(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["report", "--help"])
+    assert exit_info.value.code == 0
+    assert "--reference-runs" in capsys.readouterr().out
+
+
+def test_without_the_lab_its_commands_answer_in_one_line(monkeypatch, capsys):
+    import sb3_cmzdril.cli as cli
+
+    monkeypatch.setattr(cli, "_plugin_commands", lambda: {})
+    assert main(["benchmark", "--env", "HalfCheetah-v5", "--trials", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "`benchmark` moved to the lab" in err[0] and "pip install -e lab/" in err[0]
+
+
+def test_the_old_import_paths_resolve_to_the_moved_modules_with_a_warning():
+    code = (
+        "import warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    from sb3_cmzdril.experiments.run.spec import RunSpec\n"
+        "    from sb3_cmzdril.experiments.report.records import load_runs\n"
+        "    from sb3_cmzdril.experiments import plan_run\n"
+        "import sb3_cmzdril.training.spec as spec, cmzdril_lab.report.records as records\n"
+        "assert RunSpec is spec.RunSpec and load_runs is records.load_runs and plan_run is spec.plan_run\n"
+        "messages = [str(w.message) for w in caught if w.category is FutureWarning]\n"
+        "assert any('sb3_cmzdril.experiments.run.spec moved to sb3_cmzdril.training.spec' in m for m in messages)\n"
+        "assert any('sb3_cmzdril.experiments.report moved to cmzdril_lab.report' in m for m in messages)\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# -- the compact records ------------------------------------------------------------------------------
+def _study(root):
+    folder = root / "study"
+    for trial in range(2):
+        run = folder / "Env-v0" / "cmz" / f"trial{trial}"
+        (run / "logs").mkdir(parents=True)
+        (run / "eval.csv").write_text(f"epoch,return\n0,{trial}\n")
+        (run / "logs" / "progress_0.csv").write_text("a,b\n1,2\n")
+    return folder
+
+
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+            and p.name != ".unpacked.json"}
+
+
+def test_a_packed_study_unpacks_to_the_same_files_and_repacks_to_the_same_bytes(tmp_path):
+    from cmzdril_lab.records_store import materialize, pack
+
+    folder = _study(tmp_path)
+    before = _files(folder)
+    archive = pack(folder)
+    data = archive.read_bytes()
+    import shutil
+
+    shutil.rmtree(folder)
+    # Reading a run below the archived folder unpacks the whole study.
+    assert materialize(folder / "Env-v0" / "cmz" / "trial1") == folder / "Env-v0" / "cmz" / "trial1"
+    assert _files(folder) == before
+    assert pack(folder).read_bytes() == data
+    # A path outside any archived study is left alone.
+    assert materialize(tmp_path / "elsewhere") == tmp_path / "elsewhere"
+
+
+def test_an_unpacked_study_is_refreshed_when_its_archive_changes_but_never_over_unpacked_runs(tmp_path):
+    import shutil
+
+    from cmzdril_lab.records_store import materialize, pack
+
+    folder = _study(tmp_path)
+    pack(folder)
+    copy = tmp_path / "copy"
+    shutil.copytree(folder, copy / "study")
+    (copy / "study" / "Env-v0" / "cmz" / "trial0" / "eval.csv").write_text("epoch,return\n0,42\n")
+    new_archive = pack(copy / "study").read_bytes()
+    (tmp_path / "study.tar.xz").write_bytes(new_archive)  # as a `git pull` brings a newer archive
+    materialize(folder)
+    assert (folder / "Env-v0" / "cmz" / "trial0" / "eval.csv").read_text() == "epoch,return\n0,42\n"
+    # A run added after unpacking is the user's: a changed archive does not replace it.
+    (folder / "Env-v0" / "cmz" / "trial2").mkdir()
+    (folder / "Env-v0" / "cmz" / "trial2" / "eval.csv").write_text("epoch,return\n0,7\n")
+    (tmp_path / "study.tar.xz").write_bytes(pack(_study(tmp_path / "other")).read_bytes())
+    with pytest.raises(UserError, match="holds runs added or changed since it was unpacked"):
+        materialize(folder)
+    assert (folder / "Env-v0" / "cmz" / "trial2" / "eval.csv").exists()
+
+
+def test_an_archive_member_outside_its_folder_is_refused(tmp_path):
+    from cmzdril_lab.records_store import materialize
+
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:xz") as tar:
+        info = tarfile.TarInfo("../escaped.txt")
+        info.size = 2
+        tar.addfile(info, io.BytesIO(b"hi"))
+    (tmp_path / "study.tar.xz").write_bytes(buffer.getvalue())
+    with pytest.raises(UserError, match="'../escaped.txt' is not a plain file inside"):
+        materialize(tmp_path / "study")
+    assert not (tmp_path / "escaped.txt").exists() and not (tmp_path / "study").exists()
