@@ -3,9 +3,11 @@ is not installed), the old import paths of what moved, and the compact run recor
 from __future__ import annotations
 
 import io
+import shlex
 import subprocess
 import sys
 import tarfile
+from pathlib import Path
 
 import pytest
 
@@ -115,3 +117,39 @@ def test_an_archive_member_outside_its_folder_is_refused(tmp_path):
     with pytest.raises(UserError, match="'../escaped.txt' is not a plain file inside"):
         materialize(tmp_path / "study")
     assert not (tmp_path / "escaped.txt").exists() and not (tmp_path / "study").exists()
+
+
+# -- the published numbers, from the compact records --------------------------------------------------
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _published_command(page: Path) -> list[str]:
+    """The report command a generated page names (its line ``    sb3-cmzdril report ...``), as arguments."""
+    lines = [line.strip() for line in page.read_text(encoding="utf-8").splitlines()
+             if line.startswith("    sb3-cmzdril report ")]
+    assert len(lines) == 1, f"{page} names its report command once"
+    return shlex.split(lines[0])[1:]
+
+
+def _without(args: list[str], option: str) -> list[str]:
+    if option not in args:
+        return args
+    at = args.index(option)
+    return args[:at] + args[at + 2:]
+
+
+@pytest.mark.parametrize("page", ["docs/results.md", "docs/untuned/results.md"])
+def test_the_published_tables_regenerate_from_the_compact_records_unchanged(page, tmp_path, monkeypatch):
+    published = REPO / page
+    args = _without(_without(_published_command(published), "-o"), "--readme")
+    monkeypatch.chdir(REPO)  # the command names the records by their paths in the repository
+    assert main([*args, "-o", str(tmp_path), "--no-figures"]) == 0
+    csvs = sorted(p.name for p in tmp_path.glob("*.csv"))
+    assert csvs and "final_table.csv" in csvs
+    for name in csvs:
+        assert (tmp_path / name).read_bytes() == (published.parent / name).read_bytes(), name
+
+    def table_rows(path: Path) -> list[str]:
+        return [line for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("|")]
+
+    assert table_rows(tmp_path / "results.md") == table_rows(published)

@@ -1,11 +1,32 @@
-"""The committed run records (results/) and expert metadata (experts/): portable, and the published
-runs are what the shipped hyperparameters make."""
+"""The committed run records (results/, each study one NAME.tar.xz unpacked beside it) and expert
+metadata (experts/): compact, portable, and the published runs are what the shipped hyperparameters make."""
 
 import json
 import re
+import subprocess
 from pathlib import Path
 
+import pytest
+
+from cmzdril_lab.records_store import SUFFIX, materialize_all
+
 ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module", autouse=True)
+def unpacked():
+    """Every archived study, unpacked (once; again only when its archive changed)."""
+    return materialize_all(ROOT / "results")
+
+
+def test_the_run_records_are_a_few_compressed_files_and_the_repository_stays_small():
+    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    files = tracked.splitlines()
+    if not files:  # not a git checkout (an sdist): nothing to count
+        pytest.skip("not a git checkout")
+    in_results = [f for f in files if f.startswith("results/")]
+    assert sum(f.endswith(SUFFIX) for f in in_results) >= 10
+    assert len(in_results) <= 40 and len(files) <= 800
 #: An absolute POSIX path at the start of a JSON string or after a space (a command's argument).
 ABSOLUTE = re.compile(r'(?:"|\s)/(?:work|home|root|tmp|Users|opt|usr|mnt|data)/')
 
@@ -21,7 +42,7 @@ def test_committed_records_hold_no_absolute_paths_of_the_machine_that_made_them(
 
 
 def test_the_run_records_live_apart_from_the_documentation_source():
-    assert (ROOT / "results" / "runs").is_dir()
+    assert (ROOT / "results" / f"runs{SUFFIX}").is_file() and (ROOT / "results" / "runs").is_dir()
     assert not list((ROOT / "docs").glob("runs*")) and not (ROOT / "docs" / "tuning").exists()
 
 

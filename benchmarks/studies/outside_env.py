@@ -58,6 +58,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from cmzdril_lab.records_store import materialize
 from sb3_cmzdril.training.spec import METHODS  # the grid's methods, the env's reward included
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -316,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f"--methods: {unknown} are not among {', '.join(METHODS)}")
     command = command_line(["python", "benchmarks/studies/outside_env.py", *sys.argv[1:]])
-    output = args.output.resolve()
+    output = materialize(args.output).resolve()  # results/outside_env is kept as outside_env.tar.xz
     output.mkdir(parents=True, exist_ok=True)
 
     pool_path = record_pool(output, args.pool_episodes, args.pool_seed)

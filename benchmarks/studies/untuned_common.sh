@@ -6,6 +6,9 @@ zoo=${ZOO:-rl-trained-agents}
 untuned=results/untuned
 workers=${WORKERS:-2}
 cli=${SB3_CMZDRIL:-sb3-cmzdril}
+# The study's records are committed as results/untuned.tar.xz: unpack them before adding runs, and
+# `cmzdril-lab pack results/untuned` afterwards to commit what the runs added.
+if [ -f "$untuned.tar.xz" ]; then cmzdril-lab unpack "$untuned"; fi
 
 # record_pool ENV_ID [AGENT]: the 30 deterministic episodes (reset seeds 0-29) of the zoo's agent AGENT
 # (a folder of the zoo's clone; default: its A2C agent of ENV_ID) into results/untuned/ENV_ID/demos.npz;

@@ -1,5 +1,5 @@
 """The lab's commands, ``benchmark`` (the trial grid), ``report`` (results.md, its tables and
-figures) and ``pack`` (a study's compact records), and the console script ``cmzdril-lab``.
+figures) and ``pack``/``unpack`` (a study's compact records), and the console script ``cmzdril-lab``.
 
 The library's own ``sb3-cmzdril`` finds both through the entry point group ``sb3_cmzdril.commands``
 (this package's pyproject.toml), so ``sb3-cmzdril benchmark`` keeps working where the lab is installed.
@@ -206,6 +206,32 @@ def add_pack(sub) -> None:
     p.set_defaults(func=_run_pack)
 
 
+def add_unpack(sub) -> None:
+    p = sub.add_parser(
+        "unpack",
+        help="unpack a study's compact records (FOLDER.tar.xz) into FOLDER, e.g. to train on a pool it holds",
+        description=(
+            "Unpack FOLDER.tar.xz into FOLDER where FOLDER is missing or holds an older unpacking; reports and "
+            "studies do this themselves. A folder holding runs that are not packed is never replaced."
+        ),
+    )
+    p.add_argument("folders", nargs="+", metavar="FOLDER", help="an archived study folder, e.g. results/untuned")
+    p.set_defaults(func=_run_unpack)
+
+
+def _run_unpack(args) -> int:
+    from cmzdril_lab.records_store import archive_of, unpack
+
+    archives = [archive_of(folder) for folder in args.folders]
+    missing = [str(archive) for archive in archives if not archive.is_file()]
+    if missing:
+        raise UserError(f"no archive {', '.join(missing)}")
+    for archive, folder in zip(archives, args.folders, strict=True):
+        unpack(archive, folder)
+        print(folder)
+    return 0
+
+
 def _run_pack(args) -> int:
     from cmzdril_lab.records_store import pack
 
@@ -218,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     """``cmzdril-lab``: the lab's commands with the library command line's error handling."""
     from sb3_cmzdril.cli import main as library_main
 
-    return library_main(argv, prog="cmzdril-lab", commands=(add_benchmark, add_report, add_pack))
+    return library_main(argv, prog="cmzdril-lab", commands=(add_benchmark, add_report, add_pack, add_unpack))
 
 
-__all__ = ["add_benchmark", "add_pack", "add_report", "main", "trial_indices"]
+__all__ = ["add_benchmark", "add_pack", "add_report", "add_unpack", "main", "trial_indices"]
