@@ -16,7 +16,7 @@ the pretrained policy (``model.pretrain()`` without ``learn``).
 Saving: the zip holds the policy (with its standardisation statistics), the ensemble, the BC
 optimiser, the demonstrations (observations, actions, episode lengths, seeds) and the reward rule's
 per-env state, so ``CMZDRIL.load(path, env=env)`` can go on learning without being handed the demos
-again; ``load(..., demonstrations=...)`` replaces them.
+again; ``load(..., demonstrations=...)`` replaces them (other ones refit the ensemble: :meth:`CMZDRIL.load`).
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ from stable_baselines3.common.callbacks import (
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import update_learning_rate
-from stable_baselines3.common.vec_env import VecEnvWrapper
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.bc import BehaviourCloner
@@ -52,6 +52,10 @@ from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.imitation import (
     check_imitation_options,
+    check_interval,
+    check_saved_learner,
+    check_whole_numbers,
+    demonstrations_to_go_on,
     parameters_to_set,
     restored_state,
     restoring_saved_model,
@@ -240,6 +244,13 @@ class CMZDRIL(PPO):
         )
         if log_std_floor is not None and not np.isfinite(log_std_floor):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
+        _check_ppo_options(env, n_steps, batch_size, n_epochs, normalize_advantage)
+        check_whole_numbers(1, ensemble_epochs=ensemble_epochs, ensemble_batch_size=ensemble_batch_size,
+                            bc_batch_size=bc_batch_size)
+        check_interval("[0, 1]", gamma=gamma, gae_lambda=gae_lambda)
+        check_interval("(0, inf)", learning_rate=learning_rate, clip_range=clip_range, clip_range_vf=clip_range_vf,
+                       target_kl=target_kl, max_grad_norm=max_grad_norm, ensemble_learning_rate=ensemble_learning_rate)
+        check_interval("[0, inf)", vf_coef=vf_coef)
         self.demonstrations: Demonstrations | None = (
             None if demonstrations is None else as_demonstrations(demonstrations)
         )
@@ -415,7 +426,19 @@ class CMZDRIL(PPO):
         demonstrations: DemosLike = None,
         **kwargs: Any,
     ) -> SelfCMZDRIL:
-        """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
+        """Load a saved CMZDRIL (or a plain PPO) model, as PPO's ``load``.
+
+        ``demonstrations`` replaces the ones saved with the model. Where they hold other steps than
+        those and the model was saved pretrained, its ensemble is fitted again on them at the next
+        ``learn()``, and with it DRIL's threshold, the CMZ reward's clip and a fresh reward state (the
+        EMA of the old ensemble's u means nothing to the new one), so that the reward measures the
+        distance to the demonstrations the BC epochs pull toward; a line is logged. The policy keeps
+        its weights, and with them the input standardisation they were trained with (refitting it
+        would change what the trained policy does); set ``pretrained = False`` after loading to
+        clone the new demonstrations afresh as well. The saved demonstrations handed again change
+        nothing. A model saved by CMZDRILSAC (or another off-policy learner) is refused in one line.
+        """
+        check_saved_learner(path, "CMZDRIL", off_policy=False, plain_sb3=True)
         with restoring_saved_model():
             model = super().load(
                 path,
@@ -451,24 +474,31 @@ class CMZDRIL(PPO):
         # Models saved before _policy_pretrained existed were pretrained when their rule was ready.
         self._policy_pretrained = self._policy_pretrained or self._imitation_ready
         self._ensemble_replaced = False  # load()'s own set_parameters: threshold and rule came with the ensemble
-        if demonstrations is not None:
-            self.demonstrations = demonstrations
-        elif self._saved_demo_obs.numel():
-            self.demonstrations = Demonstrations(
+        saved = None
+        if self._saved_demo_obs.numel():
+            saved = Demonstrations(
                 _unpack_observations(self._saved_demo_obs.cpu().numpy(), getattr(self, "_demo_obs_layout", None)),
                 self._saved_demo_actions.cpu().numpy(),
                 self._saved_demo_lengths.cpu().numpy(),
                 seeds=self._saved_demo_seeds.cpu().numpy(),
             )
-        if self.demonstrations is not None:
-            self.bc.set_demonstrations(self.demonstrations.check_spaces(self.observation_space, self.action_space))
+        checked, refit = demonstrations_to_go_on(
+            saved, demonstrations, self.observation_space, self.action_space, self.ensemble.is_fitted, "CMZDRIL"
+        )
+        self.demonstrations = demonstrations if demonstrations is not None else saved
+        if checked is not None:
+            self.bc.set_demonstrations(checked)
+        if refit:  # the next learn() fits the ensemble and makes the bounds and the rule for it
+            self.ensemble.mark_unfitted()
+            self._imitation_ready = False
+            self.dril_threshold = self.cmz_u_max = None
         if self._imitation_ready:
             self.reward_rule = self._make_rule()
-            saved = self._saved_reward_state.cpu().numpy()
-            state, remapped = restored_state(saved, self.n_envs)
+            saved_state = self._saved_reward_state.cpu().numpy()
+            state, remapped = restored_state(saved_state, self.n_envs)
             if remapped:
                 warnings.warn(
-                    f"the saved reward state is for {saved.size} envs but the model now has {self.n_envs}; "
+                    f"the saved reward state is for {saved_state.size} envs but the model now has {self.n_envs}; "
                     "starting every env's EMA from the saved mean",
                     UserWarning,
                     stacklevel=2,
@@ -804,6 +834,24 @@ class CMZDRIL(PPO):
                 for _ in range(self.bc_epochs_per_update):
                     nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+def _check_ppo_options(
+    env: GymEnv | str | None, n_steps: Any, batch_size: Any, n_epochs: Any, normalize_advantage: bool
+) -> None:
+    """UserError, in one line, for the rollout and update sizes PPO cannot learn with: ``n_epochs=0``
+    (PPO accepts it and then fails inside ``train()``), ``n_steps`` or ``batch_size`` below 1, and
+    below 2 where ``normalize_advantage`` normalises each minibatch and the rollout (SB3's own
+    checks of these are assertions, whose traceback says nothing of the option)."""
+    check_whole_numbers(1, n_steps=n_steps, n_epochs=n_epochs)
+    # SB3's words, as a UserError: with normalize_advantage, the advantages of one step normalise to nan.
+    if normalize_advantage and isinstance(batch_size, (int, np.integer)) and batch_size < 2:
+        raise UserError(f"`batch_size` must be greater than 1 with normalize_advantage=True, got {batch_size}")
+    check_whole_numbers(1, batch_size=batch_size)
+    n_envs = env.num_envs if isinstance(env, VecEnv) else 1
+    if normalize_advantage and env is not None and n_steps * n_envs < 2:
+        raise UserError(f"`n_steps * n_envs` must be greater than 1 with normalize_advantage=True, got "
+                        f"n_steps={n_steps} and n_envs={n_envs}")
 
 
 @contextmanager

@@ -63,6 +63,32 @@ def _obs_shape(obs: np.ndarray | dict[str, np.ndarray]) -> Any:
     return {k: v.shape[1:] for k, v in obs.items()} if isinstance(obs, dict) else obs.shape[1:]
 
 
+def _seed_array(seeds: Sequence[Any] | np.ndarray) -> np.ndarray:
+    """The reset seeds as int64, refusing what a cast would change: a fraction (``1.5`` would become
+    seed 1 without a word), a non-finite float, a boolean, text, or an integer beyond int64."""
+    try:
+        given = np.asarray(seeds)
+    except (OverflowError, ValueError):  # e.g. ragged lists
+        raise UserError(f"seeds must be one integer per episode (-1 for unknown); got {seeds!r}") from None
+    given = given.reshape(-1)
+    if given.dtype.kind == "f":
+        fractional = np.flatnonzero(~np.isfinite(given) | (given != np.round(given)))
+        if fractional.size:
+            raise UserError(
+                f"reset seeds must be whole numbers (-1 for unknown); episodes {fractional.tolist()[:5]} have "
+                f"{given[fractional].tolist()[:5]}"
+            )
+    elif given.dtype.kind not in "iuO" and given.size:  # "O": Python integers beyond int64 (checked below)
+        raise UserError(f"reset seeds must be integers (-1 for unknown); got {given.dtype} values {given.tolist()[:5]}")
+    try:
+        beyond = (given >= 2**63) | (given < -(2**63))  # exact for floats too (int64.max rounds up to 2**63)
+    except TypeError:  # objects that are not numbers
+        raise UserError(f"reset seeds must be integers (-1 for unknown); got {given.tolist()[:5]}") from None
+    if np.any(beyond):
+        raise UserError(f"seeds must fit in int64 (-1 for unknown); got {given[beyond].tolist()[:5]}")
+    return given.astype(np.int64)
+
+
 def _finite(name: str, array: np.ndarray) -> None:
     if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
         bad = np.argwhere(~np.isfinite(array.reshape(len(array), -1)))[0, 0]
@@ -117,12 +143,7 @@ class Demonstrations:
             rewards = rew
         self.rewards: np.ndarray | None = rewards
         self.episode_lengths = lengths
-        if seeds is None:
-            seeds = np.full(lengths.size, UNKNOWN_SEED, dtype=np.int64)
-        try:
-            self.seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
-        except OverflowError:
-            raise UserError(f"seeds must fit in int64 (-1 for unknown); got {list(seeds)}") from None
+        self.seeds = _seed_array(np.full(lengths.size, UNKNOWN_SEED, dtype=np.int64) if seeds is None else seeds)
         if self.seeds.size != lengths.size:
             raise UserError(f"{self.seeds.size} seeds given for {lengths.size} episodes")
         # numpy and gymnasium reset only with seeds in [0, 2**32): anything else fails at the first
@@ -160,7 +181,7 @@ class Demonstrations:
             actions=np.concatenate([np.asarray(ep["actions"]) for ep in episodes]),
             episode_lengths=[len(ep["actions"]) for ep in episodes],
             rewards=None if rewards is None else np.concatenate(rewards),
-            seeds=[UNKNOWN_SEED if ep.get("seed") is None else int(ep["seed"]) for ep in episodes],
+            seeds=[UNKNOWN_SEED if ep.get("seed") is None else ep["seed"] for ep in episodes],
         )
 
     @classmethod
@@ -276,6 +297,19 @@ class Demonstrations:
             if not 0 <= i < self.n_episodes:
                 raise IndexError(f"episode {i} out of range for {self.n_episodes} episodes")
         return Demonstrations.from_episodes([self.episode(i) for i in indices])
+
+    def same_steps(self, other: Demonstrations) -> bool:
+        """Whether ``other`` holds the same episodes, step for step: observations, actions and episode
+        lengths (what the ensemble, the reward's bounds and the input standardisation are fitted on);
+        rewards and seeds aside."""
+        if not (np.array_equal(self.episode_lengths, other.episode_lengths)
+                and np.array_equal(self.actions, other.actions)):
+            return False
+        mine, theirs = self.observations, other.observations
+        if isinstance(mine, dict) or isinstance(theirs, dict):
+            return (isinstance(mine, dict) and isinstance(theirs, dict) and mine.keys() == theirs.keys()
+                    and all(np.array_equal(mine[key], theirs[key]) for key in mine))
+        return np.array_equal(mine, theirs)
 
     def __repr__(self) -> str:
         return (

@@ -14,6 +14,9 @@ the algorithm's constructor, after the zoo's pre-processing:
   arguments, and ``nn.<Name>`` / ``th.nn.<Name>`` / ``torch.nn.<Name>`` (torch.nn module classes) or
   ``th.optim.<Name>`` (optimizer classes). Anything else raises :class:`ValueError` naming the text.
 
+A key written twice in one mapping (two ``n_epochs``, two ``per_method`` blocks) is refused, naming
+the file, the key and its line (:class:`UniqueKeyLoader`): PyYAML would keep the last without a word.
+
 The environment lookup follows the zoo, extended to module-prefixed ids: the exact id, then the id
 without its ``module:`` prefix (``sb3_cmzdril:WaypointNav-v0`` -> ``WaypointNav-v0``), then
 ``default``; otherwise a :class:`KeyError`-free :class:`ValueError` lists the available keys.
@@ -195,6 +198,51 @@ def parse_env_kwargs(text: str, option: str = "--env-kwargs") -> dict[str, Any]:
 
 
 # -- loading -------------------------------------------------------------------------------------
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader, except that a mapping naming a key twice is an error.
+
+    PyYAML keeps the last value of a repeated key without a word: a second ``n_epochs`` or a second
+    ``per_method`` block in an entry would silently replace the first. Keys that a merge (``<<: *base``)
+    brings may be overridden, as YAML intends; only a key written twice in one mapping is refused, by
+    a :class:`yaml.constructor.ConstructorError` whose ``problem`` names the key and both lines and
+    whose ``problem_mark`` points at the second (:func:`load_yaml` makes one line of it).
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        first_lines: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=deep)
+            line = key_node.start_mark.line + 1
+            try:
+                first = first_lines.get(key)
+            except TypeError:  # an unhashable key: SafeLoader's own construct_mapping refuses it
+                continue
+            if first is not None:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r} at line {line} (first at line {first})", key_node.start_mark
+                )
+            first_lines[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def load_yaml(text: str, what: str, loader: type[UniqueKeyLoader] = UniqueKeyLoader) -> Any:
+    """``text`` read with ``loader`` (:class:`UniqueKeyLoader` or a subclass); a :class:`UserError` of one
+    line naming ``what`` (e.g. ``"hyperparameter file hp.yml"``), the problem and its line otherwise."""
+    try:
+        return yaml.load(text, Loader=loader)  # a SafeLoader: builds plain data only
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        if e.problem is not None and e.problem.startswith("duplicate key"):
+            raise UserError(f"{what}: {e.problem}; each key may appear once in a mapping") from None
+        problem = " ".join(str(e.problem or e.context or "unreadable").split())
+        raise UserError(f"{what} is not valid YAML: {problem}{where}") from None
+    except yaml.YAMLError as e:
+        raise UserError(f"{what} is not valid YAML: {' '.join(str(e).split())}") from None
+
+
 @dataclasses.dataclass
 class Hyperparams:
     """One entry of a zoo hyperparameter file, split into its parts.
@@ -423,10 +471,7 @@ def read_hyperparams_file(path: str | Path) -> dict[str, Any]:
         raise UserError(f"hyperparameter file {path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
     except OSError as e:
         raise UserError(f"hyperparameter file {path} cannot be read: {e.strerror or e}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise UserError(f"hyperparameter file {path} is not valid YAML: {e}") from e
+    data = load_yaml(text, f"hyperparameter file {path}")
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -8,19 +8,28 @@ same meaning; checking and interpreting them here keeps the two from drifting ap
 """
 from __future__ import annotations
 
+import json
+import logging
+import math
+import re
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.save_util import load_from_zip_file
+from gymnasium import spaces
+from stable_baselines3.common.save_util import load_from_zip_file, open_path
 
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.ensemble import quantile_of_disagreement
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.rewards import RewardRule, make_rule
+
+logger = logging.getLogger(__name__)
 
 #: The reward modes: the paper's, DRIL's, none (PPO or SAC plus BC only) and the env's own.
 REWARD_MODES = ("cmz", "dril", "zero", "env")
@@ -61,6 +70,44 @@ def check_imitation_options(
         raise UserError(f"absorbing must be True, False or 'auto', got {absorbing!r}")
     if absorbing_score not in ("highest", "terminal"):
         raise UserError(f"absorbing_score must be 'highest' or 'terminal', got {absorbing_score!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_whole(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_whole_numbers(minimum: int, **counts: Any) -> None:
+    """UserError naming the first option in ``counts`` (steps, epochs, a batch or buffer size) that is
+    not a whole number >= ``minimum``. SB3 accepts many such values without a word and then learns
+    nothing (``n_epochs=0``, ``gradient_steps=0``), fails once training runs (``batch_size=0``), or
+    makes something else of them (``buffer_size=0`` is a buffer of one transition)."""
+    for name, value in counts.items():
+        if not _is_whole(value):
+            raise UserError(f"{name} must be a whole number >= {minimum}, got {value!r}")
+        if value < minimum:
+            raise UserError(f"{name} must be >= {minimum}, got {value}")
+
+
+def check_interval(interval: str, **values: Any) -> None:
+    """UserError naming the first option in ``values`` outside ``interval``, written as in maths:
+    ``"[0, 1]"``, ``"(0, 1]"``, ``"(0, inf)"``. None (an option switched off) and schedules (callables,
+    checked when training starts) pass; inf and nan are :func:`~sb3_cmzdril.errors.check_finite`'s."""
+    low_open, high_open = interval[0] == "(", interval[-1] == ")"
+    low, high = (float(bound) for bound in interval[1:-1].split(","))
+    rule = f"finite and {'>' if low_open else '>='} {low:g}" if math.isinf(high) else f"in {interval}"
+    for name, value in values.items():
+        if value is None or callable(value):
+            continue
+        if not _is_number(value):
+            raise UserError(f"{name} must be a number {rule}, got {value!r}")
+        above = value > low if low_open else value >= low
+        below = value < high if high_open else value <= high
+        if not (above and below):
+            raise UserError(f"{name} must be {rule}, got {float(value)!r}")
 
 
 def reward_rule(
@@ -154,5 +201,96 @@ def weights_brought_by_user() -> bool:
     return not _RESTORING.get()
 
 
-__all__ = ["REWARD_MODES", "check_imitation_options", "demo_tensors", "demos_from_tensors", "parameters_to_set",
-           "reward_rule", "restored_state", "restoring_saved_model", "rule_bounds", "weights_brought_by_user"]
+def _saved_data(path: Any) -> tuple[str, dict[str, Any]] | None:
+    """The name of a saved model's file and the raw JSON of its ``data`` member (read with
+    :func:`json.loads` only: no ``:serialized:`` value is unpickled); None where it cannot be read,
+    so that SB3's ``load()`` reports the file as it does."""
+    try:
+        file = open_path(path, "r", verbose=0, suffix="zip")  # as SB3's load(): "agent" may mean agent.zip
+    except (OSError, TypeError, ValueError):
+        return None
+    name = str(getattr(file, "name", "the model file"))
+    start = file.tell() if file.seekable() else None
+    try:
+        if start is None:  # a stream read once: SB3's load() needs it whole
+            return None
+        with zipfile.ZipFile(file) as archive:
+            data = json.loads(archive.read("data"))
+    except (KeyError, OSError, ValueError, zipfile.BadZipFile):  # no data member, not a zip, not JSON
+        return None
+    finally:
+        if isinstance(path, (str, Path)):
+            file.close()
+        elif start is not None:
+            file.seek(start)
+    return (name, data) if isinstance(data, dict) else None
+
+
+def _saved_algorithm(data: dict[str, Any]) -> tuple[str, bool]:
+    """What saved a model, from the keys of its data: the learner's name (a plain SB3 algorithm's
+    read from its policy's module where that names it) and whether it learns off-policy."""
+    off_policy = "buffer_size" in data  # OffPolicyAlgorithm's; OnPolicyAlgorithm saves gae_lambda
+    if "ensemble_size" in data:
+        return ("CMZDRILSAC" if off_policy else "CMZDRIL"), off_policy
+    policy = data.get("policy_class")
+    module = policy.get("__module__", "") if isinstance(policy, dict) else ""
+    found = re.fullmatch(r"(?:stable_baselines3|sb3_contrib)\.(\w+)\.policies", str(module))
+    if found is not None and found.group(1) != "common":
+        return found.group(1).upper(), off_policy
+    if off_policy:
+        return "an off-policy SB3 model (SAC, TD3, DQN, ...)", True
+    return ("PPO" if "n_epochs" in data else "A2C"), False
+
+
+def check_saved_learner(path: Any, learner: str, off_policy: bool, plain_sb3: bool) -> None:
+    """UserError, before SB3's ``load()`` fails on it with an unrelated TypeError or AttributeError,
+    where the model saved at ``path`` is not one ``learner`` loads: one of the other kind (on- or
+    off-policy), or, unless ``plain_sb3``, a plain SB3 model of the same kind. The message names
+    the file, what it holds and what loads it. A file that cannot be read passes (SB3 reports it)."""
+    saved = _saved_data(path)
+    if saved is None:
+        return
+    name, data = saved
+    algorithm, saved_off_policy = _saved_algorithm(data)
+    if algorithm == learner or (saved_off_policy == off_policy and plain_sb3):
+        return
+    if algorithm.startswith("an "):
+        raise UserError(f"{name} holds {algorithm}, not a {learner} one; load it with its own algorithm's load()")
+    raise UserError(f"{name} holds a {algorithm} model, not a {learner} one; load it with {algorithm}.load")
+
+
+def demonstrations_to_go_on(
+    saved: Demonstrations | None,
+    given: Demonstrations | None,
+    observation_space: spaces.Space,
+    action_space: spaces.Space,
+    fitted: bool,
+    learner: str,
+) -> tuple[Demonstrations | None, bool]:
+    """What a loaded model goes on with: the demonstrations ``load()`` was given (else the saved ones),
+    checked against the spaces, and whether its fitted ensemble, and with it the reward's bounds (DRIL's
+    threshold, the CMZ clip) and state, belong to other demonstrations and must be fitted again.
+
+    They must where the model was saved ``fitted`` on demonstrations that hold other steps than the
+    given ones: the reward would otherwise still measure the distance to the old demonstrations while
+    the BC steps pull toward the new ones. The refit is logged. Given demonstrations that are the
+    saved ones (a resumed run handed its pool again) keep everything as saved.
+    """
+    demos = given if given is not None else saved
+    if demos is None:
+        return None, False
+    demos = demos.check_spaces(observation_space, action_space)
+    if not fitted or given is None or saved is None or saved.same_steps(demos):
+        return demos, False
+    logger.info(
+        "%s.load: the demonstrations given (%d episodes, %d steps) differ from those the model was saved "
+        "with (%d episodes, %d steps): its ensemble and reward bounds are fitted again on them at the next "
+        "learn(); the policy keeps its weights and input standardisation",
+        learner, demos.n_episodes, len(demos), saved.n_episodes, len(saved),
+    )
+    return demos, True
+
+
+__all__ = ["REWARD_MODES", "check_imitation_options", "check_interval", "check_saved_learner", "check_whole_numbers",
+           "demo_tensors", "demonstrations_to_go_on", "demos_from_tensors", "parameters_to_set", "reward_rule",
+           "restored_state", "restoring_saved_model", "rule_bounds", "weights_brought_by_user"]

@@ -6,8 +6,9 @@ works in a folder.
 
 Atomic writes go to a temporary file in the destination folder (same filesystem, so the final
 ``os.replace`` is atomic), are flushed to disk, then renamed over the destination. A hard kill can
-leave such a temporary behind; :func:`remove_stale_temporaries` clears them once the folder's
-lock is held. SIGINT and SIGTERM that arrive during an atomic write are delivered when it ends
+leave such a temporary behind; its name carries the id of the process that wrote it, and
+:func:`remove_stale_temporaries` clears those of processes that have ended once the folder's lock is
+held. SIGINT and SIGTERM that arrive during an atomic write are delivered when it ends
 (:func:`deferred_signals`), so Ctrl-C never cuts a write in the middle.
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import logging
 import math
 import os
 import platform
@@ -34,6 +36,8 @@ import numpy as np
 from sb3_cmzdril.errors import UserError
 
 PathLike = Union[str, "os.PathLike[str]"]
+
+logger = logging.getLogger(__name__)
 
 #: Name of the lock file :func:`lock_output` holds in a folder.
 LOCK_FILE = ".lock"
@@ -111,13 +115,16 @@ def atomic_path(path: PathLike, suffix: str = "") -> Iterator[Path]:
 
     ``suffix`` is appended to the temporary name so that writers which insist on an extension
     (``np.savez`` adds ``.npz``, SB3 adds ``.zip`` when there is none) keep the name we chose.
+    The name also carries this process's id (:data:`_TEMPORARY`), so that a temporary which a hard
+    kill leaves behind is known for one (:func:`remove_stale_temporaries`).
     On any exception the temporary file is removed and ``path`` is left untouched. SIGINT and
     SIGTERM wait until the write is over (:func:`deferred_signals`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with deferred_signals():
-        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{suffix}")
+        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}-",
+                                        suffix=f".tmp{suffix}")
         os.close(fd)
         tmp = Path(tmp_name)
         # mkstemp makes 0600 files; results should be readable like any other file the process writes.
@@ -139,9 +146,10 @@ def atomic_write_text(path: PathLike, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-#: An :func:`atomic_path` temporary: ``.<name>.<mkstemp's random part>.tmp<suffix>``, where the
-#: suffix is none or the extension of ``<name>`` (``.d.npz.k3x9_q2a.tmp.npz``).
-_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]+\.tmp(?P<suffix>.*)$")
+#: An :func:`atomic_path` temporary: ``.<name>.<pid>-<mkstemp's random part>.tmp<suffix>``, where the
+#: suffix is none or the extension of ``<name>`` (``.d.npz.4242-k3x9_q2a.tmp.npz``). Earlier releases
+#: wrote no ``<pid>-``; those names still count.
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>[0-9]+)-)?[A-Za-z0-9_]+\.tmp(?P<suffix>.*)$")
 
 
 def is_temporary(name: str) -> bool:
@@ -154,16 +162,48 @@ def is_temporary(name: str) -> bool:
     return match is not None and match["suffix"] in ("", Path(match["name"]).suffix)
 
 
-def remove_stale_temporaries(*folders: Path) -> None:
-    """Remove the temporaries of atomic writes cut short by a hard kill (:func:`is_temporary`).
+def _writer_alive(name: str) -> bool:
+    """Whether the process a temporary's name says wrote it may still be writing it.
 
-    Call it only while holding the folder's lock: another process's write in progress looks the same.
+    A name without a process id (an older release's) and a process that has ended count as not; on a
+    system without POSIX signals, where ``os.kill(pid, 0)`` would end the process, the folder's lock
+    alone decides, as it did before names carried ids.
     """
+    match = _TEMPORARY.match(name)
+    if match is None or match["pid"] is None or os.name != "posix":
+        return False
+    pid = int(match["pid"])
+    if pid == os.getpid():
+        return True  # another thread of this process may be writing it
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: the process exists, under another user
+        return True
+    return True
+
+
+def remove_stale_temporaries(*folders: Path) -> list[Path]:
+    """Remove the temporaries of atomic writes cut short by a hard kill (:func:`is_temporary`), and
+    log one line naming them; return them.
+
+    Only those whose writer has ended (:func:`_writer_alive`) go: a process that writes in the folder
+    without its lock (a user's script saving a pool there) keeps its temporary. Call it only while
+    holding the folder's lock, which keeps the commands' own writers out: a process id says nothing
+    of the processes of another machine sharing the folder, and ids are reused.
+    """
+    removed = []
     for folder in folders:
-        for p in Path(folder).glob(".*.tmp*"):
-            if p.is_file() and is_temporary(p.name):
+        for p in sorted(Path(folder).glob(".*.tmp*")):
+            if p.is_file() and is_temporary(p.name) and not _writer_alive(p.name):
                 with contextlib.suppress(OSError):
                     p.unlink()
+                    removed.append(p)
+    if removed:
+        logger.info("removed %d temporary %s that a write cut short left behind: %s", len(removed),
+                    "file" if len(removed) == 1 else "files", ", ".join(str(p) for p in removed))
+    return removed
 
 
 # -- JSON ------------------------------------------------------------------------------------------
@@ -328,6 +368,17 @@ def machine() -> dict[str, Any]:
         "torch_threads": torch.get_num_threads(),
         "os": f"{platform.system()} {platform.release()}",
     }
+
+
+def same_file(a: PathLike, b: PathLike) -> bool:
+    """Whether two paths name one file: the same path once links are followed, or (both existing)
+    the same file under two names (a hard link, a case-insensitive filesystem)."""
+    if Path(a).resolve() == Path(b).resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist
+        return False
 
 
 def portable_path(path: PathLike) -> str:

@@ -57,7 +57,11 @@ from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.imitation import (
     check_imitation_options,
+    check_interval,
+    check_saved_learner,
+    check_whole_numbers,
     demo_tensors,
+    demonstrations_to_go_on,
     demos_from_tensors,
     parameters_to_set,
     restored_state,
@@ -102,6 +106,52 @@ class ScaledActionMSE:
     def __call__(self, actor: Any, obs: TensorObs, actions: th.Tensor) -> th.Tensor:
         target = (2.0 * (actions - self.low) / (self.high - self.low) - 1.0).clamp(-1.0, 1.0)
         return ((actor(obs, deterministic=True) - target) ** 2).sum(dim=1)
+
+
+def _check_sac_options(
+    buffer_size: Any, learning_starts: Any, batch_size: Any, train_freq: Any, gradient_steps: Any,
+    target_update_interval: Any, ent_coef: Any, target_entropy: Any,
+) -> None:
+    """UserError, in one line, for the SAC settings SB3 accepts but cannot learn with, or makes
+    something else of: ``gradient_steps=0`` (no update: the clone would be reported as the result),
+    ``buffer_size=0`` (a buffer of one transition), a ``batch_size``, ``train_freq`` or
+    ``target_update_interval`` below 1 (fails once training runs), a negative ``learning_starts``,
+    and an ``ent_coef`` or ``target_entropy`` string SAC cannot read (an assertion or a ValueError
+    with a traceback). ``gradient_steps=-1`` is SB3's "as many as the env steps collected"."""
+    check_whole_numbers(1, buffer_size=buffer_size, batch_size=batch_size,
+                        target_update_interval=target_update_interval)
+    check_whole_numbers(0, learning_starts=learning_starts)
+    if not (isinstance(gradient_steps, (int, np.integer)) and not isinstance(gradient_steps, bool)
+            and (gradient_steps >= 1 or gradient_steps == -1)):
+        raise UserError(f"gradient_steps must be a whole number >= 1, or -1 for as many as the env steps collected, "
+                        f"got {gradient_steps!r}")
+    pair = isinstance(train_freq, (tuple, list)) and len(train_freq) == 2
+    frequency, unit = train_freq if pair else (train_freq, "step")
+    check_whole_numbers(1, train_freq=frequency)
+    if unit not in ("step", "episode"):
+        raise UserError(f"train_freq's unit must be 'step' or 'episode', got {unit!r}")
+    if isinstance(ent_coef, str):
+        head, underscore, initial = ent_coef.partition("_")
+        value = _read_number(initial if head == "auto" else ent_coef)
+        if head == "auto":  # learnt, from 1 or from the value after "auto_"
+            valid = not underscore or (value is not None and value > 0)
+        else:
+            valid = value is not None and value >= 0
+        if not valid:
+            raise UserError(f"ent_coef must be a number >= 0, 'auto' or 'auto_<initial value > 0>', got {ent_coef!r}")
+    else:
+        check_interval("[0, inf)", ent_coef=ent_coef)
+    if isinstance(target_entropy, str) and target_entropy != "auto" and _read_number(target_entropy) is None:
+        raise UserError(f"target_entropy must be a number or 'auto', got {target_entropy!r}")
+
+
+def _read_number(text: str) -> float | None:
+    """The finite number ``text`` spells (as SAC's ``float()`` reads it), else None."""
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if np.isfinite(value) else None
 
 
 class CMZDRILSAC(SAC):
@@ -244,6 +294,13 @@ class CMZDRILSAC(SAC):
         if isinstance(critic_warmup_steps, bool) or not isinstance(critic_warmup_steps, (int, np.integer)) \
                 or critic_warmup_steps < 0:
             raise UserError(f"critic_warmup_steps must be a whole number >= 0, got {critic_warmup_steps!r}")
+        _check_sac_options(buffer_size, learning_starts, batch_size, train_freq, gradient_steps,
+                           target_update_interval, ent_coef, target_entropy)
+        check_whole_numbers(1, ensemble_epochs=ensemble_epochs, ensemble_batch_size=ensemble_batch_size,
+                            bc_batch_size=bc_batch_size)
+        check_interval("(0, 1]", tau=tau)
+        check_interval("[0, 1]", gamma=gamma)
+        check_interval("(0, inf)", learning_rate=learning_rate, ensemble_learning_rate=ensemble_learning_rate)
         if not 0.0 <= demo_fraction < 1.0:
             raise UserError(f"demo_fraction must lie in [0, 1), got {demo_fraction}")
         if optimize_memory_usage:
@@ -414,7 +471,19 @@ class CMZDRILSAC(SAC):
         demonstrations: DemosLike = None,
         **kwargs: Any,
     ) -> SelfCMZDRILSAC:
-        """Load a saved model; ``demonstrations`` replaces the ones saved with it."""
+        """Load a saved CMZDRILSAC model, as SAC's ``load``.
+
+        ``demonstrations`` replaces the ones saved with the model. Where they hold other steps than
+        those and the model was saved pretrained, its ensemble is fitted again on them at the next
+        ``learn()``, and with it DRIL's threshold, the CMZ reward's clip and a fresh reward state, so
+        that every replayed transition's reward measures the distance to the demonstrations mixed into
+        the batches and cloned by the BC term; a line is logged. The actor and critics keep their
+        weights, and with them the input standardisation they were trained with; set
+        ``pretrained = False`` after loading to clone the new demonstrations afresh as well. The saved
+        demonstrations handed again change nothing. A model saved by another learner (CMZDRIL, PPO, a
+        plain SAC) is refused in one line.
+        """
+        check_saved_learner(path, "CMZDRILSAC", off_policy=True, plain_sb3=False)
         with restoring_saved_model():
             model = super().load(
                 path, env=env, device=device, custom_objects=custom_objects, print_system_info=print_system_info,
@@ -424,13 +493,20 @@ class CMZDRILSAC(SAC):
         legacy_pretrained = model.__dict__.pop("pretrained", None)
         if legacy_pretrained is not None:
             model._policy_pretrained = bool(legacy_pretrained)
-        if demonstrations is not None:
-            model.demonstrations = as_demonstrations(demonstrations)
-        elif model._saved_demo_obs.numel():
-            saved = {key: getattr(model, f"_saved_demo_{key}") for key in _DEMO_TENSORS}
-            model.demonstrations = demos_from_tensors(model._saved_demo_obs.cpu().numpy(), saved)
-        if model.demonstrations is not None:
-            model.bc.set_demonstrations(model.demonstrations.check_spaces(model.observation_space, model.action_space))
+        saved = None
+        if model._saved_demo_obs.numel():
+            tensors = {key: getattr(model, f"_saved_demo_{key}") for key in _DEMO_TENSORS}
+            saved = demos_from_tensors(model._saved_demo_obs.cpu().numpy(), tensors)
+        given = None if demonstrations is None else as_demonstrations(demonstrations)
+        checked, refit = demonstrations_to_go_on(
+            saved, given, model.observation_space, model.action_space, model.ensemble.is_fitted, "CMZDRILSAC"
+        )
+        model.demonstrations = given if given is not None else saved
+        if checked is not None:
+            model.bc.set_demonstrations(checked)
+        if refit:  # the next learn() fits the ensemble and makes the bounds and the rule for it
+            model.ensemble.mark_unfitted()
+            model.dril_threshold = model.cmz_u_max = None
         if model.pretrained:
             model.reward_rule = model._make_rule()
             model.reward_rule.set_state(restored_state(model._saved_reward_state.cpu().numpy(), model.n_envs)[0])

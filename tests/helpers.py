@@ -154,3 +154,12 @@ def write_run(root: Path, method: str, trial: int, returns: Sequence[float], fre
     else:
         (out / "model.zip").write_bytes(b"checkpoint")
     return out
+
+
+def with_entry(yaml_text: str, entry: str) -> str:
+    """``yaml_text`` with one more setting ``entry`` (``"  key: value\\n"``) under its env key: a line of the
+    same key at the same indentation is replaced (hyperparameter files refuse a key written twice)."""
+    key = entry.split(":", 1)[0] + ":"
+    lines = yaml_text.splitlines(keepends=True)
+    kept = [line for line in lines if not line.startswith(key)]
+    return "".join(kept) + entry

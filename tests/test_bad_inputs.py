@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import ENV, POOL_EPISODES, TINY, cartpole_expert, pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, TINY, cartpole_expert, pendulum_expert, record, with_entry
 from helpers import TINY_PPO_YAML as TINY_PPO
 from helpers import TINY_SAC_YAML as TINY_SAC
 from sb3_cmzdril import CMZDRIL, CMZReward, UserError
@@ -75,9 +75,9 @@ def _collect(ws: Path, case: Path, expert: str, *extra: str, env: str = ENV) -> 
 
 
 def _yaml(ws: Path, case: Path, entry: str, base: str = "cmzdril.yml") -> str:
-    """A copy of a workspace YAML with one more entry under its env key."""
+    """A copy of a workspace YAML with one more entry under its env key (replacing that key's line)."""
     path = case / "bad.yml"
-    path.write_text((ws / base).read_text() + entry)
+    path.write_text(with_entry((ws / base).read_text(), entry))
     return str(path)
 
 
@@ -335,9 +335,29 @@ CASES = [
          lambda ws, c: _evaluate(ws, _cartpole_model(c), demos=_cartpole_pool(c)),
          r"cartpole.zip was trained on another environment: its observation space is Box of shape \(4,\), "
          r"Pendulum-v1's is Box of shape \(3,\)"),
+    # -- the output probe: a pool or its record over another file --------------------------------------
+    Case("collect-demos", "-o X.json: the record NAME.json would be the pool itself",
+         lambda ws, c: ["collect-demos", "--expert", _model(ws), "--env", ENV, "-o", str(c / "pool.json")],
+         r"case/pool.json must end in .npz"),
+    Case("collect-demos", "-o without .npz", lambda ws, c: ["collect-demos", "--expert", _model(ws), "--env", ENV,
+                                                           "-o", str(c / "pool")], r"case/pool must end in .npz"),
+    Case("collect-demos", "the record would replace the expert's zip (--force)",
+         lambda ws, c: ["collect-demos", "--expert", _expert_named(ws, c, "agent.json"), "--env", ENV,
+                        "-o", str(c / "agent.npz"), "--force"],
+         r"provenance .*agent.json would replace the expert's file .*agent.json"),
+    Case("collect-demos", "-o is the expert's zip (--force)",
+         lambda ws, c: ["collect-demos", "--expert", _expert_named(ws, c, "agent.npz"), "--env", ENV,
+                        "-o", str(c / "agent.npz"), "--force"],
+         r"pool .*agent.npz would replace the expert's file .*agent.npz"),
     Case("train-expert", "timesteps -1 (30.16)", lambda ws, c: _expert(ws, c / "e", "--timesteps", "-1"),
          r"timesteps \(--timesteps\) must be a positive integer, got -1"),
 ]
+
+
+def _expert_named(ws: Path, case: Path, name: str) -> str:
+    """The workspace's model zip as an expert file named ``name``."""
+    shutil.copy(ws / "model.zip", case / name)
+    return str(case / name)
 
 
 def _users_folder(case: Path) -> Path:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ENV, POOL_EPISODES, pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, pendulum_expert, record, with_entry
 from helpers import TINY_PPO_YAML as TINY_PPO
 from helpers import TINY_SAC_YAML as TINY_SAC
 from helpers import write_run as _fake_run
@@ -180,10 +180,10 @@ def test_wrong_yaml_values(setup, tmp_path, capsys, command, entry, message):
 
     bad, out = tmp_path / "bad.yml", tmp_path / "out"
     if command == "train":
-        bad.write_text(TINY_PPO + entry)
+        bad.write_text(with_entry(TINY_PPO, entry))
         args = train_args(setup, "--hyperparams", str(bad), "--timesteps", "128", "-o", str(out), reward="cmz")
     else:
-        bad.write_text(TINY_SAC + entry)
+        bad.write_text(with_entry(TINY_SAC, entry))
         args = sac_args(setup, "--hyperparams", str(bad), "-o", str(out))
     assert main(args) == 2
     assert re.search(message, error_line(capsys, command))
@@ -290,6 +290,16 @@ def test_evaluate_defaults_to_the_runs_held_out_episodes(normalized_run, capsys)
     assert f"episodes {','.join(map(str, held_out))} of " in out and "the run's held-out episodes" in out
     assert "2 episodes of" in out  # the table's title: the held-out pair, not the pool's 6
     assert f"normalised with {normalized_run / 'vecnormalize.pkl'}, found beside the model" in out
+
+
+def test_evaluate_says_which_pickle_beside_the_model_it_loads_before_loading_it(normalized_run, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(normalized_run, run)
+    (run / "vecnormalize.pkl").write_bytes(b"not a pickle")  # a pickle the user did not name, damaged
+    capsys.readouterr()
+    main(["evaluate", "--model", str(run / "model.zip"), "--env", ENV])
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"normalised with {run / 'vecnormalize.pkl'}, found beside the model" in out
 
 
 def test_evaluate_all_episodes_of_another_pool(normalized_run, setup, tmp_path, capsys):

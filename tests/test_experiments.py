@@ -21,7 +21,7 @@ import torch as th
 from cmzdril_lab import report
 from cmzdril_lab.run import grid
 from cmzdril_lab.run.grid import plan_grid, run_grid
-from helpers import ENV, POOL_EPISODES, Interrupt
+from helpers import ENV, POOL_EPISODES, Interrupt, with_entry
 from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.demos import Demonstrations
@@ -560,7 +560,7 @@ def test_run_experiment_checks_a_spec_made_by_hand_before_writing(tiny_experimen
     spec = plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], n_eval_episodes=1, timesteps=128,
                     hyperparams=tiny_experiment["hp"], output_dir=tmp_path / "run")
     bad = tmp_path / "bad.yml"
-    bad.write_text(TINY_YAML + "  n_epochs: 0\n")
+    bad.write_text(with_entry(TINY_YAML, "  n_epochs: 0\n"))
     with pytest.raises(ValueError, match="n_epochs must be >= 1, got 0"):
         run_experiment(dataclasses.replace(spec, hyperparams=str(bad)))
     assert not (tmp_path / "run").exists()

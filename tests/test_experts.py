@@ -374,6 +374,34 @@ def test_collect_demos_records_provenance_beside_the_file(tmp_path):
     assert rec["mean_return"] == pytest.approx(float(np.mean(demos.episode_returns)))
 
 
+#: A collect-demos killed (SIGKILL) while saving its pool: the atomic write's temporary stays.
+_KILLED_WHILE_SAVING = """
+import os, signal, sys
+from sb3_cmzdril.io import atomic_path
+with atomic_path(sys.argv[1], suffix=".npz") as tmp:
+    tmp.write_bytes(b"half a pool")
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_collect_demos_removes_the_temporary_a_killed_run_left(tmp_path, capsys):
+    """Bug 2: `kill -9` of collect-demos left its `.tmp.npz` for good; the next collect-demos into the
+    folder removes it, with a line saying so."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "cd" / "pool.npz"
+    out.parent.mkdir()
+    killed = subprocess.run([sys.executable, "-c", _KILLED_WHILE_SAVING, str(out)])
+    assert killed.returncode == -9
+    (stale,) = [p for p in out.parent.iterdir() if p.name.startswith(".pool.npz.")]
+    capsys.readouterr()
+    assert main(["collect-demos", "--expert", "waypoint-reactive", "--env", "sb3_cmzdril:WaypointNav-v0",
+                 "--env-kwargs", "dict(max_steps=7)", "-o", str(out)]) == 0
+    assert sorted(p.name for p in out.parent.iterdir()) == [".lock", "pool.json", "pool.npz"]
+    assert f"removed 1 temporary file that a write cut short left behind: {stale}" in capsys.readouterr().out
+
+
 def test_collect_demos_makes_the_env_with_env_kwargs_and_records_them(tmp_path):
     out = tmp_path / "demos.npz"
     rc = main(["collect-demos", "--expert", "waypoint-reactive", "--env", "sb3_cmzdril:WaypointNav-v0",

@@ -89,6 +89,30 @@ def test_remove_stale_temporaries_removes_only_temporaries(tmp_path):
         assert io.is_temporary(tmp.name)  # what atomic_path makes is what it removes
 
 
+def _dead_pid() -> int:
+    """The id of a process that has ended (and been waited for)."""
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                           check=True)
+    return int(child.stdout)
+
+
+def test_temporaries_name_their_writer_and_only_dead_writers_lose_them(tmp_path, caplog):
+    """A hard kill leaves an atomic write's temporary; its name carries the writer's process id, so the
+    next run removes those of processes that have ended (saying so) and keeps those of live ones."""
+    with io.atomic_path(tmp_path / "d.npz", suffix=".npz") as tmp:
+        assert tmp.name.startswith(f".d.npz.{os.getpid()}-") and io.is_temporary(tmp.name)
+    dead = tmp_path / f".pool.npz.{_dead_pid()}-k3x9_q2a.tmp.npz"
+    live = tmp_path / f".pool.npz.{os.getppid()}-k3x9_q2a.tmp.npz"  # the process that started this one
+    legacy = tmp_path / ".model.zip.abc.tmp.zip"  # no id: written before ids, removed under the lock
+    for path in (dead, live, legacy):
+        path.write_bytes(b"half")
+    caplog.set_level("INFO", logger="sb3_cmzdril")
+    assert sorted(io.remove_stale_temporaries(tmp_path)) == sorted([dead, legacy])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [live.name, "d.npz"]
+    (line,) = [r.getMessage() for r in caplog.records if r.name == "sb3_cmzdril.io"]
+    assert "removed 2 temporary files" in line and dead.name in line
+
+
 def test_jsonable_and_round_trip(tmp_path):
     data = {"a": np.float32(0.5), "b": (1, np.int64(2)), "c": float("inf"), "d": Path, 3: None, "e": [True]}
     expected = {"a": 0.5, "b": [1, 2], "c": "inf", "d": "pathlib.Path", "3": None, "e": [True]}

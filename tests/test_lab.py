@@ -153,3 +153,28 @@ def test_the_published_tables_regenerate_from_the_compact_records_unchanged(page
         return [line for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("|")]
 
     assert table_rows(tmp_path / "results.md") == table_rows(published)
+
+
+# -- the grid's plan ---------------------------------------------------------------------------------
+def test_a_grid_refuses_methods_that_would_split_a_trial_differently(tiny_experiment, tmp_path):
+    from cmzdril_lab.run.grid import plan_grid
+    from helpers import ENV
+
+    hp = tmp_path / "per_method.yml"
+    hp.write_text(tiny_experiment["hp"].read_text().replace("default:", f"{ENV}:", 1)
+                  + "  per_method:\n    cmz:\n      n_demos: 2\n")
+    with pytest.raises(UserError, match=r"trial 0: the methods would split the demo pool differently \(bc: 1 "
+                                        r"training.*cmz: 2 training"):
+        plan_grid(ENV, "bc,cmz", 1, tmp_path / "runs", demos_dir=tiny_experiment["demos_dir"], hyperparams=hp,
+                  timesteps=256, n_eval_episodes=2)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_grid_refuses_a_hyperparameter_file_that_none_of_its_methods_reads(tiny_experiment, tmp_path):
+    from cmzdril_lab.run.grid import plan_grid
+    from helpers import ENV
+
+    with pytest.raises(UserError, match=r"--hyperparams .* is read by the PPO methods only and --methods has "
+                                        r"none \(cmz-sac\); pass it as --sac-hyperparams"):
+        plan_grid(ENV, "cmz-sac", 1, tmp_path / "runs", demos_dir=tiny_experiment["demos_dir"],
+                  hyperparams=tiny_experiment["hp"], timesteps=256, n_eval_episodes=2)

@@ -329,7 +329,7 @@ class _BatchNormExtractor(BaseFeaturesExtractor):
 
 
 def test_collecting_leaves_batch_norm_alone_after_the_clone(pendulum_demos):
-    model = tiny_model(pendulum_demos, gradient_steps=0, learning_starts=10,
+    model = tiny_model(pendulum_demos, learning_starts=10_000,
                        policy_kwargs=dict(net_arch=[16, 16], features_extractor_class=_BatchNormExtractor))
     norm = model.actor.features_extractor.norm
     before = norm.running_mean.clone()

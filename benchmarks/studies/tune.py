@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from cmzdril_lab.records_store import materialize
-from sb3_cmzdril.hyperparams import PER_METHOD_KEY
+from sb3_cmzdril.hyperparams import PER_METHOD_KEY, load_yaml
 from sb3_cmzdril.io import atomic_write_text
 from sb3_cmzdril.training.spec import is_off_policy
 
@@ -77,7 +77,7 @@ def main() -> None:
     if not rest:
         parser.error("give the benchmark's arguments after `--` (at least --env)")
 
-    base = yaml.safe_load(Path(args.base).read_text())
+    base = load_yaml(Path(args.base).read_text(), f"hyperparameter file {args.base}")
     changes = parse_sets(args.set)
     apply_sets(base, changes)
     out = materialize(ROOT / "results" / "tuning" / args.name)  # results/tuning is kept as tuning.tar.xz

@@ -49,6 +49,7 @@ def _run_evaluate(args) -> int:
     from pathlib import Path
 
     from sb3_cmzdril.experts import check_env_id, load_demonstrations
+    from sb3_cmzdril.experts.loading import note_code_on_load
     from sb3_cmzdril.hyperparams import parse_env_kwargs
     from sb3_cmzdril.metrics import evaluate_against_expert
     from sb3_cmzdril.metrics.evaluation import make_env
@@ -73,10 +74,11 @@ def _run_evaluate(args) -> int:
     indices, which = _evaluation_episodes(args.episodes, demos.n_episodes, demos_path, run_config)
     vecnormalize, vecnormalize_note = _evaluation_statistics(args.vecnormalize, model_path, run_config)
     selected = demos.select(indices)
-    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize)
     print(f"episodes {','.join(map(str, indices))} of {demos_path}: {which}")
-    if vecnormalize_note:
+    if vecnormalize_note:  # before it is loaded: a pickle the user may not have named
         print(vecnormalize_note)
+    note_code_on_load()
+    model, transform = load_evaluation_model(model_path, args.env, env_kwargs, vecnormalize)
     result = evaluate_against_expert(model, args.env, selected, obs_transform=transform, env_kwargs=env_kwargs or None)
 
     from rich.console import Console

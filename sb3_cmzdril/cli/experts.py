@@ -76,7 +76,8 @@ def add_collect_demos(sub) -> None:
             "agent's folder (<Env>.zip with <Env>/config.yml and vecnormalize.pkl: the expert sees "
             "normalised observations, the pool records raw ones), a Hugging Face Hub agent hf://ORG/REPO "
             "(e.g. hf://sb3/sac-Walker2d-v3; the hub extra), the env id of a shipped expert "
-            "(HalfCheetah-v5), or the name of a registered scripted expert."
+            "(HalfCheetah-v5), or the name of a registered scripted expert. Model zips and pickles can run "
+            "code when loaded: use only experts you trust."
         ),
     )
     p.add_argument(
@@ -88,7 +89,10 @@ def add_collect_demos(sub) -> None:
     p.add_argument("--env", required=True, help="environment id")
     p.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (default 0)")
-    p.add_argument("-o", "--output", required=True, help="output .npz file")
+    p.add_argument(
+        "-o", "--output", required=True,
+        help="output pool NAME.npz (its record goes to NAME.json beside it; neither may be an expert's file)",
+    )
     p.add_argument(
         "--env-kwargs",
         default=None,

@@ -21,7 +21,7 @@ from sb3_cmzdril.console import RENDERABLE
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.errors import OutputExistsError, UserError
 from sb3_cmzdril.experts.envs import check_env_id, check_seed
-from sb3_cmzdril.experts.loading import resolve_expert
+from sb3_cmzdril.experts.loading import expert_files, resolve_expert
 from sb3_cmzdril.io import (
     LOCK_FILE,
     PathLike,
@@ -29,6 +29,8 @@ from sb3_cmzdril.io import (
     jsonable,
     lock_output,
     read_json_or_empty,
+    remove_stale_temporaries,
+    same_file,
     unlock_output,
     versions,
     write_json,
@@ -160,10 +162,13 @@ def collect_demos(
 
     :param expert: a path to an SB3 zip (any algorithm), a folder holding ``model.zip``, a
         registered scripted-expert name, or an object with ``predict``.
-    :param output: where to save the demonstrations (npz, written atomically), or None.
+    :param output: where to save the demonstrations, ``NAME.npz`` (written atomically; its record
+        goes to ``NAME.json``), or None. Neither may be one of the expert's own files.
     :param verbose: log a summary table of the episodes and where they were saved (INFO).
     :param force: replace an existing ``output`` and the record ``NAME.json`` beside it; without it
         either raises FileExistsError before any episode runs.
+    :raises UserError: ``output`` does not end in ``.npz``, or it or its record would replace one of
+        the expert's files or the folder's ``metadata.json`` (also with ``force``).
     """
     check_env_id(env_id)
     seed = check_seed(seed)
@@ -171,7 +176,7 @@ def collect_demos(
         raise UserError(f"n_episodes must be >= 1, got {n_episodes}")
     check_seed(seed + int(n_episodes) - 1)
     if output is not None:
-        _check_demos_output(Path(output), force)
+        _check_demos_output(Path(output), force, expert)
     env = make_env(env_id, env_kwargs)  # kwargs the env does not take: one line, before any file
     try:
         policy, description = resolve_expert(expert, env)
@@ -188,7 +193,8 @@ def collect_demos(
         folder.mkdir(parents=True, exist_ok=True)
         lock = lock_output(folder, f"another process is writing demos in {folder} (lock {folder / LOCK_FILE})")
         try:
-            _check_demos_output(Path(output), force)
+            _check_demos_output(Path(output), force, expert)
+            remove_stale_temporaries(folder)  # an earlier collect-demos killed while saving (kill -9)
             demos.save(output)
             _record_demos_provenance(Path(output), expert, description, env_id, demos, seed, env_kwargs)
         finally:
@@ -198,11 +204,21 @@ def collect_demos(
     return demos
 
 
-def _check_demos_output(output: Path, force: bool) -> None:
-    """Refuse, before any episode runs, an ``output`` whose record would be the folder's
-    ``metadata.json`` (ValueError), and without ``force`` one that would replace a pool or a file
-    beside it (FileExistsError)."""
+def _check_demos_output(output: Path, force: bool, expert: Any = None) -> None:
+    """Refuse, before any episode runs, an ``output`` that is no ``.npz`` (its record ``NAME.json``
+    could be the pool itself), or whose pool or record would be one of the ``expert``'s files or the
+    folder's ``metadata.json`` (ValueError, with ``force`` too), and without ``force`` one that
+    would replace a pool or a file beside it (FileExistsError)."""
+    if output.suffix.lower() != ".npz":
+        raise UserError(
+            f"demo pool {output} must end in .npz: the pool is written as NAME.npz and its provenance as "
+            "NAME.json beside it"
+        )
     record = provenance_path(output)
+    for what, path in (("the pool", output), ("the pool's provenance", record)):
+        source = next((f for f in expert_files(expert) if same_file(path, f)), None)
+        if source is not None:
+            raise UserError(f"{what} {path} would replace the expert's file {source}; choose another -o")
     if record.name == FOLDER_METADATA:
         raise UserError(
             f"a pool named {output.name} would keep its provenance in {record}, the expert folder's own record; "

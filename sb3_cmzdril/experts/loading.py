@@ -25,15 +25,27 @@ hub's ``sb3`` organisation) load without a conversion step:
 
 A model saved by this package (:class:`~sb3_cmzdril.CMZDRIL`, a training run's ``model.zip``) is an
 expert too: its policy is PPO's, and a run on normalised observations has ``vecnormalize.pkl`` beside it.
+
+Model zips and pickles run code when loaded: SB3 unpickles the ``:serialized:`` entries of a zip's
+``data``, and a pickle imports and calls whatever it names. Only the files the user named are loaded
+(the zip or folder of ``--expert``, the statistics the zoo keeps beside it, the Hub repository's
+files), and the first load in a process says so once (:func:`note_code_on_load`). Everything this
+module learns of a zip before SB3 loads it comes from its plain JSON: a pickled entry is read
+through without running any of it (:func:`_unresolvable`).
 """
 from __future__ import annotations
 
 import base64
+import functools
 import importlib
+import importlib.util
+import io
 import json
+import logging
 import os
 import pickle
 import re
+import sys
 import warnings
 import zipfile
 from dataclasses import dataclass
@@ -42,15 +54,17 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts.adapters import PaddedLayout, PaddedObservationExpert, check_padding_was_zeros, padded_layout
 from sb3_cmzdril.experts.scripted import SCRIPTED_EXPERTS
+from sb3_cmzdril.hyperparams import UniqueKeyLoader, load_yaml
 from sb3_cmzdril.io import PathLike
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
+
+logger = logging.getLogger(__name__)
 
 #: ``Name-vN``: an env id as the zoo names its files and folders.
 _ENV_ID = re.compile(r"^(?P<name>.+)-v(?P<version>\d+)$")
@@ -95,6 +109,17 @@ def algo_class(algo: str) -> type[BaseAlgorithm]:
     if algo.lower() not in classes:
         raise UserError(f"unknown algorithm {algo!r}; available: {sorted(classes)}")
     return classes[algo.lower()]
+
+
+@functools.lru_cache(maxsize=1)
+def note_code_on_load() -> None:
+    """Say once per process (INFO, which the command line prints) that the model zips and pickles
+    about to be loaded can run code. Call it before loading one that the user brought."""
+    logger.info(
+        "note: model zips and pickles (SB3 models, vecnormalize.pkl, hf:// downloads) can run code when "
+        "loaded; sb3-cmzdril loads only the files you name and the statistics the RL Zoo keeps beside them: "
+        "use only experts you trust"
+    )
 
 
 def load_sb3_model(algo_cls: type[BaseAlgorithm], path: Path, env: Any = None) -> BaseAlgorithm:
@@ -158,13 +183,82 @@ def _algorithm_from_data(path: Path, data: dict[str, Any]) -> list[type[BaseAlgo
     return [sb3[name] for name in order] + [cls for name, cls in sb3.items() if name not in order]
 
 
-def _unpicklable(item: Any) -> Exception | None:
-    """The error unpickling one ``:serialized:`` entry of ``data`` raises, or None if it loads."""
+class _Inert:
+    """What a pickle read by :class:`_DryRunUnpickler` builds in place of anything it names: it takes
+    any arguments, state, items and calls, and does nothing with them."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+    def __call__(self, *args: Any, **kwargs: Any) -> _Inert:
+        return _Inert()
+
+    def __setstate__(self, state: Any) -> None:
+        pass
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        pass
+
+    def append(self, item: Any) -> None:
+        pass
+
+    def extend(self, items: Any) -> None:
+        pass
+
+
+class _DryRunUnpickler(pickle.Unpickler):
+    """Reads a pickle to its end without running any of it: each global it names (a class, a
+    function) is recorded and stands in as :class:`_Inert`, so nothing the pickle calls is called
+    and no module it names is imported."""
+
+    def __init__(self, payload: bytes) -> None:
+        super().__init__(io.BytesIO(payload))
+        self.names: list[tuple[str, str]] = []
+
+    def find_class(self, module: str, name: str) -> Any:
+        self.names.append((module, name))
+        return _Inert
+
+    def persistent_load(self, pid: Any) -> Any:
+        return _Inert()
+
+
+def _missing_global(module: str, name: str) -> Exception | None:
+    """The error unpickling would raise for the global ``module.name`` where it is plainly not here:
+    its package is not installed, or its module is imported and lacks it. Nothing is imported to tell."""
+    top = module.split(".")[0]
+    if top not in sys.modules:
+        try:
+            spec = importlib.util.find_spec(top)  # a top-level name: looked up, not imported
+        except (ImportError, ValueError):
+            spec = None
+        if spec is None:
+            return ModuleNotFoundError(f"No module named {top!r}", name=top)
+    found: Any = sys.modules.get(module)
+    for part in name.split(".") if found is not None else ():
+        if not hasattr(found, part):
+            return AttributeError(f"Can't get attribute {name!r} on module {module!r}")
+        found = getattr(found, part)
+    return None
+
+
+def _unresolvable(item: dict[str, Any]) -> Exception | None:
+    """Why one ``:serialized:`` entry of ``data`` would not unpickle here, or None where it may.
+
+    Found without unpickling it, which would run whatever code the zip put there: the pickle is read
+    through (:class:`_DryRunUnpickler`) and the globals it names are looked up. A pickle that does not
+    read through (damaged, or of a form this reading refuses) counts as not unpickling.
+    """
     try:
-        # SB3 writes these with cloudpickle, whose output plain pickle reads (importing cloudpickle).
-        pickle.loads(base64.b64decode(item[":serialized:"].encode()))
-    except Exception as e:  # a missing module (gym), another Python's code object, ...: all unusable
+        # SB3 writes these with cloudpickle, whose output is a plain pickle.
+        reader = _DryRunUnpickler(base64.b64decode(str(item[":serialized:"]).encode()))
+        reader.load()
+    except Exception as e:  # damaged base64 or pickle: SB3's load could not use it either
         return e
+    for module, name in reader.names:
+        error = _missing_global(module, name)
+        if error is not None:
+            return error
     return None
 
 
@@ -179,7 +273,7 @@ def inference_custom_objects(path: Path, data: dict[str, Any], env: gym.Env | No
     for key, item in data.items():
         if key in custom or not (isinstance(item, dict) and ":serialized:" in item):
             continue
-        error = _unpicklable(item)
+        error = _unresolvable(item)
         if error is None:
             continue
         if key == "policy_class":
@@ -282,8 +376,27 @@ def find_model_files(path: PathLike) -> ZooFiles:
     return ZooFiles(chosen[0], _stats_folder(chosen[0]))
 
 
-class _ZooYamlLoader(yaml.SafeLoader):
-    """SafeLoader that also reads the zoo's ``!!python/object/apply:collections.OrderedDict`` files."""
+def expert_files(expert: Any) -> list[Path]:
+    """The files an expert given as a path is read from: its model zip and the zoo's files beside it
+    (none for a scripted expert, an object, a Hub repository or a path that does not exist), so that
+    an output can be refused where it would replace one of them."""
+    if not isinstance(expert, (str, Path)) or str(expert).startswith(HUB_PREFIX) or not Path(expert).exists():
+        return []
+    path = Path(expert)
+    try:
+        files = find_model_files(path)
+    except UserError:  # a folder without a model: loading it fails, one line, before anything is written
+        return [path] if path.is_file() else []
+    found = [path, files.model, files.model.parent / "vecnormalize.pkl"]
+    if files.stats is not None:
+        found += [files.stats / name for name in ("config.yml", "args.yml", "env_kwargs.yml", "vecnormalize.pkl",
+                                                  "vec_normalize.pkl")]
+    return [p for p in dict.fromkeys(found) if p.is_file()]
+
+
+class _ZooYamlLoader(UniqueKeyLoader):
+    """The hyperparameter files' loader (a SafeLoader refusing a key written twice) that also reads the
+    zoo's ``!!python/object/apply:collections.OrderedDict`` files."""
 
 
 def _ordered_dict(loader: Any, node: Any) -> dict[str, Any]:
@@ -298,9 +411,10 @@ _ZooYamlLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collection
 def read_zoo_yaml(path: Path) -> dict[str, Any]:
     """A zoo ``config.yml`` / ``args.yml`` as a dict; a ValueError naming the file otherwise."""
     try:
-        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_ZooYamlLoader)
-    except (yaml.YAMLError, ValueError, OSError) as e:
-        raise UserError(f"zoo file {path} is not readable YAML: {e}") from None
+        text = path.read_text(encoding="utf-8")
+    except (OSError, ValueError) as e:
+        raise UserError(f"zoo file {path} is not readable: {e}") from None
+    data = load_yaml(text, f"zoo file {path}", _ZooYamlLoader)
     return data if isinstance(data, dict) else {}
 
 
@@ -325,6 +439,7 @@ def load_vecnormalize(path: Path) -> Any:
     """A zoo ``vecnormalize.pkl`` (an SB3 ``VecNormalize`` without its env), gym spaces or not."""
     from stable_baselines3.common.vec_env import VecNormalize
 
+    note_code_on_load()
     try:
         with open(path, "rb") as f:
             stats = _GymTolerantUnpickler(f).load()
@@ -426,6 +541,7 @@ def load_expert_model(path: PathLike, algo: str | None = None, env: gym.Env | No
     files = find_model_files(path)
     model_path = files.model
     data = read_model_data(model_path)
+    note_code_on_load()
     _check_zoo_config(files)
     _check_env_version(files, env)
     name = algo or _infer_algo(model_path)

@@ -212,12 +212,50 @@ def _preference(record: RunRecord) -> tuple[bool, int]:
     return record.status == "done", int(record.columns["epoch"].size)
 
 
+#: config.json fields that fix which episodes of which pool a run trains and is evaluated on.
+SPLIT_FIELDS: tuple[str, ...] = ("demos_sha256", "train_episodes", "eval_episodes")
+#: ... and, with those, what makes two folders of one trial the same run (a copy) rather than another run.
+RUN_FIELDS: tuple[str, ...] = (*SPLIT_FIELDS, "timesteps", "eval_every", "hyperparams_values")
+
+
+def _differing(configs: Sequence[dict[str, Any]], fields: Sequence[str]) -> list[str]:
+    return [f for f in fields if len({json.dumps(c.get(f), sort_keys=True) for c in configs}) > 1]
+
+
+def _check_same_run(copies: Sequence[RunRecord], root: Path) -> None:
+    """Folders of one env, method and trial count once only when they are copies of one run: a run with
+    another split or other settings is refused, naming both, never pooled into the same cell."""
+    differ = _differing([r.config for r in copies], RUN_FIELDS)
+    if differ:
+        first, other = copies[0], next(r for r in copies[1:] if _differing([copies[0].config, r.config], differ))
+        raise UserError(f"{relative(first.path, root)} and {relative(other.path, root)} are both {first.env} "
+                        f"{METHOD_LABELS[first.method]} trial {first.trial} but differ in {', '.join(differ)}: "
+                        "report them from separate runs folders, or remove one")
+
+
+def _check_shared_splits(records: Sequence[RunRecord], root: Path) -> None:
+    """A trial's methods are paired only when they trained and were evaluated on the same episodes of
+    the same pool; a trial whose methods differ there is refused, naming the runs."""
+    trials: dict[tuple[str, int], list[RunRecord]] = {}
+    for record in records:
+        trials.setdefault((record.env, record.trial), []).append(record)
+    for (env, trial), runs in trials.items():
+        differ = _differing([r.config for r in runs], SPLIT_FIELDS)
+        if differ:
+            splits = "; ".join(f"{relative(r.path, root)}: " + ", ".join(f"{f} {r.config.get(f)}" for f in differ)
+                               for r in runs)
+            raise UserError(f"{env} trial {trial}: its methods' runs differ in {', '.join(differ)}, so they cannot "
+                            f"be paired ({splits}); rerun them on one split")
+
+
 def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[RunRecord]:
     """Every run below ``runs_dir`` with at least one evaluation row, sorted by env, method, trial.
 
     Each trial counts once: of several folders whose config.json name the same env, method and
     trial (a copy such as ``trial0.bak``), the finished one, else the one with the most evaluations,
-    else the first by path. Appended to ``skipped``: those other folders, folders whose config.json
+    else the first by path; folders of one trial that are not copies of one run (another split or other
+    settings), and a trial whose methods trained on different splits, are refused. Appended to
+    ``skipped``: those other folders, folders whose config.json
     names no run the report knows (:func:`run_identity`), runs without an evaluation yet, and the
     rows of an eval.csv left out (NaN, cut short: the run's other rows count).
 
@@ -247,11 +285,13 @@ def load_runs(runs_dir: PathLike, skipped: list[Skipped] | None = None) -> list[
                       read_final_eval(folder / FINAL_EVAL_CSV), _done_summary(folder / DONE_FILE, notes)))
     records = []
     for (env, method, trial), copies in by_trial.items():
+        _check_same_run(copies, root)
         kept = max(copies, key=_preference)  # max keeps the first of equals: the first by path
         records.append(kept)
         notes += [Skipped(other.path, f"another folder of {env} {METHOD_LABELS[method]} trial {trial} "
                           f"(config.json), counted once, from {relative(kept.path, root)}")
                   for other in copies if other is not kept]
+    _check_shared_splits(records, root)
     for note in notes:
         logger.warning("%s: left out %s", root, note.text(root))
     if skipped is not None:

@@ -112,6 +112,14 @@ def plan_grid(
         raise UserError("no method given")
     for method in names:
         check_method(method)
+    for option, path, learner, readers in (
+        ("--hyperparams", hyperparams, "PPO", [m for m in names if not is_off_policy(m)]),
+        ("--sac-hyperparams", offpolicy_hyperparams, "off-policy", [m for m in names if is_off_policy(m)]),
+    ):
+        if path is not None and not readers:
+            raise UserError(f"{option} {path} is read by the {learner} methods only and --methods has none "
+                            f"({', '.join(names)}); pass it as "
+                            f"{'--sac-hyperparams' if option == '--hyperparams' else '--hyperparams'}")
     for env_id in envs:
         check_env_id(env_id)
         pool = default_demos_path(env_id, demos_dir)
@@ -122,7 +130,7 @@ def plan_grid(
     indices = list(range(int(trials))) if isinstance(trials, int) else [int(t) for t in trials]
     if not indices:
         raise UserError(f"need at least one trial, got {trials!r}")
-    return [
+    specs = [
         plan_run(
             env_id,
             method,
@@ -141,6 +149,25 @@ def plan_grid(
         for env_id in envs
         for method in names
     ]
+    check_shared_splits(specs)
+    return specs
+
+
+def check_shared_splits(specs: Sequence[RunSpec]) -> None:
+    """A trial's methods train and are evaluated on the same episodes of the pool: the split depends on
+    the trial seed, the pool, ``n_demos`` and ``n_eval_episodes``, so settings that give one method of
+    a trial other values (a ``per_method`` ``n_demos``) are refused, naming them."""
+    splits: dict[tuple[str, int], dict[tuple, list[str]]] = {}
+    for spec in specs:
+        split = (spec.demos, spec.n_demos, spec.n_eval_episodes)
+        splits.setdefault((spec.env_id, spec.seed), {}).setdefault(split, []).append(spec.method)
+    for (env_id, seed), by_split in splits.items():
+        if len(by_split) > 1:
+            parts = "; ".join(f"{', '.join(methods)}: {n} training / {m} held-out episodes of {pool}"
+                              for (pool, n, m), methods in by_split.items())
+            raise UserError(f"{env_id} trial {seed}: the methods would split the demo pool differently ({parts}); "
+                            "a trial's methods must share one split (n_demos and n_eval_episodes per env, "
+                            "not per method)")
 
 
 # -- the worker side -------------------------------------------------------------------------------
