@@ -17,6 +17,7 @@ from setuptools.command.build_py import build_py
 SHIPPED = {
     "experts": ("*/demos.npz", "*/*.json", "*/model.zip"),
     "hyperparams": ("*.yml",),
+    "constraints": ("published.txt",),
 }
 
 

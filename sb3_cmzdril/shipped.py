@@ -40,6 +40,36 @@ def shipped_file(*parts: str) -> Path | None:
     return None
 
 
+#: The pip constraints file of the versions the published run records were made with.
+PUBLISHED_CONSTRAINTS = ("constraints", "published.txt")
+
+
+def published_versions() -> dict[str, str]:
+    """What the published run records were made with: distribution name -> version, from the shipped
+    constraints file (``constraints/published.txt``); {} where it is not shipped."""
+    path = shipped_file(*PUBLISHED_CONSTRAINTS)
+    if path is None:
+        return {}
+    found = {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        name, sep, version = line.split("#", 1)[0].strip().partition("==")
+        if sep:
+            found[name.strip()] = version.strip()
+    return found
+
+
+def version_differences(used: dict[str, str]) -> list[str]:
+    """``used`` (:func:`sb3_cmzdril.io.versions`' names) against :func:`published_versions`: one
+    ``"mujoco 4.0.1 (published: 4.0.0)"`` for each package whose version differs (a local build tag
+    such as torch's ``+cpu`` aside)."""
+    differ = []
+    for name, version in published_versions().items():
+        mine = used.get(name.replace("-", "_"))
+        if mine is not None and mine.split("+", 1)[0] != version:
+            differ.append(f"{name} {mine} (published: {version})")
+    return differ
+
+
 def _env_folder(env_id: str) -> str:
     # The folder of ``sb3_cmzdril:WaypointNav-v0`` is ``WaypointNav-v0``.
     return str(env_id).rsplit(":", 1)[-1]
@@ -127,10 +157,13 @@ def local_or_shipped_demos(env_id: str, demos_dir: PathLike = "experts") -> Path
 __all__ = [
     "BUNDLED_DIR",
     "CHECKOUT_DIR",
+    "PUBLISHED_CONSTRAINTS",
     "local_or_shipped_demos",
+    "published_versions",
     "shipped_demos",
     "shipped_envs",
     "shipped_expert",
     "shipped_file",
     "shipped_hyperparams",
+    "version_differences",
 ]

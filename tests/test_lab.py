@@ -2,6 +2,7 @@
 is not installed), the old import paths of what moved, and the compact run records it reads."""
 from __future__ import annotations
 
+import dataclasses
 import io
 import shlex
 import subprocess
@@ -178,3 +179,33 @@ def test_a_grid_refuses_a_hyperparameter_file_that_none_of_its_methods_reads(tin
                                         r"none \(cmz-sac\); pass it as --sac-hyperparams"):
         plan_grid(ENV, "cmz-sac", 1, tmp_path / "runs", demos_dir=tiny_experiment["demos_dir"],
                   hyperparams=tiny_experiment["hp"], timesteps=256, n_eval_episodes=2)
+
+
+def test_train_says_when_its_versions_differ_from_the_published_records(monkeypatch):
+    import sb3_cmzdril.io
+    from sb3_cmzdril.cli.train import published_versions_note
+    from sb3_cmzdril.shipped import published_versions, shipped_demos
+
+    pins = published_versions()
+    same = {"gymnasium": pins["gymnasium"], "mujoco": pins["mujoco"], "numpy": pins["numpy"],
+            "stable_baselines3": pins["stable-baselines3"], "torch": pins["torch"] + "+cpu", "python": "3.12.1"}
+    monkeypatch.setattr(sb3_cmzdril.io, "versions", lambda: same)
+    assert published_versions_note(shipped_demos("HalfCheetah-v5")) is None
+    monkeypatch.setattr(sb3_cmzdril.io, "versions", lambda: {**same, "mujoco": "9.9.9"})
+    note = published_versions_note(shipped_demos("HalfCheetah-v5"))
+    assert note is not None and f"mujoco 9.9.9 (published: {pins['mujoco']})" in note
+    assert "pip install -c constraints/published.txt" in note
+    # A user's own pool has no published records to differ from.
+    assert published_versions_note(REPO / "results" / "pools" / "tqc" / "Walker2d-v5" / "demos.npz") is None
+
+
+def test_a_report_says_which_runs_on_a_published_pool_were_made_with_other_versions(caplog):
+    from cmzdril_lab.records_store import materialize
+    from cmzdril_lab.report.records import load_runs, note_versions
+
+    records = load_runs(materialize(REPO / "results" / "runs"))
+    assert note_versions(records, REPO) == []  # the published grid itself
+    changed = [dataclasses.replace(r, config={**r.config, "versions": {**r.config["versions"], "mujoco": "9.9.9"}})
+               for r in records[:3]]
+    (line,) = note_versions([*changed, *records[3:]], REPO)
+    assert f"3 of {len(records)} runs were made with mujoco 9.9.9 (published: 4.0.0)" in line

@@ -69,3 +69,15 @@ def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
             if as_stored({"values": entry.raw})["values"] != config["hyperparams_values"]:
                 stale.append(str(path.relative_to(ROOT)))
     assert checked > 200 and stale == []
+
+
+def test_the_constraints_file_names_the_versions_the_published_records_were_made_with():
+    from sb3_cmzdril.shipped import published_versions, version_differences
+
+    pins = published_versions()
+    assert {"gymnasium", "mujoco", "numpy", "stable-baselines3", "torch"} <= set(pins)
+    made_with = {json.dumps({k: v for k, v in json.loads(path.read_text())["versions"].items()
+                             if k not in ("python", "sb3_cmzdril")}, sort_keys=True)
+                 for path in (ROOT / "results" / "runs").glob("*/*/trial*/config.json")}
+    assert len(made_with) == 1  # the grid was made with one set of versions
+    assert version_differences(json.loads(made_with.pop())) == []

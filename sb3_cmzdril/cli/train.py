@@ -111,6 +111,9 @@ def _run_train(args) -> int:
         checkpoint_every=args.checkpoint_every,
         command=command_line(),
     )
+    note = published_versions_note(spec.demos)
+    if note:
+        print(note)
     result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
         print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
@@ -126,6 +129,25 @@ def _run_train(args) -> int:
     for line in final_evaluation_lines(result.get("final_evaluation"), spec.output_dir, spec.method):
         print(line)
     return 0 if result["status"] in ("done", "skipped") else 1
+
+
+def published_versions_note(demos: PathLike) -> str | None:
+    """A line saying that this run's packages differ from those the published records were made with,
+    where the run is one of theirs (its demo pool a shipped one): its numbers then need not repeat
+    theirs; None where nothing differs or there is nothing published to compare with."""
+    from pathlib import Path
+
+    from sb3_cmzdril.io import versions
+    from sb3_cmzdril.shipped import PUBLISHED_CONSTRAINTS, shipped_envs, shipped_file, version_differences
+
+    pools = {shipped_file("experts", env, "demos.npz") for env in shipped_envs()}
+    if Path(demos).resolve() not in {pool.resolve() for pool in pools if pool is not None}:
+        return None
+    differ = version_differences(versions())
+    if not differ:
+        return None
+    return (f"note: {', '.join(differ)}: the published records were made with other versions, so this run's "
+            f"numbers may differ from theirs; `pip install -c {'/'.join(PUBLISHED_CONSTRAINTS)}` installs theirs")
 
 
 def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, method: str) -> list[str]:
@@ -162,4 +184,4 @@ def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, m
     return lines
 
 
-__all__ = ["METHODS_HELP", "add_run_options", "add_train", "final_evaluation_lines"]
+__all__ = ["METHODS_HELP", "add_run_options", "add_train", "final_evaluation_lines", "published_versions_note"]
