@@ -1,7 +1,7 @@
 """The committed run records, compact: each study folder of ``results/`` is one ``NAME.tar.xz``.
 
-A clone holds ``results/runs.tar.xz``, ``results/tuning.tar.xz``, ... instead of thousands of small
-files. Whatever reads a folder of records calls :func:`materialize` first: where the folder lies in an
+A clone holds ``results/runs.tar.xz``, ``results/tuning/NAME.tar.xz``, ... instead of thousands of
+small files. Whatever reads a folder of records calls :func:`materialize` first: where the folder lies in an
 archived study (or is one), the archive is unpacked beside it, once, and again only when the archive
 changed. The unpacked folders are ignored by git (``results/.gitignore``); :func:`pack` writes an
 archive back from its folder, byte for byte the same for the same files, so a study that gained runs
@@ -49,8 +49,10 @@ def materialize(path: PathLike) -> Path:
 
 
 def materialize_all(results: PathLike) -> list[Path]:
-    """Unpack every archived study in the folder ``results`` (where missing or out of date); the folders."""
-    folders = [Path(str(archive)[: -len(SUFFIX)]) for archive in sorted(Path(results).glob(f"*{SUFFIX}"))]
+    """Unpack every archived study in the folder ``results`` and in its plain subfolders (``tuning/``
+    keeps one archive per study), where missing or out of date; the folders."""
+    archives = [*sorted(Path(results).glob(f"*{SUFFIX}")), *sorted(Path(results).glob(f"*/*{SUFFIX}"))]
+    folders = [Path(str(archive)[: -len(SUFFIX)]) for archive in archives]
     for folder in folders:
         unpack(archive_of(folder), folder)
     return folders
