@@ -1,5 +1,5 @@
-"""The report on hand-written run folders: Table I, the final evaluation with its bootstrap CIs, two
-grids side by side, partial grids, the README block and the figures.
+"""The report on hand-written run folders: the headline first, Table I, the final evaluation with its
+bootstrap CIs, two grids side by side, partial grids, the README block, the discussion link and the figures.
 
 Every run folder here is written by the test (eval.csv, final_eval.csv, config.json, done.json), so
 each number the report prints can be computed by hand; the grid that writes real runs is tested in
@@ -18,6 +18,7 @@ import pytest
 from scipy.stats import bootstrap
 
 from cmzdril_lab import report
+from cmzdril_lab.report.figures import plot_final
 from cmzdril_lab.report.final_eval import (
     expert_level_share,
     expert_percent,
@@ -43,6 +44,15 @@ def by_hand_ci(values: Sequence[float]):
 def _rows(path: Path) -> list:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
+
+
+def _paired(docs: Path) -> dict:
+    """paired.csv by (method, policy, baseline)."""
+    return {(r["method"], r["policy"], r["baseline"]): r for r in _rows(docs / "paired.csv")}
+
+
+def _ci(row: dict, column: str) -> tuple[float, float, float]:
+    return tuple(float(row[f"{column}_{k}"]) for k in ("mean", "ci_low", "ci_high"))
 
 
 # Four trials; each final policy's held-out returns. CMZ-DRIL beats BC in trials 0, 2, 3 (3 of 4)
@@ -90,11 +100,18 @@ def test_final_table_means_and_cis_equal_hand_computed(main_grid, tmp_path):
         assert float(row["frechet_mean"]) == pytest.approx(np.mean([11 + t for t in range(4)]))
         assert float(row["action_mse_mean"]) == pytest.approx(np.mean([0.01 * (1 + t) for t in range(4)]))
         name = report.METHOD_LABELS[method] + (" (lowest u)" if policy == "lowest_u" else "")
-        assert f"| {ENV} | {name} | 4 | 3 | {report.fmt_ci(mean, low, high)} |" in text
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 3 of 4 | " + report.fmt_ci(*mean_ci([100, -40, 400, 20])) in text
-    assert "| 3 of 4 | " + report.fmt_ci(*mean_ci([50, -20, 100, 30])) + " | — |" in text  # CMZ-DRIL vs no reward
-    assert "| HalfCheetah-v5 | CMZ-DRIL (lowest u) | 4 of 4 |" in text  # 220, 160, 300, 100 vs 200, 150, 200, 70
-    assert "| 10, 11, 12, 13 |" in text  # the epochs each lowest-u choice came from
+        assert f"| {name} | {report.fmt_ci(mean, low, high)} |" in text  # one env: one column, 4 trials each
+    # Paired by trial: the page counts the trials above the baseline, paired.csv has the differences.
+    assert "| CMZ-DRIL | BC | 3 of 4 |" in text and "| CMZ-DRIL | No reward | 3 of 4 |" in text
+    assert "| CMZ-DRIL (lowest u) | BC | 4 of 4 |" in text  # 220, 160, 300, 100 vs 200, 150, 200, 70
+    assert "| CMZ-DRIL (lowest u) | No reward (lowest u) | 4 of 4 |" in text  # vs 200, 100, 250, 80
+    pairs = _paired(tmp_path / "docs")
+    assert _ci(pairs[("cmz", "final", "bc")], "return_diff") == pytest.approx(mean_ci([100, -40, 400, 20]))
+    assert _ci(pairs[("cmz", "final", "zero")], "return_diff") == pytest.approx(mean_ci([50, -20, 100, 30]))
+    assert (pairs[("cmz", "final", "bc")]["above"], pairs[("cmz", "final", "bc")]["trials"]) == ("3", "0;1;2;3")
+    assert pairs[("cmz", "lowest_u", "bc")]["selected_epochs"] == "10;11;12;13"  # the epoch of each choice
+    assert pairs[("zero", "lowest_u", "bc")]["above"] == "2"  # 200, 100, 250, 80: only in the CSV
+    assert "| No reward (lowest u) | BC |" not in text
     assert (tmp_path / "docs" / "fig3_final_eval.png").read_bytes()[:8] == PNG
     assert "](fig3_final_eval.png)" in text
 
@@ -131,15 +148,18 @@ def test_percent_of_expert_equals_hand_computed(main_grid, tmp_path):
     assert (float(row["pct_of_expert_ci_low"]), float(row["pct_of_expert_ci_high"])) == (pytest.approx(low),
                                                                                          pytest.approx(high))
     ret = report.fmt_ci(*mean_ci([300, 110, 600, 90]))
-    assert f"| {ENV} | CMZ-DRIL | 4 | 3 | {ret} | {report.fmt_ci(np.mean(cmz), low, high)} |" in text
-    assert "| Return | % of expert | Fréchet distance |" in text  # right after Return
     lowest = [_pct(v, t) for t, v in enumerate(LOWEST["cmz"])]
+    bc = [_pct(v, t) for t, v in enumerate(FINAL["bc"])]
+    zero = [_pct(v, t) for t, v in enumerate(FINAL["zero"])]
+    # The headline: % of the expert, env by method, the final policies then CMZ-DRIL's lowest u.
+    assert (f"| {ENV} | {report.fmt_ci(*mean_ci(bc))} | {report.fmt_ci(np.mean(cmz), low, high)} "
+            f"| {report.fmt_ci(*mean_ci(zero))} | {report.fmt_ci(*mean_ci(lowest))} |") in text
+    assert f"| CMZ-DRIL | {ret} |" in text  # the final evaluation's return
     assert float(table[("cmz", "lowest_u")]["pct_of_expert_mean"]) == pytest.approx(np.mean(lowest), rel=1e-12)
     # Paired: trial by trial against BC's 200, 150, 200, 70 on the same episodes
-    bc = [_pct(v, t) for t, v in enumerate(FINAL["bc"])]
-    diff = report.fmt_ci(*mean_ci([c - b for c, b in zip(cmz, bc, strict=True)]))
-    assert f"| {ENV} | CMZ-DRIL | 3 of 4 | {report.fmt_ci(*mean_ci([100, -40, 400, 20]))} | {diff} | 3 of 4 |" in text
-    assert "| Return − BC, mean [CI] | % of expert − BC, mean [CI] |" in text
+    row = _paired(tmp_path / "docs")[("cmz", "final", "bc")]
+    assert _ci(row, "pct_of_expert_diff") == pytest.approx(mean_ci([c - b for c, b in zip(cmz, bc, strict=True)]))
+    assert row["above"] == "3" and "| CMZ-DRIL | BC | 3 of 4 |" in text
     assert expert_percent({"return": np.array([0.0, 300.0]), "expert_return": np.array([100.0, 300.0])}) == 75.0
 
 
@@ -154,10 +174,12 @@ def test_percent_of_expert_is_na_without_positive_expert_returns(tmp_path):
     assert all(math.isnan(float(table[m]["pct_of_expert_mean"])) for m in ("bc", "cmz"))
     ret = report.fmt_ci(-650.0, -650.0, -650.0)
     expert = report.fmt_ci(*mean_ci([-999.5 + 10 * t for t in range(3)]))
-    assert f"| {ENV} | CMZ-DRIL | 3 | 2 | {ret} | n/a | " in text  # final table: % of expert
-    assert f"| 0.02 [0.01, 0.03] | n/a | {expert} |" in text  # and episodes at expert level, as before
-    assert f"| {ENV} | CMZ-DRIL | {ret}, n=3 | n/a, n=3 |" in text  # headline
-    assert f"| {ENV} | CMZ-DRIL | 3 of 3 | 200 [200, 200] | n/a | — | — | — |" in text  # return: paired; % n/a
+    assert f"| {ENV} | n/a | n/a |" in text  # the headline: no % of the expert for BC and CMZ-DRIL
+    assert f"| CMZ-DRIL | {ret} |" in text and f"| Expert (held-out demos) | {expert} |" in text  # the returns
+    assert math.isnan(float(table["cmz"]["expert_level_mean"]))  # nor a share of episodes at expert level
+    assert "| CMZ-DRIL | BC | 3 of 3 |" in text  # paired: the return counts, the % of the expert does not
+    row = _paired(tmp_path / "docs")[("cmz", "final", "bc")]
+    assert _ci(row, "return_diff") == (200.0, 200.0, 200.0) and math.isnan(float(row["pct_of_expert_diff_mean"]))
     assert math.isnan(expert_percent({"return": np.array([]), "expert_return": np.array([])}))
 
 
@@ -183,10 +205,11 @@ def test_partial_grid_reports_trials_per_cell(tmp_path):
     write_run(root, "cmz", 0, [10.0, 20.0], final={"final": [30.0, 50.0], "lowest_u": [45.0, 55.0]}, lowest_epoch=3)
     write_run(root, "cmz", 1, [10.0, 30.0], done=False)  # still training: Table I only
     text = report.write_report(root, tmp_path / "docs", references=(), figures=False).read_text()
-    assert "| HalfCheetah-v5 | BC | 2 | 2 | 70.0 [n/a] |" in text  # (50 + 90) / 2, no CI from 2 trials
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 1 | 2 | 40.0 [n/a] |" in text
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 0 of 1 | -10.0 [n/a] |" in text  # 40 - 50 on trial 0
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 17.5 (2.50) |" in text  # Table I: (15 + 20) / 2
+    assert "| BC | 70.0 [n/a], n=2 |" in text  # (50 + 90) / 2, no CI from 2 trials; cells differ in trials
+    assert "| CMZ-DRIL | 40.0 [n/a], n=1 |" in text
+    assert "| CMZ-DRIL | BC | 0 of 1 |" in text  # 40 - 50 on trial 0
+    assert _ci(_paired(tmp_path / "docs")[("cmz", "final", "bc")], "return_diff")[0] == -10.0
+    assert "| CMZ-DRIL | 17.5 (2.50) |" in text  # Table I: (15 + 20) / 2
     assert "1 run(s) are not finished" in text and "`HalfCheetah-v5/cmz/trial1` (partial)" in text
     assert "Final evaluation (trials per cell: 1-2)" in text
     assert "![" not in text and not list((tmp_path / "docs").glob("*.png"))  # figures=False: tables only
@@ -202,9 +225,11 @@ def test_grid_without_final_evaluation(tmp_path):
     out.mkdir()
     (out / "fig3_final_eval.png").write_bytes(b"from an earlier report")
     text = report.write_report(root, out, references=()).read_text()
-    assert "None: no run of this grid has a final_eval.csv" in text
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 150 (0.25), n=2 |" in text  # headline, Table I only: 150 and 150.5
-    assert not (out / "final_table.csv").exists()
+    assert "No final evaluation: no run of this grid has a final_eval.csv" in text
+    # The headline falls back on Table I: BC 50 and 51, CMZ-DRIL 150 and 150.5
+    cells = f"{report.fmt_mean_std(50.5, 0.5)} | {report.fmt_mean_std(150.25, 0.25)}"
+    assert f"| {ENV} | {cells} |" in text and "no run has a final evaluation yet" in text
+    assert not (out / "final_table.csv").exists() and not (out / "paired.csv").exists()
     assert not (out / "fig3_final_eval.png").exists()  # a stale figure would contradict the report
 
 
@@ -227,7 +252,7 @@ def test_a_copied_run_folder_is_the_same_trial_counted_once(main_grid, tmp_path,
     write_run(main_grid / "elsewhere", "bc", 1, [999.0], done=False)
     assert main(["report", str(main_grid), "-o", str(tmp_path / "after"), "--no-figures"]) == 0
     out = capsys.readouterr().out
-    for name in ("table1.csv", "final_table.csv"):
+    for name in ("table1.csv", "final_table.csv", "paired.csv", "per_run.csv"):
         assert (tmp_path / "after" / name).read_text() == (tmp_path / "before" / name).read_text(), name
     copy = (f"`{ENV}/cmz/trial0.bak` (another folder of {ENV} CMZ-DRIL trial 0 (config.json), counted once, "
             f"from {ENV}/cmz/trial0)")
@@ -256,7 +281,9 @@ def test_runs_the_report_cannot_place_are_named_with_the_reason(main_grid, tmp_p
         assert line in text
         path, reason = line[1:-1].split("` (")
         assert f"left out {path}: {reason}" in out
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 4 |" in text  # still the four trials of the fixture
+    cmz = next(r for r in _rows(tmp_path / "docs" / "table1.csv") if r["method"] == "cmz")
+    assert cmz["n_trials"] == "4"  # still the four trials of the fixture
+    assert f"- {ENV}: `bc`, `cmz`, `zero` trials 0-3" in text  # where each number comes from
 
 
 def test_a_nan_row_is_left_out_not_the_method(tmp_path):
@@ -265,7 +292,7 @@ def test_a_nan_row_is_left_out_not_the_method(tmp_path):
         write_run(root, "cmz", trial, [100.0, float("nan") if trial else 150.0, 200.0])
     text = report.write_report(root, tmp_path / "docs", references=(), figures=False).read_text()
     # Table I: trial 0 (100 + 150 + 200) / 3 = 150, trial 1 (100 + 200) / 2 = 150
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 150 (0) |" in text
+    assert "| CMZ-DRIL | 150 (0) |" in text
     assert (f"`{ENV}/cmz/trial1/eval.csv` (1 row(s) with NaN or infinite values left out; its other rows count)"
             in text)
 
@@ -297,38 +324,82 @@ def test_two_grids_side_by_side_with_the_paper(main_grid, tmp_path, capsys):
     assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(out),
                  "--label", "new", "--reference-label", "old"]) == 0
     text = (out / "results.md").read_text()
-    header = ("| Env | Method | new: final evaluation, mean [95% CI] "
-              "| new: final evaluation, % of expert [95% CI] | new: Table I, mean (std) "
-              "| old: Table I, mean (std) | The paper's Table I, mean (std) |")
-    assert header in text
-    row = next(line for line in text.splitlines() if line.startswith(f"| {ENV} | CMZ-DRIL |"))
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[2] == f"{report.fmt_ci(*mean_ci([300, 110, 600, 90]))}, n=4"  # final evaluation
-    assert cells[3] == f"{report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL['cmz'])]))}, n=4"
-    window = [(0.0 + 100 + t + 200 + t) / 3 for t in range(4)]  # Table I: 3 epochs, all in the window
-    assert cells[4] == f"{report.fmt_mean_std(np.mean(window), np.std(window))}, n=4"
-    assert cells[5:] == ["25.0 (5.00), n=2", "1690 (360)"]  # old: mean of 20 and 30 (2 epochs each); the paper
-    bc = report.fmt_ci(*mean_ci([200, 150, 200, 70]))
-    bc_pct = report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL["bc"])]))
-    assert f"| {ENV} | BC | {bc}, n=4 | {bc_pct}, n=4 | 155 (53.2), n=4 | 30.0 (0), n=1 | 708 (162) |" in text
-    lowest, lowest_pct = mean_ci([220, 160, 300, 100]), mean_ci([_pct(v, t) for t, v in enumerate(LOWEST["cmz"])])
-    assert (f"| {ENV} | CMZ-DRIL (lowest u) | {report.fmt_ci(*lowest)}, n=4 | {report.fmt_ci(*lowest_pct)}, n=4 "
-            "| — | — | — |") in text
+    headline, rest = text.split("## Per task: new\n")
+    body, old = rest.split("## Per task: old\n")
+    # The headline: the main grid's % of the expert alone, then its figure; nothing of the other grid yet.
+    cmz_pct = report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(FINAL["cmz"])]))
+    lowest_pct = report.fmt_ci(*mean_ci([_pct(v, t) for t, v in enumerate(LOWEST["cmz"])]))
+    row = next(line for line in headline.splitlines() if line.startswith(f"| {ENV} |"))
+    assert row.split(" | ")[2] == cmz_pct and row.endswith(f" | {lowest_pct} |")
+    assert "](fig3_final_eval.png)" in headline and "25.0" not in headline and "1690" not in headline
+    # Per task, the new grid: the final evaluation's returns and Table I; the old grid: Table I only.
+    assert f"| CMZ-DRIL | {report.fmt_ci(*mean_ci([300, 110, 600, 90]))} |" in body
+    assert f"| CMZ-DRIL (lowest u) | {report.fmt_ci(*mean_ci([220, 160, 300, 100]))} |" in body
     expert = report.fmt_ci(*mean_ci([1001 + 10 * t for t in range(4)]))
-    assert f"| {ENV} | Expert (held-out demos) | {expert}, n=4 | — |" in text  # no % of the expert itself
-    assert "old: no final evaluation (its runs have no final_eval.csv)" in text
-    assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in text
-    assert "## new" in text and "## old" in text and f"`{ref}`" in text
+    assert f"| Expert (held-out demos) | {expert} |" in body
+    window = [(0.0 + 100 + t + 200 + t) / 3 for t in range(4)]  # Table I: 3 epochs, all in the window
+    assert f"| CMZ-DRIL | {report.fmt_mean_std(np.mean(window), np.std(window))} |" in body
+    assert f"| BC | {report.fmt_mean_std(155.0, np.std([200, 150, 200, 70]))} |" in body
+    assert "No final evaluation: no run of this grid has a final_eval.csv" in old
+    assert f"- {ENV}: `bc_pretrain_epochs` 1000 vs 100" in old
+    # old: cmz the mean of 20 and 30 (2 epochs each) over 2 trials, bc 1 trial: the cells name their trials
+    assert "| CMZ-DRIL | 25.0 (5.00), n=2 |" in old and "| BC | 30.0 (0), n=1 |" in old
+    assert "## The paper's Table I" in old and "| 1690 (360) |" in old and "| 708 (162) |" in old
+    assert f"`{ref}`" in text and "## How to read" in old and "## Where each number comes from" in old
     assert {p.name for p in out.iterdir()} == {"results.md", "table1.csv", "table1_reference.csv", "final_table.csv",
+                                              "paired.csv", "per_run.csv", "per_run_reference.csv",
                                               "fig1_bc_dril_cmz.png", "fig2_cmz_env_zero.png", "fig3_final_eval.png",
                                               "across_tasks.csv", "fig4_across_tasks.png"}
     assert _rows(out / "table1_reference.csv")[1]["run_dirs"] == f"{ENV}/cmz/trial0;{ENV}/cmz/trial1"
+    runs = _rows(out / "per_run_reference.csv")
+    assert [(r["method"], r["trial"], r["run_dir"], r["status"]) for r in runs] == [
+        ("bc", "0", f"{ENV}/bc/trial0", "done"), ("cmz", "0", f"{ENV}/cmz/trial0", "done"),
+        ("cmz", "1", f"{ENV}/cmz/trial1", "done")]
+    assert [float(r["table1_return"]) for r in runs] == [30.0, 20.0, 30.0] and runs[0]["final_return"] == ""
     # Existing report files are kept unless --force; two grids need two names.
     assert main(["report", str(main_grid), "-o", str(out)]) == 2
     assert "final_table.csv" in capsys.readouterr().err
     assert main(["report", str(main_grid), "--reference-runs", str(ref), "-o", str(tmp_path / "x"),
                  "--label", "same", "--reference-label", "same"]) == 2
     assert "both grids are labelled 'same'" in capsys.readouterr().err
+
+
+def test_the_page_opens_with_the_answer_and_keeps_the_detail_short(main_grid, tmp_path):
+    text = report.write_report(main_grid, tmp_path / "docs", figures=False).read_text()
+    lines = text.splitlines()
+    # The first table on the page is the headline: env by method, short heads, a short note under it.
+    first = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    assert lines[first - 2] == "## Headline"
+    assert lines[first] == "| Env | BC | CMZ-DRIL | No reward | CMZ-DRIL (lowest u) |"
+    note = lines[first + 4]  # header, rule, one env, blank
+    assert lines[first + 3] == "" and note.count(". ") <= 1 and len(note) < 600
+    # Every table's heads are short; the long explanations are under "How to read", after the tables.
+    heads = [c.strip() for line in lines if line.startswith("| ") and lines[lines.index(line) + 1].startswith("|--")
+             for c in line.strip("|").split("|")]
+    assert max(map(len, heads)) <= 30, max(heads, key=len)
+    order = [lines.index(h) for h in ("## Headline", "## Across tasks", "## Per task", "## How to read",
+                                      "## Where each number comes from")]
+    assert order == sorted(order)
+    assert "9999 resamples" in "\n".join(lines[order[3]:order[4]])  # the bootstrap's details: How to read
+    rows = _rows(tmp_path / "docs" / "per_run.csv")  # the runs, one a row, instead of a listing on the page
+    assert len(rows) == 12 and {r["status"] for r in rows} == {"done"}
+    cmz0 = next(r for r in rows if (r["method"], r["trial"]) == ("cmz", "0"))
+    assert (float(cmz0["final_return"]), cmz0["final_episodes"], float(cmz0["lowest_u_return"])) == (300.0, "3", 220.0)
+    assert f"`{ENV}/cmz/trial0`" not in text  # no per-run listing on the page
+
+
+def test_the_final_evaluation_figure_reads_at_page_width(tmp_path):
+    # Five envs: two panels a row (three rows, the legend in the sixth panel), not five in one row.
+    envs = ("Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Ant-v5", "HalfCheetah-v5")
+    for env in envs:
+        for trial in range(3):
+            write_run(tmp_path / "runs", "bc", trial, [1.0], env=env, final={"final": [100.0, 120.0]})
+            write_run(tmp_path / "runs", "cmz", trial, [1.0, 2.0], env=env, final={"final": [300.0, 320.0]})
+    path = plot_final(final_table(load_runs(tmp_path / "runs")), tmp_path / "fig.png", "t")
+    header = path.read_bytes()
+    assert header[:8] == PNG
+    width, height = int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+    assert width < 1.6 * 110 * 6 * 2 and height > width  # about 11 inches wide at 110 dpi, taller than wide
 
 
 def test_setting_differences_name_missing_settings(tmp_path):
@@ -357,9 +428,11 @@ def test_readme_block_shows_the_headline(main_grid, tmp_path, capsys):
     (row,) = [line for line in block.splitlines() if line.startswith(f"| {ENV} |")]
     assert row.split(" | ")[2] == cmz
     assert "1690" not in block and "old:" not in block
-    assert f"From 12 runs in `{main_grid}`;" in block
+    assert f"From 12 runs in `{main_grid}`, final evaluation:" in block
     assert "details in [results.md](docs/results.md)" in block
     assert len(block.splitlines()) <= 12
+    note = block.splitlines()[-1]  # under the table: at most two sentences
+    assert block.splitlines()[-2] == "" and note.count(". ") <= 1 and note.endswith(".")
     readme.write_text("no block here\n")
     assert main(["report", str(main_grid), "-o", str(tmp_path / "again"), "--readme", str(readme)]) == 2
     assert "has no results block" in capsys.readouterr().err
@@ -400,8 +473,11 @@ def test_report_gap_closed_and_window_on_synthetic_runs(tmp_path):
         write_run(runs_dir, "bc", trial, [50 + shift], [6.0], [0.6])
     path = report.write_report(runs_dir, tmp_path / "docs", references=(), figures=False)
     text = path.read_text()
-    assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 210 (10.0) | 4.00 (0) | 0.4 (0) |" in text
-    assert "| HalfCheetah-v5 | BC | 2 | 60.0 (10.0) | 6.00 (0) | 0.6 (0) |" in text
+    assert "| CMZ-DRIL | 210 (10.0) |" in text and "| BC | 60.0 (10.0) |" in text  # Table I's return
+    table = {r["method"]: r for r in _rows(tmp_path / "docs" / "table1.csv")}  # and its other metrics
+    cmz = [float(table["cmz"][k]) for k in ("frechet_mean", "frechet_std", "action_mse_mean")]
+    bc = [float(table["bc"][k]) for k in ("return_mean", "frechet_mean", "action_mse_mean")]
+    assert cmz == pytest.approx([4.0, 0.0, 0.4]) and bc == pytest.approx([60.0, 6.0, 0.6])
     assert "| HalfCheetah-v5 | 2 | 50% | 25% | 50% |" in text  # (210-110)/(310-110), (4-5)/(1-5), (0.4-0.5)/(0.3-0.5)
     assert "paper's Table I" not in text
     gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))
@@ -455,14 +531,36 @@ def test_report_reward_signal_joins_segments_and_averages_trials(tmp_path):
     assert "| HalfCheetah-v5 | CMZ-DRIL | 2 | 1.50 → 3.50 | 0 → 0 | n/a → n/a | 100 → 500 |" in text
 
 
-def test_report_includes_the_discussion_and_refuses_a_missing_one(tmp_path, capsys):
+def test_report_links_the_discussion_and_refuses_a_missing_one(tmp_path, capsys):
     runs_dir = tmp_path / "runs"
     write_run(runs_dir, "bc", 0, [1.0])
     notes = tmp_path / "notes.md"
     notes.write_text("Ours agree with the paper on Hopper.\n")
     assert main(["report", str(runs_dir), "-o", str(tmp_path / "docs"), "--discussion", str(notes),
                  "--no-figures"]) == 0
-    assert "## Discussion\n\nOurs agree with the paper on Hopper.\n" in (tmp_path / "docs" / "results.md").read_text()
+    text = (tmp_path / "docs" / "results.md").read_text()
+    # Linked, relative to the page (mkdocs checks it), near the top; not copied.
+    assert "[the discussion](../notes.md)" in text and "Ours agree" not in text
+    assert text.index("[the discussion]") < text.index("## Headline")
+    assert (tmp_path / "docs" / "../notes.md").resolve() == notes.resolve()
     assert main(["report", str(runs_dir), "-o", str(tmp_path / "x"), "--discussion", str(tmp_path / "nope.md")]) == 2
     assert "discussion file not found" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # refused before writing anything
+
+
+@pytest.mark.slow
+def test_the_published_report_stays_a_page_a_reader_finishes(tmp_path):
+    # docs/results.md's own inputs (the command at its end), written beside the docs folder it links from.
+    root = Path(__file__).resolve().parent.parent
+    if not (root / "results" / "runs.tar.xz").is_file():
+        pytest.skip("no published run records here")
+    docs = tmp_path / "docs"
+    shutil.copy(root / "docs" / "discussion.md", tmp_path / "discussion.md")
+    text = report.write_report(root / "results" / "runs", docs, reference_runs=root / "results" / "runs_paper_faithful",
+                               aggregate_runs=[root / "results" / "outside_env"], label="new defaults",
+                               reference_label="paper-faithful", discussion=tmp_path / "discussion.md").read_text()
+    assert len(text.splitlines()) <= 300
+    assert "[the discussion](../discussion.md)" in text and "### Two grids" not in text
+    lines = text.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    assert lines[first - 2] == "## Headline" and lines[first].startswith("| Env | BC | DRIL | CMZ-DRIL |")

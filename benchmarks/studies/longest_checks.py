@@ -25,7 +25,7 @@ Then, per env and method, the runs where the two rules keep different policies. 
 recorded choice differs from the replayed one is an error (the replay would not be the runs' rule).
 
 The repository's outputs, Pendulum-v1's off-policy runs with the package's `default` entry and with the entry
-before it (docs/untuned_discussion.md):
+before it (docs/untuned/discussion.md):
 
     python benchmarks/studies/longest_checks.py results/untuned/Pendulum-v1 \\
         -o results/tuning/longest_checks_pendulum_auto_tie_u.txt

@@ -13,7 +13,7 @@
 # cd35bde610f4045bf2e0731c8f4c88d22df8fc85. Only the pool needs it. The expert is the zoo's A2C agent
 # (301.3 +/- 0.8 over the pool's 30 deterministic episodes): the copy of the zoo at hand had no model
 # file for its SAC, TD3 and TQC agents of this env, and its PPO and TRPO agents scored 205 +/- 133 and
-# 213 +/- 132 over the same episodes (docs/untuned_discussion.md). BipedalWalker-v3 needs Box2D
+# 213 +/- 132 over the same episodes (docs/untuned/discussion.md). BipedalWalker-v3 needs Box2D
 # (pip install "gymnasium[box2d]"). About 12 CPU-minutes a PPO run on a 2-core machine, 2 at a time.
 source "$(dirname "$0")/untuned_common.sh"
 env_id=BipedalWalker-v3
@@ -65,4 +65,4 @@ $cli benchmark --env BipedalWalkerHardcore-v3 --methods env --trials 0-4 --times
 # Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
 bash benchmarks/studies/untuned_pendulum.sh
 $cli report "$untuned" -o docs/untuned --no-paper --label "tasks nobody here tuned for, the package defaults" \
-    --discussion docs/untuned_discussion.md --force
+    --discussion docs/untuned/discussion.md --force

@@ -149,7 +149,7 @@ def add_report(sub) -> None:
     p.add_argument(
         "--discussion",
         metavar="MARKDOWN",
-        help="a hand-written markdown file (what the numbers mean), included as the Discussion section",
+        help="a hand-written markdown page (what the numbers mean) that results.md links to",
     )
     p.add_argument(
         "--readme", metavar="README", help="also replace the results block of this README with the headline table"

@@ -286,9 +286,9 @@ def _improvement_row(labels: Mapping[str, str], a: str, b: str, pair: Improvemen
             ", ".join(pair.tasks)]
 
 
-def per_task_markdown(scores: Scores) -> str:
+def per_task_markdown(scores: Scores, short: bool = False) -> str:
     """Each task's mean score (% of expert) per method over its trials, the numbers the aggregates pool;
-    "—" where a method has no runs of the task."""
+    "—" where a method has no runs of the task. ``short``: the methods' names alone as column heads."""
     methods = list(scores.by_method)
     tasks = list(dict.fromkeys(t for m in methods for t in scores.tasks[m]))
 
@@ -297,17 +297,35 @@ def per_task_markdown(scores: Scores) -> str:
             return "—"
         return f"{100 * scores.on(method, [task]).mean():.1f}"
 
-    return md_table(["Task", *(f"{scores.labels[m]}, mean % of expert" for m in methods)],
-                    [[task, *(cell(m, task) for m in methods)] for task in tasks])
+    heads = [scores.labels[m] if short else f"{scores.labels[m]}, mean % of expert" for m in methods]
+    return md_table(["Task", *heads], [[task, *(cell(m, task) for m in methods)] for task in tasks])
 
 
-def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
-    """The report's "Across tasks" section: the method, the tables and the figure (``figure``: its link
-    from the page)."""
+def _summary_table(agg: Aggregates, short: bool = False) -> str:
+    s = agg.scores
+    heads = [f"{st} [CI]" if short else f"{st}, % of expert [CI]" for st in STATISTICS]
+    return md_table(["Method", "Tasks", *heads],
+                    [[s.labels[m], ", ".join(s.tasks[m]), *(_pct(*agg.summary[m][st]) for st in STATISTICS)]
+                     for m in s.by_method])
+
+
+def _improvement_table(agg: Aggregates, short: bool = False) -> str:
+    iqm = ["IQM [CI]", "Baseline's IQM [CI]"] if short else ["Method's IQM, % [CI]", "Baseline's IQM, % [CI]"]
+    return md_table(["Method", "Over", "P(improvement) [CI]", *iqm, "Tasks"],
+                    [_improvement_row(agg.scores.labels, a, b, pair) for (a, b), pair in agg.improvement.items()])
+
+
+def _spans_tasks(s: Scores) -> bool:
+    """Whether the methods are scored on different tasks (then their rows do not compare)."""
+    return len(set(s.tasks.values())) > 1
+
+
+def method_text(agg: Aggregates) -> str:
+    """How the aggregates are made, in words."""
     s = agg.scores
     counts = sorted({len(t) for t in s.trials.values()})
     trials = " or ".join(str(n) for n in counts)
-    parts = [
+    return (
         "One number across tasks, as Agarwal et al. (NeurIPS 2021) recommend, with `rliable`'s statistics: each "
         "run's final policy scores its mean return over its held-out pool episodes divided by the expert's mean "
         "return on the same episodes (100% = the expert). The interquartile mean (IQM) and the mean pool every "
@@ -316,37 +334,73 @@ def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
         f"each task, seed {SEED}). A method counts on the tasks where it has runs"
         + (f"; left out: {left_out_text(s.left_out)}." if s.left_out else ".")
         + (" The methods span different tasks (the Tasks column), so the rows do not compare with one another: "
-           "the pairs below score two methods on the tasks both have." if len(set(s.tasks.values())) > 1 else ""),
+           "the pairs below score two methods on the tasks both have." if _spans_tasks(s) else "")
+    )
+
+
+#: What the probability of improvement is, in words.
+IMPROVEMENT_TEXT = ("the chance that a run of the first method scores above a run of the second on a task picked at "
+                    "random (0.5: neither is better), over the tasks both have, with each method's IQM on those "
+                    "tasks alone")
+#: What the performance profiles' figure shows, in words.
+PROFILES_TEXT = ("the share of runs (all tasks and trials) whose score exceeds each fraction of the expert, with its "
+                 "bootstrap band; a curve above another is better everywhere. Right: the IQM with its interval")
+
+
+def aggregate_markdown(agg: Aggregates, figure: str | None = None) -> str:
+    """The "Across tasks" section of a study page: the method, the tables and the figure (``figure``: its
+    link from the page)."""
+    parts = [
+        method_text(agg),
         "",
-        md_table(
-            ["Method", "Tasks", *(f"{st}, % of expert [CI]" for st in STATISTICS)],
-            [[s.labels[m], ", ".join(s.tasks[m]), *(_pct(*agg.summary[m][st]) for st in STATISTICS)]
-             for m in s.by_method],
-        ),
+        _summary_table(agg),
         "",
-        "**Probability of improvement**: the chance that a run of the first method scores above a run of the "
-        "second on a task picked at random (0.5: neither is better), over the tasks both have, with each "
-        "method's IQM on those tasks alone.",
+        f"**Probability of improvement**: {IMPROVEMENT_TEXT}.",
         "",
-        md_table(
-            ["Method", "Over", "P(improvement) [CI]", "Method's IQM, % [CI]", "Baseline's IQM, % [CI]", "Tasks"],
-            [_improvement_row(s.labels, a, b, pair) for (a, b), pair in agg.improvement.items()],
-        ),
+        _improvement_table(agg),
         "",
         "**Per task**: the mean over trials of the scores pooled above.",
         "",
-        per_task_markdown(s),
+        per_task_markdown(agg.scores),
         "",
     ]
     if figure is not None:
-        parts += [
-            "**Performance profiles** (left): the share of runs (all tasks and trials) whose score exceeds each "
-            "fraction of the expert, with its bootstrap band; a curve above another is better everywhere. Right: "
-            "the IQM with its interval.",
-            "",
-            f"![Across tasks]({figure})",
-            "",
-        ]
+        parts += [f"**Performance profiles** (left): {PROFILES_TEXT}.", "", f"![Across tasks]({figure})", ""]
+    return "\n".join(parts)
+
+
+class AcrossSection(NamedTuple):
+    """The report's "Across tasks" section (short) and how its numbers are made (for "How to read")."""
+
+    body: str
+    notes: str
+
+
+def short_markdown(agg: Aggregates, figure: str | None = None) -> str:
+    """The report's "Across tasks" section: the tables with short heads, a sentence under each; how the
+    numbers are made is :func:`method_text`."""
+    s = agg.scores
+    left_out = f" Left out: {left_out_text(s.left_out)}." if s.left_out else ""
+    spans = (" The methods span different tasks, so compare them by the pairs, on the tasks both have."
+             if _spans_tasks(s) else "")
+    parts = [
+        _summary_table(agg, short=True),
+        "",
+        _improvement_table(agg, short=True),
+        "",
+        f"% of the expert over every task and trial, with {CONFIDENCE:.0%} bootstrap intervals (rliable)."
+        + left_out + spans + " P(improvement): the chance that a run of the method scores above a run of the "
+        "baseline on a task both have (0.5: neither is better).",
+        "",
+        per_task_markdown(s, short=True),
+        "",
+        "Each task's mean % of the expert over its trials: the numbers pooled above.",
+        "",
+    ]
+    if figure is not None:
+        parts += [f"![Across tasks]({figure})", "",
+                  "Left: the share of runs above each % of the expert (a curve above another is better everywhere); "
+                  "right: the IQM with its interval.", ""]
     return "\n".join(parts)
 
 
@@ -391,9 +445,9 @@ def plot_aggregate(agg: Aggregates, path: PathLike) -> Path:
     return save_png(fig, path)
 
 
-def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = True) -> str | None:
-    """Write :data:`CSV` (and :data:`FIGURE`) into ``out``; returns the markdown section, or None when
-    no task has final evaluations on common trials with a positive expert mean (nothing written)."""
+def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = True) -> AcrossSection | None:
+    """Write :data:`CSV` (and :data:`FIGURE`) into ``out``; returns the report's section and its notes, or
+    None when no task has final evaluations on common trials with a positive expert mean (nothing written)."""
     scores = score_matrix(rows)
     if scores is None:
         return None
@@ -401,4 +455,6 @@ def write_aggregate(rows: Sequence[FinalRow], out: PathLike, figures: bool = Tru
     out = Path(out)
     atomic_write_text(out / CSV, aggregate_csv(agg))
     figure = plot_aggregate(agg, out / FIGURE).name if figures else None
-    return aggregate_markdown(agg, figure)
+    notes = (f"{method_text(agg)} Probability of improvement: {IMPROVEMENT_TEXT}. Performance profiles (the "
+             f"figure's left): {PROFILES_TEXT}.")
+    return AcrossSection(short_markdown(agg, figure), notes)

@@ -144,7 +144,16 @@ def _tick_label(rows: Sequence[FinalRow], env: str, method: str) -> str:
         comparison = paired(row, baselines(rows, row)[0]) if row is not None else None
         if comparison is not None and comparison.trials:
             wins.append(f"{comparison.wins}/{len(comparison.trials)}")
-    return "\n".join([METHOD_LABELS[method], *([" | ".join(wins)] if wins else [])])
+    # Two-word names on two lines: six methods side by side stay legible at page width.
+    name = METHOD_LABELS[method].replace(" (", "\n(").replace(". ", ".\n").replace("No reward", "No\nreward")
+    return "\n".join([name, *([" | ".join(wins)] if wins else [])])
+
+
+#: The final evaluation's figure: panels per row (a page's width holds two legibly), inches per panel,
+#: and font sizes in points (the figure is read scaled down to a page's width).
+FINAL_COLUMNS = 2
+FINAL_PANEL = (5.6, 4.4)
+FINAL_FONTS = {"tick": 10, "title": 13, "label": 11, "legend": 10.5, "suptitle": 13}
 
 
 def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
@@ -158,7 +167,7 @@ def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
             # Trials side by side (not random jitter): the figure is the same on every report.
             spread = np.linspace(-0.06, 0.06, len(values)) if len(values) > 1 else np.zeros(1)
             face = COLORS[method] if policy == result_policy(method) else "none"
-            ax.scatter(x + offset + spread, values, s=22, facecolors=face, edgecolors=COLORS[method], zorder=3)
+            ax.scatter(x + offset + spread, values, s=30, facecolors=face, edgecolors=COLORS[method], zorder=3)
             mean, low, high = row.stat("return")
             if np.isfinite(low):
                 ax.errorbar(x + offset, mean, yerr=[[mean - low], [high - mean]], color="black", capsize=5,
@@ -168,39 +177,49 @@ def _plot_env(ax, rows: Sequence[FinalRow], env: str) -> None:
     if bc is not None:
         ax.axhline(bc.stat("return")[0], color=COLORS["bc"], linestyle="--", linewidth=1.2)
     ax.axhline(expert_by_env(rows)[env][0], color="black", linestyle=":", linewidth=1.2)
-    ax.set_xticks(range(len(methods)), [_tick_label(rows, env, m) for m in methods], fontsize=8)
+    ax.set_xticks(range(len(methods)), [_tick_label(rows, env, m) for m in methods], fontsize=FINAL_FONTS["tick"])
+    ax.tick_params(axis="y", labelsize=FINAL_FONTS["tick"])
     ax.set_xlim(-0.6, len(methods) - 0.4)
-    ax.set_title(f"{env} (trials per method: {trials_text([r for r in rows if r.env == env])})", fontsize=10)
-    ax.set_ylabel("return (mean over held-out episodes)")
+    ax.set_title(f"{env} ({trials_text([r for r in rows if r.env == env])} trials)", fontsize=FINAL_FONTS["title"])
+    ax.set_ylabel("return", fontsize=FINAL_FONTS["label"])
     ax.grid(axis="y", alpha=0.3)
 
 
 def plot_final(rows: Sequence[FinalRow], path: PathLike, title: str = "") -> Path | None:
-    """The final evaluation's returns, one panel per env; None (nothing written) without rows."""
+    """The final evaluation's returns, one panel per env, :data:`FINAL_COLUMNS` panels a row (the legend
+    in the last row's empty panel, or under the panels); None (nothing written) without rows."""
     if not rows:
         return None
     from matplotlib.lines import Line2D
 
     envs = sorted({r.env for r in rows}, key=env_key)
-    fig = new_figure(max(10.0, 4.8 * len(envs) + 0.6), 5.8)  # room for the legend with a single env
-    axes = fig.subplots(1, len(envs), squeeze=False)[0]
-    for ax, env in zip(axes, envs, strict=True):
+    columns = min(FINAL_COLUMNS, len(envs))
+    panels = -(-len(envs) // columns)
+    spare = panels * columns > len(envs)  # an empty panel holds the legend
+    width, height = FINAL_PANEL
+    fig = new_figure(max(width * columns, 9.0), height * (panels + (0 if spare else 0.6)) + 1.0)
+    axes = fig.subplots(panels, columns, squeeze=False).ravel()
+    for ax, env in zip(axes, envs, strict=False):
         _plot_env(ax, rows, env)
     handles = [
         Line2D([], [], marker="o", linestyle="", color="tab:gray",
-               label="the method's result (final policy; CMZ-DRIL (SAC): longest episodes), one point per trial"),
+               label="the method's result (last weights;\nCMZ-DRIL (SAC): longest episodes), a point per trial"),
         Line2D([], [], marker="o", linestyle="", markerfacecolor="none", color="tab:gray",
-               label="its other policy (CMZ-DRIL: lowest u; CMZ-DRIL (SAC): last weights), one point per trial"),
+               label="its other policy (CMZ-DRIL: lowest u;\nCMZ-DRIL (SAC): last weights), a point per trial"),
         Line2D([], [], color="black", marker="_", markersize=12,
                label=f"mean over trials, bar: {100 * CONFIDENCE:g}% bootstrap CI"),
         Line2D([], [], color=COLORS["bc"], linestyle="--", label="BC mean"),
         Line2D([], [], color="black", linestyle=":", label="expert on the same episodes"),
+        Line2D([], [], linestyle="", label="under each method: trials above BC,\nlast weights | reward-free choice"),
     ]
-    fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize=8)
+    if spare:
+        for ax in axes[len(envs):]:
+            ax.axis("off")
+        axes[len(envs)].legend(handles=handles, loc="center", fontsize=FINAL_FONTS["legend"], frameon=False)
+    else:
+        fig.legend(handles=handles, loc="outside lower center", ncols=2, fontsize=FINAL_FONTS["legend"])
     fig.suptitle((title + "\n" if title else "") + "each trial's return averaged over its held-out pool episodes "
-                 "(final_eval.csv)\nunder each method: in how many trials its last weights | reward-free choice "
-                 "(lowest u or longest episodes) are above BC",
-                 fontsize=11)
+                 "(final_eval.csv)", fontsize=FINAL_FONTS["suptitle"])
     return save_png(fig, path)
 
 

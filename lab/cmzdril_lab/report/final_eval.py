@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cmzdril_lab.report.formatting import fmt_ci, md_table
-from cmzdril_lab.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label
+from cmzdril_lab.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label, result_policy
 
 #: Final-evaluation metrics: (final_eval.csv column, table header).
 FINAL_METRICS: tuple[tuple[str, str], ...] = (
@@ -234,6 +234,104 @@ def paired_markdown(rows: Sequence[FinalRow]) -> str:
                      "Above no reward (trials)", "Return − no reward, mean [CI]", "Selected epoch per trial"], body)
 
 
+def _with_trials(text: str, n: int, varies: bool) -> str:
+    """A cell, with its number of trials where the table's cells differ in it."""
+    return f"{text}, n={n}" if varies else text
+
+
+def _row_order(rows: Sequence[FinalRow]) -> list[tuple[str, str]]:
+    """(method, policy) of ``rows``, each once: every method's result (:func:`result_policy`) first,
+    then its other policies, each group in the methods' order."""
+    pairs = {(r.method, r.policy) for r in rows}
+    results = [(m, result_policy(m)) for m in METHOD_ORDER if (m, result_policy(m)) in pairs]
+    others = [(m, p) for p in POLICIES for m in METHOD_ORDER if (m, p) in pairs and p != result_policy(m)]
+    return results + others
+
+
+def final_wide_markdown(rows: Sequence[FinalRow], column: str = "return") -> str:
+    """The final evaluation's ``column`` in the paper's layout: one row per method and policy, one column
+    per env, each cell the mean over trials [CI] (with the trials where cells differ in them); then the
+    expert's mean return on the same episodes (with ``column`` "return")."""
+    envs = sorted({r.env for r in rows}, key=env_key)
+    varies = len({r.n_trials for r in rows}) > 1
+    body = []
+    for method, policy in _row_order(rows):
+        cells = []
+        for env in envs:
+            row = find(rows, env, method, policy)
+            cells.append("—" if row is None else _with_trials(fmt_ci(*row.stat(column)), row.n_trials, varies))
+        body.append([label(method, policy), *cells])
+    if column == "return":
+        experts = expert_by_env(rows)
+        body.append(["Expert (held-out demos)",
+                     *(_with_trials(fmt_ci(*experts[e][:3]), experts[e][3], varies) if e in experts else "—"
+                       for e in envs)])
+    return md_table(["Method", *envs], body)
+
+
+def _comparisons(rows: Sequence[FinalRow]) -> list[tuple[FinalRow, FinalRow]]:
+    """(row, baseline) of every paired comparison: each RL row against BC, then CMZ-DRIL's methods
+    against their learner without reward (:func:`baselines`)."""
+    against_bc, against_zero = [], []
+    for r in rows:
+        if r.method == "bc":
+            continue
+        bc, zero = baselines(rows, r)
+        if bc is not None:
+            against_bc.append((r, bc))
+        if zero is not None:
+            against_zero.append((r, zero))
+    return against_bc + against_zero
+
+
+def headline_policy(method: str, policy: str) -> bool:
+    """Whether a policy is one the headline shows: a method's result (:func:`result_policy`) or
+    CMZ-DRIL's lowest-u policy."""
+    return policy == result_policy(method) or (method, policy) == ("cmz", "lowest_u")
+
+
+def wins_markdown(rows: Sequence[FinalRow]) -> str:
+    """In how many trials each policy the headline shows (:func:`headline_policy`) has a mean return above
+    its baseline's, one row per (policy, baseline), one column per env; the other policies' comparisons
+    are in :func:`paired_csv`."""
+    envs = sorted({r.env for r in rows}, key=env_key)
+    cells: dict[tuple[str, str], dict[str, str]] = {}
+    for row, base in _comparisons(rows):
+        if not headline_policy(row.method, row.policy):
+            continue
+        comparison = paired(row, base)
+        if comparison is not None:
+            cells.setdefault((row.label, base.label), {})[row.env] = comparison.wins_text()
+    order = {label(m, p): i for i, (m, p) in enumerate(_row_order(rows))}
+    keys = sorted(cells, key=lambda k: (k[1] != label("bc"), order[k[0]]))  # against BC first
+    return md_table(["Method", "Over", *envs], ([name, over, *(cells[(name, over)].get(e, "—") for e in envs)]
+                                               for name, over in keys))
+
+
+def paired_csv(rows: Sequence[FinalRow]) -> str:
+    """Every paired comparison (:func:`wins_markdown`'s and more), full precision: the trials, in how
+    many the policy is above its baseline, the mean difference of the return and of the % of the expert
+    with their bootstrap CIs, and the epoch each trial's reward-free choice came from."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header = ["env", "method", "policy", "baseline", "baseline_policy", "trials", "above"]
+    for column in ("return", "pct_of_expert"):
+        header += [f"{column}_diff_mean", f"{column}_diff_ci_low", f"{column}_diff_ci_high"]
+    writer.writerow(header + ["selected_epochs"])
+    for row, base in _comparisons(rows):
+        comparison = paired(row, base)
+        if comparison is None:
+            continue
+        values: list[Any] = [row.env, row.method, row.policy, base.method, base.policy,
+                             ";".join(map(str, comparison.trials)), comparison.wins]
+        for column in ("return", "pct_of_expert"):
+            diffs = paired(row, base, column)
+            values += [repr(v) for v in mean_ci(diffs.diffs if diffs is not None else [])]
+        epochs = "" if row.policy == "final" else ";".join("" if e is None else str(e) for e in row.selected_epochs())
+        writer.writerow(values + [epochs])
+    return out.getvalue()
+
+
 def final_csv(rows: Sequence[FinalRow], runs_dir: Path) -> str:
     """The table as CSV, full precision, with each run's own mean return and its folder."""
     out = io.StringIO()
@@ -304,7 +402,11 @@ __all__ = [
     "baselines",
     "find",
     "final_markdown",
+    "final_wide_markdown",
     "paired_markdown",
+    "paired_csv",
+    "wins_markdown",
+    "headline_policy",
     "final_csv",
     "fmt_cell",
     "expert_by_env",

@@ -49,13 +49,14 @@ PAPER_ENV_NAMES: dict[str, str] = {
 }
 
 
-def reference_markdown(reference: ReferenceTable) -> str:
-    """A reference table in the paper's layout (methods as rows, envs as columns), with title and note."""
+def reference_markdown(reference: ReferenceTable, heading: str = "###") -> str:
+    """A reference table in the paper's layout (methods as rows, envs as columns), with title (a ``heading``)
+    and note."""
     envs = sorted(reference.values, key=env_key)
     methods = [m for m in METHOD_ORDER if any(m in reference.values[e] for e in envs)]
     body = ([METHOD_LABELS[m], *(fmt_mean_std(*reference.values[e][m]) if m in reference.values[e] else "—"
                                  for e in envs)] for m in methods)
-    return f"### {reference.title}\n\n{reference.note}\n\n{md_table(['Method', *envs], body)}\n"
+    return f"{heading} {reference.title}\n\n{reference.note}\n\n{md_table(['Method', *envs], body)}\n"
 
 
 __all__ = ["ReferenceTable", "PAPER_TABLE_I", "PAPER_ENV_NAMES", "reference_markdown"]

@@ -4,20 +4,20 @@
 :mod:`~cmzdril_lab.report.records`) and, optionally, a reference grid (``reference_runs``: e.g.
 the paper-faithful grid of an earlier version), and writes into the output folder:
 
-* results.md — the headline (each grid's final evaluation with its confidence interval and its Table I,
-  beside the paper's Table I), then per grid: the final evaluation
-  (:mod:`~cmzdril_lab.report.final_eval`), Table I, the gap closed by CMZ-DRIL, the expert's scale
-  and the reward signal (:mod:`~cmzdril_lab.report.tables`); the figures; the reference numbers
-  (:mod:`~cmzdril_lab.report.paper`); the run folders behind every number; the commands.
-* table1.csv and final_table.csv (``table1_reference.csv``, ``final_table_reference.csv`` for the
-  reference grid): the tables at full precision, with their run folders.
-* fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves) and fig3_final_eval.png (the
-  final evaluation; :mod:`~cmzdril_lab.report.figures`).
+* results.md — the answer first: the headline (the main grid's final evaluation as % of the expert, env
+  by method, and its figure), the aggregate across tasks (:mod:`~cmzdril_lab.report.aggregate`); then
+  per grid and task: the final evaluation (:mod:`~cmzdril_lab.report.final_eval`), Table I, the gap
+  closed by CMZ-DRIL and the reward signal (:mod:`~cmzdril_lab.report.tables`) and the training
+  curves; the reference numbers (:mod:`~cmzdril_lab.report.paper`); how to read every table; the run
+  folders and commands behind every number. A hand-written discussion is linked, not copied.
+* table1.csv, final_table.csv, paired.csv and per_run.csv (``table1_reference.csv`` and so on for the
+  reference grid): the tables at full precision, with their run folders; what the page shows in short.
+* fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves), fig3_final_eval.png (the
+  final evaluation; :mod:`~cmzdril_lab.report.figures`) and fig4_across_tasks.png.
 
-With ``readme`` the README's results block is replaced by a small headline: the main grid's final
-evaluation as % of the expert, env by method (:mod:`~cmzdril_lab.report.readme`). Reference
-numbers from elsewhere (the paper's Table I: :data:`PAPER_TABLE_I`) enter only through ``references``
-and are printed labelled, apart from ours.
+With ``readme`` the README's results block is replaced by the headline table and two sentences
+(:mod:`~cmzdril_lab.report.readme`). Reference numbers from elsewhere (the paper's Table I:
+:data:`PAPER_TABLE_I`) enter only through ``references`` and are printed labelled, apart from ours.
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from pathlib import Path
 
 from cmzdril_lab.report.aggregate import CSV as ACROSS_CSV
 from cmzdril_lab.report.aggregate import FIGURE as ACROSS_FIGURE
-from cmzdril_lab.report.aggregate import write_aggregate
+from cmzdril_lab.report.aggregate import AcrossSection, write_aggregate
 from cmzdril_lab.report.figures import (
     FIGURES,
     FINAL_FIGURE,
@@ -36,7 +36,7 @@ from cmzdril_lab.report.figures import (
     plot_figure,
     plot_final,
 )
-from cmzdril_lab.report.final_eval import final_csv, final_table, mean_ci
+from cmzdril_lab.report.final_eval import final_csv, final_table, mean_ci, paired_csv
 from cmzdril_lab.report.formatting import fmt, fmt_ci, fmt_mean_std
 from cmzdril_lab.report.paper import PAPER_TABLE_I, ReferenceTable, reference_markdown
 from cmzdril_lab.report.readme import (
@@ -55,8 +55,7 @@ from cmzdril_lab.report.sections import (
     final_sections,
     headline_markdown,
     headline_text,
-    readme_markdown,
-    readme_text,
+    how_to_read,
     sources_sections,
     status_lines,
     table_sections,
@@ -65,6 +64,7 @@ from cmzdril_lab.report.tables import (
     expert_returns,
     gap_closed,
     gap_trials,
+    per_run_csv,
     reward_signal,
     table_csv,
     table_one,
@@ -82,20 +82,20 @@ def report_outputs() -> list[str]:
     names = ["results.md"]
     for suffix in SUFFIXES:
         names += [f"table1{suffix}.csv", f"final_table{suffix}.csv"]
-    return names + [name for name, _, _ in FIGURES] + [FINAL_FIGURE, FINAL_FIGURE_REFERENCE, ACROSS_CSV, ACROSS_FIGURE]
+    names += [name for name, _, _ in FIGURES] + [FINAL_FIGURE, FINAL_FIGURE_REFERENCE, ACROSS_CSV, ACROSS_FIGURE]
+    for suffix in SUFFIXES:
+        names += [f"paired{suffix}.csv", f"per_run{suffix}.csv"]
+    return names
 
 
-def _source_line(rep: GridReport) -> str:
-    records = rep.grid.records
-    n_final = sum(bool(r.final) for r in records)
-    curves = "Table I and Fig. 1/2" if rep.suffix == SUFFIXES[0] else "Table I"  # the curves: main grid only
-    return (
-        f"- **{rep.label}**: `{rep.root}`, {len(records)} runs: their `eval.csv` ({curves}), "
-        f"`final_eval.csv` (the final evaluation; {n_final} of the {len(records)} runs have one), "
-        f"`done.json` (the epoch of each "
-        "lowest-u policy), `logs/progress_*.csv` (the reward signal) and the demo pools their `config.json` "
-        "names (the expert's return in Table I)."
-    )
+def _grid_name(rep: GridReport) -> str:
+    runs = f"{len(rep.grid.records)} runs"
+    return f"`{rep.root}` ({runs})" if rep.label == str(rep.root) else f"{rep.label} (`{rep.root}`, {runs})"
+
+
+def _source_name(rep: GridReport) -> str:
+    """The grid as the headline's note names it: its label, capitalised, or its folder."""
+    return f"`{rep.root}`" if rep.label == str(rep.root) else rep.label[:1].upper() + rep.label[1:]
 
 
 def render_markdown(
@@ -106,65 +106,43 @@ def render_markdown(
     report_command: str | None,
     window: int,
     discussion: str | None = None,
-    across: str | None = None,
+    across: AcrossSection | None = None,
 ) -> str:
-    """results.md: the headline, the across-task aggregate (``across``), each grid's sections, the
-    figures, the references, the sources."""
+    """results.md: the headline, the across-task aggregate (``across``), each grid's per-task sections and
+    figures, the references, how to read them, the sources; ``discussion``: the link to a hand-written page."""
     two = len(reports) > 1
-    h = "###" if two else "##"
+    main = reports[0]
     reference = references[0] if references else None
-    parts = [
-        "# Results",
-        "",
-        f"Computed by `cmzdril_lab.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from these files. "
-        "Every number in the tables is computed from them, none is typed in, except the paper's numbers, which "
-        "are copied from the paper and labelled as such. The Discussion, if any, is written by hand.",
-        "",
-        *(_source_line(rep) for rep in reports),
-    ]
+    intro = (f"Computed by `cmzdril_lab.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from the run records of "
+             + " and ".join(_grid_name(rep) for rep in reports)
+             + ("; no number is typed in, except the paper's, labelled as such." if references
+                else "; no number is typed in."))
+    if discussion:
+        intro += f" What the numbers mean, written by hand: [the discussion]({discussion})."
+    parts = ["# Results", "", intro]
     for rep in reports:
         parts += status_lines(rep)
-    parts += [
-        "",
-        "## Headline",
-        "",
-        headline_text(reports, reference, window),
-        "",
-        headline_markdown(reports, reference),
-        "",
-    ]
+    parts += ["", "## Headline", "", headline_markdown(main), "",
+              headline_text(main, window, _source_name(main), "[How to read](#how-to-read)"), ""]
+    if main.suffix in final_figures:
+        parts += [f"![Final evaluation: {main.label}]({final_figures[main.suffix].name})", ""]
     if across:
-        parts += ["## Across tasks", "", across, ""]
-    if two:
-        parts += [differences_markdown(reports[0], reports[1]), ""]
+        parts += ["## Across tasks", "", across.body]
     for i, rep in enumerate(reports):
-        if two:
-            parts += [f"## {rep.label}", ""]
-        parts += final_sections(rep, h, final_figures.get(rep.suffix))
-        parts += table_sections(rep, h, window)
-        if i == 0 and figures:
-            parts += [f"{h} Figures", ""]
-            for title, path in figures:
-                parts += [
-                    f"**{title}.** One row per env, one column per metric against the epoch; each trial's "
-                    f"curve is smoothed with a Gaussian filter (sigma {SMOOTHING_SIGMA:g} evaluations), then "
-                    "the line is the mean over trials and the band ±1 std. BC (evaluated once) is the dashed "
-                    "horizontal line with its ±1 std band.",
-                    "",
-                    f"![{title}]({path.name})",
-                    "",
-                ]
-    if references:
-        parts += ["## Reference numbers", "", *(reference_markdown(ref) for ref in references)]
-    if discussion:
-        parts += ["## Discussion", "", discussion.strip(), ""]
+        parts += [f"## Per task: {rep.label}" if two else "## Per task", ""]
+        if i > 0:
+            parts += [differences_markdown(main, rep), ""]
+        parts += final_sections(rep, "###", final_figures.get(rep.suffix) if i > 0 else None)
+        parts += table_sections(rep, "###", window, figures if i == 0 else ())
+    parts += [reference_markdown(ref, "##") for ref in references]
+    parts += how_to_read(reports, reference, window, across.notes if across else None, bool(figures))
     parts += ["## Where each number comes from", ""]
-    for rep in reports:
-        parts += sources_sections(rep, f"### {rep.label}" if two else "")
+    for i, rep in enumerate(reports):
+        parts += sources_sections(rep, f"### {rep.label}" if two else "", curves=i == 0 and bool(figures))
     parts += [
         "This report:",
         "",
-        f"    {short_command(report_command or 'sb3-cmzdril report ' + str(reports[0].root))}",
+        f"    {short_command(report_command or 'sb3-cmzdril report ' + str(main.root))}",
         "",
     ]
     return "\n".join(parts)
@@ -180,24 +158,13 @@ def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | N
         readme_block(readme)
 
 
-def _readme_text(
-    reports: Sequence[GridReport],
-    window: int,
-    command: str | None,
-    results: Path,
-    readme: PathLike,
-) -> str:
-    """The README block: the main grid's headline in small (the full one is in results.md)."""
+def _readme_text(reports: Sequence[GridReport], window: int, results: Path, readme: PathLike) -> str:
+    """The README block: the main grid's headline table and two sentences (the rest is in results.md)."""
     rep = reports[0]
     unfinished = sum(r.status != "done" for r in rep.grid.records)
     source = f"{len(rep.grid.records)} runs in `{rep.root}`" + (f" ({unfinished} not finished)" if unfinished else "")
-    return (
-        readme_markdown(rep)
-        + "\n\n"
-        + readme_text(rep, window)
-        + f" From {source}; written by `{short_command(command)}`; details in "
-        f"[results.md]({link(results, Path(readme).parent)})."
-    )
+    details = f"[results.md]({link(results, Path(readme).parent)})"
+    return headline_markdown(rep) + "\n\n" + headline_text(rep, window, f"From {source}", details)
 
 
 def write_report(
@@ -221,11 +188,11 @@ def write_report(
     :param references: tables of numbers from elsewhere (default: the paper's Table I), each shown
         separately and labelled; the first also stands in the headline; pass ``()`` for none.
     :param command: the report command line to record (the CLI passes its own).
-    :param discussion: a markdown file written by a person (what the numbers mean), included as the
-        report's "Discussion" section.
+    :param discussion: a markdown page written by a person (what the numbers mean): results.md links to
+        it (relatively, so it should lie in the same documentation tree), it does not copy it.
     :param readme: a README holding the :data:`README_BEGIN`/:data:`README_END` block: it is replaced
-        by a small headline (the main grid's final evaluation as % of the expert, env by method) and a
-        line naming this report.
+        by the headline table (the main grid's final evaluation as % of the expert, env by method) and two
+        sentences saying what its cells are and linking results.md.
     :param reference_runs: a second runs folder (e.g. the paper-faithful grid) reported beside the first.
     :param label: how tables name the grid of ``runs_dir`` (default: the path as given);
         ``reference_label`` the same for ``reference_runs``.
@@ -247,10 +214,12 @@ def write_report(
     final_figures: dict[str, Path] = {}
     for rep, figure_name in zip(reports, (FINAL_FIGURE, FINAL_FIGURE_REFERENCE)[: len(reports)], strict=True):
         atomic_write_text(out / f"table1{rep.suffix}.csv", table_csv(rep.rows, rep.root))
-        written.add(f"table1{rep.suffix}.csv")
+        atomic_write_text(out / f"per_run{rep.suffix}.csv", per_run_csv(rep.rows, rep.root))
+        written.update({f"table1{rep.suffix}.csv", f"per_run{rep.suffix}.csv"})
         if rep.final:
             atomic_write_text(out / f"final_table{rep.suffix}.csv", final_csv(rep.final, rep.root))
-            written.add(f"final_table{rep.suffix}.csv")
+            atomic_write_text(out / f"paired{rep.suffix}.csv", paired_csv(rep.final))
+            written.update({f"final_table{rep.suffix}.csv", f"paired{rep.suffix}.csv"})
             if figures:
                 figure = plot_final(rep.final, out / figure_name, f"Final evaluation: {rep.label}")
                 if figure is not None:  # rep.final has rows, so there is one
@@ -268,7 +237,7 @@ def write_report(
         across = write_aggregate(pooled, out, figures)
         if across is not None:
             written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
-    notes = Path(discussion).read_text(encoding="utf-8") if discussion is not None else None
+    notes = link(discussion, out) if discussion is not None else None
     text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
     atomic_write_text(out / "results.md", text)
     for name in set(report_outputs()) - written:
@@ -276,7 +245,7 @@ def write_report(
     if readme is not None:
         update_readme(
             readme,
-            _readme_text(reports, int(window), command, out / "results.md", readme),
+            _readme_text(reports, int(window), out / "results.md", readme),
         )
     return out / "results.md"
 
@@ -301,6 +270,8 @@ __all__ = [
     "headline_markdown",
     "update_readme",
     "table_csv",
+    "per_run_csv",
+    "paired_csv",
     "plot_figure",
     "plot_final",
     "report_outputs",

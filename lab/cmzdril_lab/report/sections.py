@@ -1,8 +1,9 @@
-"""The sections of results.md, one grid at a time, and the headline that sets grids side by side.
+"""The sections of results.md: the headline, each grid's per-task tables, how to read them, their sources.
 
-:func:`analyse` computes every table of one grid (a :class:`GridReport`); the ``*_sections``
-functions render them as markdown; :func:`headline_markdown` puts each grid's final evaluation and
-Table I beside a reference table (the paper's). :mod:`~cmzdril_lab.report` assembles them.
+:func:`analyse` computes every table of one grid (a :class:`GridReport`); :func:`headline_markdown`
+gives the main grid's answer in one short table (% of the expert, env by method: also the README's);
+the ``*_sections`` functions render the per-task tables and the sources, each with a sentence under it;
+:func:`how_to_read` says how every number is made. :mod:`~cmzdril_lab.report` assembles them.
 """
 from __future__ import annotations
 
@@ -11,18 +12,16 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
+from cmzdril_lab.report.figures import SMOOTHING_SIGMA
 from cmzdril_lab.report.final_eval import (
     CONFIDENCE,
-    MIN_TRIALS_FOR_CI,
     FinalRow,
-    expert_by_env,
-    final_markdown,
     final_table,
+    final_wide_markdown,
     find,
-    fmt_cell,
     method_text,
-    paired_markdown,
     trials_text,
+    wins_markdown,
 )
 from cmzdril_lab.report.formatting import fmt, fmt_ci, fmt_mean_std, md_table
 from cmzdril_lab.report.paper import PAPER_ENV_NAMES, ReferenceTable
@@ -80,122 +79,60 @@ def analyse(grid: Grid, window: int, suffix: str = "") -> GridReport:
 
 
 # -- the headline ---------------------------------------------------------------------------------------
-def _table_one_cell(rows: Sequence[TableRow], env: str, method: str) -> str:
-    row = next((r for r in rows if (r.env, r.method) == (env, method)), None)
-    return "—" if row is None else f"{fmt_mean_std(row.mean('return'), row.std('return'))}, n={row.n_trials}"
-
-
-def headline_markdown(reports: Sequence[GridReport], reference: ReferenceTable | None) -> str:
-    """Return per env and method: each grid's final evaluation (mean [CI], trials) and its % of expert
-    where it has one, each grid's Table I (mean (std), trials), and the reference's numbers; then the
-    expert's return."""
-    columns = []
-    for rep in reports:
-        if rep.final:
-            columns.append(f"{rep.label}: final evaluation, mean [{100 * CONFIDENCE:g}% CI]")
-            columns.append(f"{rep.label}: final evaluation, % of expert [{100 * CONFIDENCE:g}% CI]")
-        columns.append(f"{rep.label}: Table I, mean (std)")
-    if reference is not None:
-        columns.append(f"{reference.name[:1].upper() + reference.name[1:]}, mean (std)")
-    envs = sorted({r.env for rep in reports for r in rep.rows}, key=env_key)
-    body = []
-    for env in envs:
-        methods = [m for m in METHOD_ORDER if any(r.method == m and r.env == env for rep in reports for r in rep.rows)]
-        lines = [(m, "final") for m in methods]
-        lines += [(m, result_policy(m)) for m in methods if result_policy(m) != "final"
-                  and any(find(rep.final, env, m, result_policy(m)) for rep in reports)]
-        if any(find(rep.final, env, "cmz", "lowest_u") for rep in reports):
-            lines.append(("cmz", "lowest_u"))
-        for method, policy in lines:
-            cells = []
-            for rep in reports:
-                if rep.final:
-                    row = find(rep.final, env, method, policy)
-                    cells += [fmt_cell(row), fmt_cell(row, "pct_of_expert")]
-                cells.append(_table_one_cell(rep.rows, env, method) if policy == "final" else "—")
-            if reference is not None:
-                paper = reference.values.get(env, {}).get(method) if policy == "final" else None
-                cells.append(fmt_mean_std(*paper) if paper else "—")
-            body.append([env, label(method, policy), *cells])
-        cells = []
-        for rep in reports:
-            if rep.final:
-                final_expert = expert_by_env(rep.final).get(env)
-                cells.append("—" if final_expert is None else f"{fmt_ci(*final_expert[:3])}, n={final_expert[3]}")
-                cells.append("—")  # the expert's % of itself says nothing
-            expert = rep.experts.get(env)
-            cells.append("—" if expert is None else f"{fmt_mean_std(*expert[:2])}, n={expert[2]}")
-        body.append([env, "Expert (held-out demos)", *cells, *(["—"] if reference is not None else [])])
-    return md_table(["Env", "Method", *columns], body)
-
-
-def readme_markdown(rep: GridReport) -> str:
-    """The README's headline, small enough for a README: one row per env, one column per method, each
-    cell the final evaluation's % of the expert (mean over trials [CI]) of the method's result
-    (:func:`result_policy`), then CMZ-DRIL's lowest-u policy. A grid without a final evaluation
-    gets Table I's mean (std) return of the training's last weights."""
+def headline_markdown(rep: GridReport) -> str:
+    """The headline, small enough for a README: one row per env, one column per method, each cell the
+    final evaluation's % of the expert (mean over trials [CI]) of the method's result
+    (:func:`result_policy`), then CMZ-DRIL's lowest-u policy; where cells differ in their trials, the
+    trials too. A grid without a final evaluation gets Table I's mean (std) return of the training's
+    last weights."""
     envs = sorted({r.env for r in rep.rows}, key=env_key)
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rep.rows)]
     columns: list[tuple[str, str]] = [(m, result_policy(m) if rep.final else "final") for m in methods]
     if rep.final and any(r.method == "cmz" and r.policy == "lowest_u" for r in rep.final):
         columns.append(("cmz", "lowest_u"))
+    shown = [r for r in rep.final if (r.method, r.policy) in columns]
+    varies = len({r.n_trials for r in shown} if rep.final else {r.n_trials for r in rep.rows}) > 1
     body = []
     for env in envs:
         cells = []
         for method, policy in columns:
             if rep.final:
                 row = find(rep.final, env, method, policy)
-                cells.append("—" if row is None else fmt_ci(*row.stat("pct_of_expert")))
+                cells.append("—" if row is None else _trials(fmt_ci(*row.stat("pct_of_expert")), row.n_trials, varies))
             else:
                 table_row = next((r for r in rep.rows if (r.env, r.method) == (env, method)), None)
-                cells.append("—" if table_row is None
-                             else fmt_mean_std(table_row.mean("return"), table_row.std("return")))
+                cells.append("—" if table_row is None else _trials(
+                    fmt_mean_std(table_row.mean("return"), table_row.std("return")), table_row.n_trials, varies))
         body.append([env, *cells])
     header = [label(m, p) for m, p in columns]
     return md_table(["Env", *header], body)
 
 
-def readme_text(rep: GridReport, window: int) -> str:
-    """What :func:`readme_markdown`'s cells are, in words."""
+def _trials(cell: str, n: int, varies: bool) -> str:
+    """A cell, with its number of trials where the table's cells differ in it."""
+    return f"{cell}, n={n}" if varies else cell
+
+
+def headline_text(rep: GridReport, window: int, source: str, details: str) -> str:
+    """What :func:`headline_markdown`'s cells are, in two sentences: ``source`` names the runs, ``details``
+    (a link) where the rest is."""
     if not rep.final:
-        return (f"The env's true return of each run's per-epoch evaluation averaged over its last {window} epochs, "
-                "mean (population std) over trials.")
-    return ("Final evaluation, % of the expert: 100 times a run's mean return over the expert's on the same "
-            "held-out episodes (every pool episode the run did not train on), mean over "
-            f"{trials_text(rep.final)} trials [{100 * CONFIDENCE:g}% bootstrap CI over trials]; the final policy of "
-            f"each method{_result_clause(rep.final)}, and \"(lowest u)\": the CMZ-DRIL policy whose own training "
-            "rollout had the lowest ensemble disagreement (chosen without the env reward).")
-
-
-def _result_clause(rows: Sequence[FinalRow]) -> str:
-    """How the methods among ``rows`` whose result is not their last weights choose it, in words."""
-    chosen = [m for m in METHOD_ORDER if result_policy(m) == "longest" and any(r.method == m for r in rows)]
-    if not chosen:
-        return ""
-    return (f" (for {', '.join(METHOD_LABELS[m] for m in chosen)}: its policy whose deterministic episodes from "
-            "fixed starts lasted longest, or where the expert ends its episodes itself as long as its "
-            "demonstrations, chosen without the env reward)")
-
-
-def headline_text(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int) -> str:
-    """What the headline's columns are, in words."""
-    parts = [f"The env's true return. Table I: each run's per-epoch evaluation (eval.csv) averaged over its last "
-             f"{window} epochs, mean (population std) over trials, n = trials."]
-    if any(rep.final for rep in reports):
-        parts.append("Final evaluation: each run's policy on every pool episode not used for training "
-                     f"(final_eval.csv), mean over trials [{100 * CONFIDENCE:g}% bootstrap CI over trials; n/a with "
-                     f"fewer than {MIN_TRIALS_FOR_CI} trials]; \"(lowest u)\": the policy whose own training rollout "
-                     "had the lowest ensemble disagreement (chosen without the env reward); % of expert: 100 times a "
-                     "run's mean return over the expert's mean return on the same held-out episodes, mean over "
-                     "trials [CI as above; n/a where the expert's mean return is not positive].")
-    missing = [rep.label for rep in reports if not rep.final]
-    if missing:
-        parts.append(f"{', '.join(missing)}: no final evaluation (its runs have no final_eval.csv).")
-    if reference is not None:
-        parts.append(f"{reference.name[:1].upper() + reference.name[1:]}: copied from the paper (its own envs: "
-                     + ", ".join(f"{PAPER_ENV_NAMES[e]} for {e}" for e in sorted(PAPER_ENV_NAMES, key=env_key))
-                     + "), not produced by this code.")
-    return " ".join(parts)
+        return (f"{source}: the env's true return of each run's per-epoch evaluation averaged over its last "
+                f"{window} epochs, mean (population std) over trials; no run has a final evaluation yet. "
+                f"Details in {details}.")
+    chosen = [METHOD_LABELS[m] for m in METHOD_ORDER
+              if result_policy(m) == "longest" and any(r.method == m for r in rep.final)]
+    choices = []
+    if len(chosen) == 1:
+        choices.append(f"{chosen[0]} is its policy whose episodes lasted longest")
+    elif chosen:
+        choices.append(f"{', '.join(chosen[:-1])} and {chosen[-1]} are their policies whose episodes lasted longest")
+    if any(r.method == "cmz" and r.policy == "lowest_u" for r in rep.final):
+        choices.append("CMZ-DRIL (lowest u) is CMZ-DRIL's policy of lowest ensemble disagreement")
+    which = f"; {' and '.join(choices)}, chosen without the env reward" if choices else ""
+    return (f"{source}, final evaluation: each policy's return as % of the expert's on the same held-out episodes, "
+            f"mean over {trials_text(rep.final)} trials [{100 * CONFIDENCE:g}% bootstrap CI]. A column is the "
+            f"method's last weights{which}; details in {details}.")
 
 
 def differences_markdown(a: GridReport, b: GridReport) -> str:
@@ -216,32 +153,37 @@ def _eval_episodes(records: Sequence[RunRecord]) -> str:
 
 
 def _paper_layout(rep: GridReport) -> str:
-    """Return in the paper's layout (methods as rows, envs as columns) with the expert's return."""
+    """Return in the paper's layout (methods as rows, envs as columns) with the expert's return; where
+    cells differ in their trials, the trials too."""
     envs = sorted({r.env for r in rep.rows}, key=env_key)
     methods = [m for m in METHOD_ORDER if any(r.method == m for r in rep.rows)]
-    cells = {(r.env, r.method): fmt_mean_std(r.mean("return"), r.std("return")) for r in rep.rows}
+    varies = len({r.n_trials for r in rep.rows}) > 1
+    cells = {(r.env, r.method): _trials(fmt_mean_std(r.mean("return"), r.std("return")), r.n_trials, varies)
+             for r in rep.rows}
     body = [[METHOD_LABELS[m], *(cells.get((e, m), "—") for e in envs)] for m in methods]
     if rep.experts:
-        body.append(["Expert (held-out demos)",
-                     *(fmt_mean_std(*rep.experts[e][:2]) if e in rep.experts else "—" for e in envs)])
+        body.append(["Expert (held-out demos)", *(_trials(fmt_mean_std(*rep.experts[e][:2]), rep.experts[e][2], varies)
+                                                  if e in rep.experts else "—" for e in envs)])
     return md_table(["Method", *envs], body)
 
 
 def final_sections(rep: GridReport, h: str, figure: Path | None) -> list[str]:
-    """The final evaluation of one grid: the table, the paired comparisons, the figure."""
+    """The final evaluation of one grid: the returns, the wins over the baselines, the figure (``figure``:
+    where the headline does not show it already)."""
     if not rep.final:
-        return [f"{h} Final evaluation", "", "None: no run of this grid has a final_eval.csv (grids made before the "
-                "final evaluation existed have none; a run writes it when it finishes).", ""]
-    parts = [f"{h} Final evaluation (trials per cell: {trials_text(rep.final)})", "", method_text(), "",
-             final_markdown(rep.final), ""]
+        return ["No final evaluation: no run of this grid has a final_eval.csv (grids made before the final "
+                "evaluation existed have none; a run writes it when it finishes).", ""]
+    parts = [f"{h} Final evaluation (trials per cell: {trials_text(rep.final)})", "", final_wide_markdown(rep.final),
+             "", f"Return on the held-out episodes, mean over trials [{100 * CONFIDENCE:g}% CI]. Every policy's % of "
+             "the expert, Fréchet distance, action MSE and episodes at expert level, with the episodes per trial: "
+             f"[final_table{rep.suffix}.csv](final_table{rep.suffix}.csv).", ""]
     if all(r.method == "bc" for r in rep.final):
         parts += ["No RL run has a final evaluation yet: nothing to compare with BC.", ""]
     else:
-        parts += ["Paired by trial (a trial's methods share the seed, the demo split and the held-out episodes): "
-                  "in how many trials each policy's mean return is above BC's (and, for CMZ-DRIL, above no reward's "
-                  "with the same learner and policy choice: CMZ-DRIL (SAC) against No reward (SAC)), and the mean "
-                  "difference with its bootstrap CI. For the lowest-u "
-                  "policies, the epoch each trial's choice came from (done.json).", "", paired_markdown(rep.final), ""]
+        parts += [wins_markdown(rep.final), "",
+                  "Trials in which the policy's mean return is above the baseline's, on the same seed, demo split and "
+                  "held-out episodes. Every policy's comparisons, the mean differences with their CIs and the epoch "
+                  f"of each reward-free choice: [paired{rep.suffix}.csv](paired{rep.suffix}.csv).", ""]
     if figure is not None:
         parts += [f"![Final evaluation: {rep.label}]({figure.name})", ""]
     return parts
@@ -251,72 +193,143 @@ def _percent(share: float | None) -> str:
     return "n/a" if share is None else f"{100 * share:.0f}%"
 
 
-def table_sections(rep: GridReport, h: str, window: int) -> list[str]:
-    """Table I, the gap closed by CMZ-DRIL and the reward signal of one grid."""
-    rows, experts = rep.rows, rep.experts
+def table_sections(rep: GridReport, h: str, window: int,
+                   figures: Sequence[tuple[str, Path]] = ()) -> list[str]:
+    """Table I (and ``figures``, its curves), the gap closed by CMZ-DRIL and the reward signal of one grid."""
+    rows = rep.rows
     gaps = gap_closed(rows)
+    counts = sorted({r.n_trials for r in rows})
+    over = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
     parts = [
         f"{h} Table I", "",
-        f"Mean (std over trials) of each run's evaluation metric averaged over its last {window} epochs (all epochs "
-        "if it has fewer; BC: its single evaluation of the pretrained policy, at epoch 0). An evaluation replays the "
-        f"starts of the trial's held-out expert episodes ({_eval_episodes(rep.grid.records)} per trial) with the "
-        "deterministic policy: return is the true env return, Fréchet the discrete Fréchet distance to the "
-        "expert's path, action MSE the squared error of the policy's actions on the expert's observations. std is "
-        "the population std (ddof=0).", "",
-        md_table(["Env", "Method", "Trials", *(label for _, label, _ in METRICS)],
-                 ([r.env, METHOD_LABELS[r.method], str(r.n_trials),
-                   *(fmt_mean_std(r.mean(k), r.std(k)) for k, _, _ in METRICS)] for r in rows)), "",
-        "Return only, in the paper's layout" + (
-            ", with the expert's return on the same held-out episodes for scale (mean (std) over trials of each "
-            "trial's mean; from the demo pool each run's config.json names):" if experts else ":"), "",
         _paper_layout(rep), "",
+        f"Return of the per-epoch evaluations averaged over each run's last {window} epochs, mean (std) over "
+        f"{over} trials" + (" (the expert: on the same held-out episodes)" if rep.experts else "")
+        + f". Fréchet distance and action MSE: [table1{rep.suffix}.csv](table1{rep.suffix}.csv).", "",
+        *(line for title, path in figures for line in (f"![{title}]({path.name})", "")),
         f"{h} Gap closed by CMZ-DRIL", "",
-        "(CMZ-DRIL - no reward) / (env. reward - no reward) of the Table I means, over the trials that all three "
-        "methods have (Trials): 0 = no better than PPO+BC without "
-        "reward, 1 = as good as training on the true reward (the paper: about 50% for the reward). For Fréchet "
-        "distance and action MSE, where lower is better, the same ratio measures how far CMZ-DRIL moves from no "
-        "reward toward env. reward.", "",
         md_table(["Env", "Trials", *(label for _, label, _ in METRICS)],
                  ([env, str(len(trials)),
                    *(_percent(gaps[env][k]) for k, _, _ in METRICS)]
                   for env, trials in gap_trials(rows).items())), "",
+        "(CMZ-DRIL − no reward) / (env. reward − no reward) of the Table I means: 0% is no better than no reward, "
+        "100% as good as the true reward.", "",
     ]
     if rep.signal:
         ordered = sorted(rep.signal.items(), key=lambda kv: (env_key(kv[0][0]), METHOD_ORDER.index(kv[0][1])))
         parts += [
             f"{h} The reward signal during training", "",
-            f"From each run's SB3 progress log (`logs/progress_*.csv`): the rollout statistics averaged over its "
-            f"first and last {SIGNAL_EPOCHS} PPO updates, then over trials. u is the ensemble disagreement of the "
-            "states the agent visited (the same for every method: it is logged even where it is not the reward), "
-            "shaped is the mean reward the wrapper gave (CMZ-DRIL: -alpha (u - ubar), which should stay near 0; "
-            "DRIL: +1/-1; 0 for no reward), ubar the CMZ-DRIL EMA, length the training episodes' mean length.", "",
             md_table(["Env", "Method", "Trials", "u first → last", "shaped first → last", "ubar first → last",
                       "length first → last"],
                      ([env, METHOD_LABELS[method], str(int(cell["trials"][0])),
                        *(f"{fmt(cell[k][0])} → {fmt(cell[k][1])}" for k in ("u", "shaped", "ubar", "ep_len"))]
                       for (env, method), cell in ordered)), "",
+            f"The first and last {SIGNAL_EPOCHS} PPO updates' ensemble disagreement u, shaped reward, its average "
+            "ubar and episode length, mean over trials (`logs/progress_*.csv`).", "",
         ]
     return parts
 
 
-def _run_line(run: RunRecord, root: Path, table_value: float) -> str:
-    text = (f"`{run.relative(root)}` ({run.status}, epochs {int(run.columns['epoch'][0])}-"
-            f"{int(run.columns['epoch'][-1])}, Table I return {fmt(table_value)}")
-    for policy, name in (("final", "final"), ("lowest_u", "lowest u")):
-        if policy in run.final:
-            values = run.final[policy]
-            text += f", {name} {fmt(float(values['return'].mean()))} over {values['episode'].size} episodes"
-    return text + ")"
+def how_to_read(reports: Sequence[GridReport], reference: ReferenceTable | None, window: int,
+                across: str | None, curves: bool) -> list[str]:
+    """How every number of the page is made, one paragraph a table."""
+    episodes = {rep.label: _eval_episodes(rep.grid.records) for rep in reports}
+    per_trial = (next(iter(episodes.values())) if len(set(episodes.values())) == 1
+                 else "; ".join(f"{name}: {n}" for name, n in episodes.items()))
+    parts = ["## How to read", ""]
+    if any(rep.final for rep in reports):
+        parts += [
+            f"- **Final evaluation** (the headline, its figure and the per-task tables): {_lower(method_text())}",
+            "- **Paired by trial**: a trial's methods share the seed, the demo split and the held-out episodes. The "
+            "table counts in how many trials each policy's mean return is above BC's (and, for CMZ-DRIL, above no "
+            "reward's with the same learner and policy choice: CMZ-DRIL (SAC) against No reward (SAC)); the CSV adds "
+            "the mean difference with its bootstrap CI and, for the reward-free choices, the epoch each trial's "
+            "choice came from (done.json).",
+        ]
+    parts += [
+        f"- **Table I**: mean (std over trials) of each run's evaluation metric averaged over its last {window} epochs "
+        "(all epochs if it has fewer; BC: its single evaluation of the pretrained policy, at epoch 0). An evaluation "
+        f"replays the starts of the trial's held-out expert episodes ({per_trial} per trial) with the deterministic "
+        "policy: return is the true env return, Fréchet the discrete Fréchet distance to the expert's path, action "
+        "MSE the squared error of the policy's actions on the expert's observations. std is the population std "
+        "(ddof=0). The expert's return: mean (std) over trials of each trial's mean on the same held-out episodes, "
+        "from the demo pool each run's config.json names.",
+        "- **Gap closed by CMZ-DRIL**: (CMZ-DRIL - no reward) / (env. reward - no reward) of the Table I means, "
+        "over the trials that all three methods have (Trials): 0 = no better than PPO+BC without reward, 1 = as "
+        "good as training on the true reward (the paper: about 50% for the reward). For Fréchet distance and action "
+        "MSE, where lower is better, the same ratio measures how far CMZ-DRIL moves from no reward toward env. "
+        "reward.",
+        f"- **The reward signal**: from each run's SB3 progress log (`logs/progress_*.csv`): the rollout statistics "
+        f"averaged over its first and last {SIGNAL_EPOCHS} PPO updates, then over trials. u is the ensemble "
+        "disagreement of the states the agent visited (the same for every method: it is logged even where it is not "
+        "the reward), shaped is the mean reward the wrapper gave (CMZ-DRIL: -alpha (u - ubar), which should stay "
+        "near 0; DRIL: +1/-1; 0 for no reward), ubar the CMZ-DRIL EMA, length the training episodes' mean length.",
+    ]
+    if across:
+        parts.append(f"- **Across tasks**: {_lower(across)}")
+    if curves:
+        parts.append("- **Fig. 1 and 2**: one row per env, one column per metric against the epoch; each trial's "
+                     f"curve is smoothed with a Gaussian filter (sigma {SMOOTHING_SIGMA:g} evaluations), then the line "
+                     "is the mean over trials and the band ±1 std. BC (evaluated once) is the dashed horizontal line "
+                     "with its ±1 std band.")
+    if reference is not None:
+        parts.append(f"- **{reference.name[:1].upper() + reference.name[1:]}**: copied from the paper (its own envs: "
+                     + ", ".join(f"{PAPER_ENV_NAMES[e]} for {e}" for e in sorted(PAPER_ENV_NAMES, key=env_key))
+                     + "), not produced by this code.")
+    return [*parts, ""]
 
 
-def sources_sections(rep: GridReport, heading: str = "") -> list[str]:
+def _lower(text: str) -> str:
+    return text[:1].lower() + text[1:]
+
+
+def source_line(rep: GridReport, curves: bool) -> str:
+    """The files of one grid that the page reads, and what each gives."""
+    records = rep.grid.records
+    n_final = sum(bool(r.final) for r in records)
+    return (
+        f"`{rep.root}`, {len(records)} runs: their `eval.csv` ({'Table I and Fig. 1/2' if curves else 'Table I'}), "
+        f"`final_eval.csv` (the final evaluation; {n_final} of the {len(records)} runs have one), `done.json` (the "
+        "epoch of each lowest-u policy), `logs/progress_*.csv` (the reward signal) and the demo pools their "
+        "`config.json` names (the expert's return in Table I)."
+    )
+
+
+def _spans(values: Sequence[int]) -> str:
+    """0, 1, 2, 3, 5 as "0-3, 5"."""
+    spans: list[list[int]] = []
+    for v in sorted(values):
+        if spans and v == spans[-1][1] + 1:
+            spans[-1][1] = v
+        else:
+            spans.append([v, v])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in spans)
+
+
+def _runs_lines(rows: Sequence[TableRow], root: Path) -> list[str]:
+    """The runs of a grid, a line per set of envs with the same methods and trials (the methods with the
+    same trials together), then any run whose folder is not ``<env>/<method>/trial<t>``."""
+    by_env: dict[str, dict[str, list[str]]] = {}
+    elsewhere = []
+    for r in sorted(rows, key=lambda r: (env_key(r.env), METHOD_ORDER.index(r.method))):
+        by_env.setdefault(r.env, {}).setdefault(_spans([run.trial for run in r.runs]), []).append(f"`{r.method}`")
+        elsewhere += [f"`{run.relative(root)}`" for run in r.runs
+                      if Path(run.relative(root)).as_posix() != f"{r.env}/{r.method}/trial{run.trial}"]
+    envs: dict[str, list[str]] = {}
+    for env, by_trials in by_env.items():
+        text = "; ".join(f"{', '.join(methods)} trials {trials}" for trials, methods in by_trials.items())
+        envs.setdefault(text, []).append(env)
+    lines = [f"- {', '.join(names)}: {text}" for text, names in envs.items()]
+    return lines + ([f"- in other folders: {', '.join(elsewhere)}"] if elsewhere else [])
+
+
+def sources_sections(rep: GridReport, heading: str = "", curves: bool = False) -> list[str]:
     """The runs behind each number and the commands that made them, under ``heading`` if one is given."""
     parts = [heading, ""] if heading else []
-    parts += ["Each (env, method) cell averages these runs; beside each run, the epochs it reached, its own return "
-             "over the Table I window (eval.csv) and its final evaluation's mean return (final_eval.csv).", ""]
-    for r in rep.rows:
-        lines = (_run_line(run, rep.root, v) for run, v in zip(r.runs, r.per_run["return"], strict=True))
-        parts.append(f"- {r.env} / {METHOD_LABELS[r.method]}: " + ", ".join(lines))
+    parts += [f"From {source_line(rep, curves)} Each (env, method) averages the runs "
+              f"`<env>/<method>/trial<t>` below `{rep.root}`; each run's status, epochs, Table I return and final "
+              f"returns are in [per_run{rep.suffix}.csv](per_run{rep.suffix}.csv).", ""]
+    parts += _runs_lines(rep.rows, rep.root)
     created, resumed = _commands(rep.grid.records, rep.root)
     parts += ["", "Runs created by:", ""] + ([f"    {short_command(c)}" for c in created] or ["    (not recorded)"])
     if resumed:

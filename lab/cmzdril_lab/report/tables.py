@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from cmzdril_lab.report.records import RunRecord, group, progress_rows
+from cmzdril_lab.report.records import POLICIES, RunRecord, group, progress_rows
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.training.run_folder import TABLE_WINDOW, window_means
@@ -118,6 +118,27 @@ def table_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
     return out.getvalue()
 
 
+def per_run_csv(rows: Sequence[TableRow], runs_dir: Path) -> str:
+    """One row per run behind Table I: its folder (relative to ``runs_dir``), status, the epochs it
+    reached, its own Table I return (its window mean) and each final-evaluation policy's mean return
+    with its number of held-out episodes (empty where it has none)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header = ["env", "method", "trial", "run_dir", "status", "first_epoch", "last_epoch", "table1_return"]
+    for policy in POLICIES:
+        header += [f"{policy}_return", f"{policy}_episodes"]
+    writer.writerow(header)
+    for r in rows:
+        for run, value in zip(r.runs, r.per_run["return"], strict=True):
+            values: list[Any] = [r.env, r.method, run.trial, run.relative(runs_dir), run.status,
+                                 int(run.columns["epoch"][0]), int(run.columns["epoch"][-1]), repr(value)]
+            for policy in POLICIES:
+                final = run.final.get(policy)
+                values += ["", ""] if final is None else [repr(float(np.mean(final["return"]))), final["episode"].size]
+            writer.writerow(values)
+    return out.getvalue()
+
+
 # -- the expert's scale -----------------------------------------------------------------------------------
 def _demo_pool_candidates(record: RunRecord, runs_dir: Path) -> list[Path]:
     """Where a run's demo pool may be: the path it recorded, else experts/<EnvName>/demos.npz beside
@@ -202,6 +223,7 @@ __all__ = [
     "gap_closed",
     "gap_trials",
     "table_csv",
+    "per_run_csv",
     "expert_returns",
     "reward_signal",
     "SIGNAL_EPOCHS",
