@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from helpers import ENV, POOL_EPISODES, TINY_PPO_YAML, cartpole_expert, pendulum_expert, record
+from helpers import ENV, POOL_EPISODES, SHORT_OFFPOLICY_EPOCH, TINY_PPO_YAML, cartpole_expert, pendulum_expert, record
 from sb3_cmzdril.demos import Demonstrations
 
 torch.set_num_threads(1)
@@ -39,3 +39,14 @@ def tiny_experiment(tmp_path_factory) -> dict[str, Path]:
     hp = root / "cmzdril.yml"
     hp.write_text(TINY_PPO_YAML)
     return {"root": root, "demos_dir": root / "experts", "pool": pool, "hp": hp}
+
+
+
+@pytest.fixture
+def short_offpolicy_epochs(monkeypatch) -> int:
+    """Off-policy epochs of :data:`SHORT_OFFPOLICY_EPOCH` steps for the runs a test executes in this process."""
+    from sb3_cmzdril.training import runs, spec
+
+    monkeypatch.setattr(spec, "OFFPOLICY_EPOCH_STEPS", SHORT_OFFPOLICY_EPOCH)
+    monkeypatch.setattr(runs, "OFFPOLICY_EPOCH_STEPS", SHORT_OFFPOLICY_EPOCH)
+    return SHORT_OFFPOLICY_EPOCH

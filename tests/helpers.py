@@ -163,3 +163,16 @@ def with_entry(yaml_text: str, entry: str) -> str:
     lines = yaml_text.splitlines(keepends=True)
     kept = [line for line in lines if not line.startswith(key)]
     return "".join(kept) + entry
+
+
+#: The off-policy epoch of the tests' runs (steps; conftest's ``short_offpolicy_epochs``): the shipped
+#: 2,048 would make every tiny run one epoch.
+SHORT_OFFPOLICY_EPOCH = 64
+
+
+def write_tiny_yaml(path: Path, settings: Mapping[str, Any], n_timesteps: int = 256, **extra: Any) -> Path:
+    """A hyperparameter file at ``path`` whose ``default`` entry is ``settings`` on the tests' short
+    Pendulum-v1 episodes, one demo; ``path``."""
+    path.write_text(zoo_yaml("default", settings, n_timesteps=n_timesteps, env_kwargs=SHORT_EPISODES, n_demos=1,
+                             **extra))
+    return path

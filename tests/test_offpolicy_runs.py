@@ -15,15 +15,14 @@ import numpy as np
 import pytest
 
 from cmzdril_lab.run.grid import plan_grid
-from helpers import ENV, POOL_EPISODES, SHORT_EPISODES, TINY_SAC, Interrupt, zoo_yaml
+from helpers import ENV, POOL_EPISODES, SHORT_OFFPOLICY_EPOCH, TINY_SAC, Interrupt, write_tiny_yaml
 from sb3_cmzdril.cli import main
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.sac import CMZDRILSAC
-from sb3_cmzdril.training import spec as spec_module
 from sb3_cmzdril.training.runs import plan_run, run_experiment, split_episodes
 from sb3_cmzdril.training.spec import PAPER_METHODS, train_command
 
-EPOCH = 64
+EPOCH = SHORT_OFFPOLICY_EPOCH
 #: CMZDRILSAC's imitation options at the tests' size, and the shipped file's settings that matter here
 TINY_CMZ_SAC = dict(
     TINY_SAC,
@@ -35,20 +34,13 @@ TINY_CMZ_SAC = dict(
 )
 
 
-@pytest.fixture(autouse=True)
-def short_epochs(monkeypatch):
-    """An off-policy epoch of 64 steps (the runs execute in this process, so the patch reaches them)."""
-    monkeypatch.setattr(spec_module, "OFFPOLICY_EPOCH_STEPS", EPOCH)
-    from sb3_cmzdril.training import runs
-
-    monkeypatch.setattr(runs, "OFFPOLICY_EPOCH_STEPS", EPOCH)
+#: Every run here has off-policy epochs of EPOCH steps (conftest.py).
+pytestmark = pytest.mark.usefixtures("short_offpolicy_epochs")
 
 
 @pytest.fixture(scope="module")
 def sac_yaml(tiny_experiment) -> Path:
-    path = tiny_experiment["root"] / "cmzdril_sac.yml"
-    path.write_text(zoo_yaml("default", TINY_CMZ_SAC, n_timesteps=256, env_kwargs=SHORT_EPISODES, n_demos=1))
-    return path
+    return write_tiny_yaml(tiny_experiment["root"] / "cmzdril_sac.yml", TINY_CMZ_SAC)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:

@@ -170,6 +170,18 @@ def _rollout(
     return np.stack(observations), total
 
 
+def _start_mismatch_message(differing: list[int], seeds: np.ndarray) -> str:
+    """What :func:`evaluate_against_expert` says of the episodes (of the demos it was given) whose
+    recorded seed does not reproduce their first observation: every one of them, with its seed."""
+    shown = ", ".join(f"{i} (seed {int(seeds[i])})" for i in differing[:10]) + (", ..." if len(differing) > 10 else "")
+    return (
+        f"episode{'s' if len(differing) > 1 else ''} {shown} of {len(seeds)}: the reset observation for the "
+        "recorded seed differs from the expert's first observation; the seed does not reproduce the expert's "
+        "start (different env, env version or env_kwargs?), so the Fréchet distance and the return compare "
+        "different starts"
+    )
+
+
 @mujoco_warnings_routed()  # the rollouts step MuJoCo: its warnings go to stderr, not MUJOCO_LOG.TXT
 def evaluate_against_expert(
     model: Any,
@@ -220,28 +232,28 @@ def evaluate_against_expert(
         starts = demos.episode_starts
         episode_mse = np.add.reduceat(step_errors, starts) / demos.episode_lengths
 
+        if start_mismatch == "raise":
+            # Every start before the first rollout: the error names each episode that differs.
+            differing = [i for i in range(demos.n_episodes) if not same_observation(
+                env_obj.reset(seed=int(demos.seeds[i]))[0], demos.episode(i)["observations"])]
+            if differing:
+                raise UserError(_start_mismatch_message(differing, demos.seeds))
+
         returns, lengths, frechet, matches, trajectories = [], [], [], [], []
         for i in range(demos.n_episodes):
             expert = demos.episode(i)
             agent_obs, total = _rollout(model, env_obj, expert["seed"], transform, max_steps)
-            match = same_observation(agent_obs[0], expert["observations"])
-            if not match and start_mismatch != "ignore":
-                message = (
-                    f"episode {i}: the reset observation for seed {expert['seed']} differs from the expert's "
-                    "first observation; the seed does not reproduce the expert's start (different env, "
-                    "env version or env_kwargs?), so the Fréchet distance compares different starts"
-                )
-                if start_mismatch == "raise":
-                    raise UserError(message)
-                warnings.warn(message, UserWarning, stacklevel=2)
+            matches.append(same_observation(agent_obs[0], expert["observations"]))
             returns.append(total)
             lengths.append(len(agent_obs))
             frechet.append(frechet_distance(features(agent_obs), features(expert["observations"])))
-            matches.append(match)
             trajectories.append(agent_obs)
     finally:
         if owned:
             env_obj.close()
+    differing = [i for i, match in enumerate(matches) if not match]
+    if differing and start_mismatch == "warn":  # one warning naming every episode that differs
+        warnings.warn(_start_mismatch_message(differing, demos.seeds), UserWarning, stacklevel=2)
 
     expert_returns = demos.episode_returns
     return ExpertEvaluation(

@@ -12,7 +12,10 @@
     DIR/vecnormalize.pkl   VecNormalize statistics beside model.zip, when the hyperparameters
                            ask for ``normalize``
     DIR/state.json         step count, wall and CPU time and the segments (start, resumes) of the run,
-                           each with the machine it ran on (CPU model, logical CPUs, torch's threads, OS)
+                           each with the machine and device it ran on (CPU model, logical CPUs, torch's
+                           threads, OS); written last by each checkpoint, with the checkpoint's step count
+                           and the sha256 of each of its files: a resume refuses a checkpoint whose files
+                           are not those (a process killed while it wrote them)
     DIR/pretrain.csv       the NLL curve of behaviour-cloning pretraining (training and held-out steps)
     DIR/lowest_u.pt        the policy whose own training rollout had the lowest ensemble disagreement
                            (reward-free selection, sb3_cmzdril.selection), saved with each checkpoint;
@@ -115,7 +118,9 @@ RESUME_NOTE = (
 #: the requested number of steps or how often to evaluate).
 _IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes", "demos_sha256", "hyperparams_values")
 #: config.json entries a resume may change.
-_SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command", "resume")
+_SETTING_KEYS = ("timesteps", "eval_every", "checkpoint_every", "train_command", "resume", "device")
+#: state.json's record of the last checkpoint: its step count and the sha256 of each of its files.
+CHECKPOINT_KEY = "checkpoint"
 #: done.json's repeat of the identity, for a folder of ours whose config.json went missing.
 _DONE_IDENTITY_KEYS = ("env_id", "method", "seed", "train_episodes", "eval_episodes")
 
@@ -251,7 +256,7 @@ class RunState:
     machine still slows each step (shared caches and cores): compare runs made under similar load.
     A state.json from before it was recorded counts from 0."""
 
-    def __init__(self, out: Path, spec: RunSpec, start_steps: int) -> None:
+    def __init__(self, out: Path, spec: RunSpec, start_steps: int, device: str | None = None) -> None:
         self.path = out / STATE_FILE
         self.data: dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "cpu_time_s": 0.0, "segments": []}
         if self.path.is_file() and start_steps > 0:
@@ -266,6 +271,7 @@ class RunState:
             "seed": spec.seed + int(start_steps),  # what the segment reseeded with (config.json's "resume")
             "command": spec.command,
             "machine": machine(),
+            **({"device": device} if device is not None else {}),
         })
 
     def wall_time(self) -> float:
@@ -274,14 +280,21 @@ class RunState:
     def cpu_time(self) -> float:
         return self._base_cpu + (time.process_time() - self._cpu0)
 
-    def write(self, num_timesteps: int) -> None:
+    def write(self, num_timesteps: int, checkpoint: Mapping[str, str] | None = None) -> None:
+        """state.json; with ``checkpoint`` (file name -> sha256 of each file of the checkpoint just
+        written at ``num_timesteps``), the record a resume checks the checkpoint's files against."""
+        if checkpoint is not None:
+            self.data[CHECKPOINT_KEY] = {"timesteps": int(num_timesteps), "sha256": dict(checkpoint)}
         self.data.update(num_timesteps=int(num_timesteps), wall_time_s=round(self.wall_time(), 2),
                          cpu_time_s=round(self.cpu_time(), 2))
         write_json(self.path, self.data)
 
 
-def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], pool) -> dict[str, Any]:
-    """config.json's content for ``spec`` with its hyperparameters ``hp``, split and demo ``pool``."""
+def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], pool,
+               device: str | None = None) -> dict[str, Any]:
+    """config.json's content for ``spec`` with its hyperparameters ``hp``, split and demo ``pool``;
+    ``device``: the one the model runs on (:meth:`~sb3_cmzdril.training.spec.ResolvedRun.device`),
+    which ``model_kwargs`` (as the YAML asks) need not say."""
     return {
         "env_id": spec.env_id,
         "env_name": env_name(spec.env_id),
@@ -308,6 +321,7 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "hyperparams_key": hp.key,
         "hyperparams_values": hp.raw,
         "model_kwargs": hp.model_kwargs(),
+        **({"device": device} if device is not None else {}),
         "env_kwargs": hp.env_kwargs,
         "versions": versions(),
         "command": spec.command,
@@ -464,6 +478,13 @@ def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, A
             "delete it to let the run finish again, or use another output folder"
         )
     if spec.timesteps > steps:
+        if spec.off_policy:
+            # Its replay buffer went when it finished (finish()): without it no resume is the same run.
+            raise UserError(
+                f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; a finished "
+                f"{spec.method} run cannot train further (its {REPLAY_BUFFER_FILE}, which resuming needs, is removed "
+                f"when it finishes): train {spec.timesteps} steps into another output folder"
+            )
         raise UserError(
             f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to train it "
             f"further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), or use "
@@ -473,7 +494,7 @@ def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, A
 
 
 def _config_of(run: ResolvedRun) -> dict[str, Any]:
-    return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool)
+    return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool, run.device())
 
 
 class RunFolder:
@@ -510,26 +531,102 @@ class RunFolder:
         return self.run.spec.method != "bc" and self.model.is_file()
 
     def check_resumable(self) -> None:
-        """UserError when the checkpoint lacks a file the run needs to go on: an off-policy learner's
-        replay buffer (without it the run would go on as another run, silently)."""
-        if self.run.spec.off_policy and self.resumable and not self.replay_buffer.is_file():
+        """UserError, naming the file, unless the checkpoint is one whole that the run can go on from.
+
+        Each checkpoint writes state.json last, with its step count and the sha256 of every file of it
+        (:meth:`checkpoint`); each must be there as written. A process killed while it wrote a checkpoint
+        leaves some files newer than the others (model.zip at one step, the replay buffer and the kept
+        policy's search at an earlier one), and a file missing would let the run go on as another run,
+        silently. A state.json written before checkpoints were recorded holds their step count only:
+        model.zip must be at it, and an off-policy run needs its replay buffer.
+        """
+        if not self.resumable:
+            return
+        state_path = self.path / STATE_FILE
+        restart = f"delete {self.path} (or train into another output folder) to start the run again"
+        if not state_path.is_file():
+            raise UserError(f"{self.path} holds {MODEL_FILE} but not {STATE_FILE}, which records its checkpoint; "
+                            f"{restart}")
+        state = read_json(state_path)
+        record = state.get(CHECKPOINT_KEY)
+        if record is None:
+            self._check_unrecorded_checkpoint(state, restart)
+            return
+        try:
+            steps, digests = int(record["timesteps"]), dict(record["sha256"])
+            if not all(isinstance(d, str) for d in digests.values()):
+                raise TypeError("a digest is not a string")
+        except (TypeError, ValueError, KeyError):
+            raise UserError(f"{state_path} is not what sb3-cmzdril wrote: its checkpoint record is {record!r}; "
+                            f"{restart}") from None
+        foreign = sorted(set(digests) - set(_CHECKPOINT_FILES))
+        if foreign:
+            raise UserError(f"{state_path} is not what sb3-cmzdril wrote: its checkpoint names {foreign}, no files "
+                            f"of a checkpoint; {restart}")
+        for name in [*self._needed_files(), *digests]:
+            if name not in digests or not (self.path / name).is_file():
+                raise UserError(f"{self.path} holds {MODEL_FILE} but not {name}, which its checkpoint at {steps} "
+                                f"steps needs to resume; {restart}")
+        for name, digest in digests.items():
+            if file_sha256(self.path / name) != digest:
+                raise UserError(
+                    f"{self.path / name} is truncated, damaged or from another checkpoint than the one at {steps} "
+                    f"steps that {STATE_FILE} records (a process killed while it wrote a checkpoint leaves its files "
+                    f"so); {restart}"
+                )
+
+    def _needed_files(self) -> list[str]:
+        """The files every checkpoint of this run holds: model.zip, an off-policy learner's replay buffer,
+        the VecNormalize statistics where the hyperparameters normalise."""
+        return [MODEL_FILE, *([REPLAY_BUFFER_FILE] if self.run.spec.off_policy else []),
+                *([VECNORMALIZE_FILE] if self.run.hp.normalize not in (None, False) else [])]
+
+    def _check_unrecorded_checkpoint(self, state: Mapping[str, Any], restart: str) -> None:
+        """A state.json without a checkpoint record (written before they were kept): its step count must
+        be model.zip's, and an off-policy run needs its replay buffer."""
+        if self.run.spec.off_policy and not self.replay_buffer.is_file():
             raise UserError(
                 f"{self.path} holds {MODEL_FILE} but not {REPLAY_BUFFER_FILE}, which an off-policy run needs to "
-                "resume; delete the folder to start the run again"
+                f"resume; {restart}"
+            )
+        steps, saved = state.get("num_timesteps"), _model_timesteps(self.model)
+        if saved is not None and steps != saved:
+            raise UserError(
+                f"{self.model} is at {saved} steps, but {STATE_FILE}, which each checkpoint writes last, at {steps!r}: "
+                f"a process killed while it wrote a checkpoint leaves its files so; {restart}"
             )
 
-    def segment_logger(self, start: int, verbose: int):
+    def segment_logger(self, start: int, verbose: int, tensorboard: Path | None = None):
         """SB3 logger writing the progress CSV of the segment that starts at step ``start`` (a resumed
-        run must not overwrite the last one's)."""
+        run must not overwrite the last one's) and, with ``tensorboard`` (:meth:`tensorboard_dir`),
+        TensorBoard's event files into that folder."""
         import sys
 
-        from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
+        from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger, TensorBoardOutputFormat
 
         (self.path / "logs").mkdir(exist_ok=True)
         formats: list[Any] = [CSVOutputFormat(str(self.path / "logs" / f"progress_{start}.csv"))]
         if verbose >= 1:
             formats.append(HumanOutputFormat(sys.stdout))
+        if tensorboard is not None:
+            formats.append(TensorBoardOutputFormat(str(tensorboard)))
         return Logger(folder=None, output_formats=formats)
+
+    def tensorboard_dir(self, state: RunState) -> Path | None:
+        """Where the run writes TensorBoard's events, None unless its hyperparameters set ``tensorboard_log``:
+        SB3's ``<tensorboard_log>/<name>_<n>``, the run's label as the name and ``n`` one more than the
+        last such folder there; a resumed run continues the folder its earlier segments wrote to
+        (state.json's segments name it), as SB3's ``learn(reset_num_timesteps=False)`` does."""
+        root = self.run.model_kwargs().get("tensorboard_log")
+        if root is None:
+            return None
+        from stable_baselines3.common.utils import get_latest_run_id
+
+        earlier = [seg["tensorboard"] for seg in state.data["segments"][:-1] if isinstance(seg.get("tensorboard"), str)]
+        if earlier:
+            return Path(earlier[-1])
+        name = self.run.spec.label.replace("/", "_")
+        return Path(root).resolve() / f"{name}_{get_latest_run_id(str(root), name) + 1}"
 
     def kept_file(self, name: str) -> Path:
         """Where the kept policy ``name`` (a key of :data:`SELECTIONS`) and what led to it are saved."""
@@ -537,21 +634,28 @@ class RunFolder:
 
     def checkpoint(self, model: Any, kept: Mapping[str, Any], state: RunState) -> None:
         """model.zip, the VecNormalize statistics beside it, an off-policy learner's replay buffer, the
-        kept policies so far (name -> selector, :mod:`sb3_cmzdril.selection`) and state.json."""
+        kept policies so far (name -> selector, :mod:`sb3_cmzdril.selection`) and, last, state.json with
+        the step count and the sha256 of each of those files (what :meth:`check_resumable` checks)."""
+        written: list[Path] = []
         # The checkpoint's files belong together: Ctrl-C or SIGTERM waits until all are written.
         with deferred_signals():
             vec_normalize = model.get_vec_normalize_env()
             if vec_normalize is not None:
                 with atomic_path(self.vecnormalize, suffix=".pkl") as tmp:
                     vec_normalize.save(str(tmp))
+                written.append(self.vecnormalize)
             with atomic_path(self.model, suffix=".zip") as tmp:
                 model.save(tmp)
+            written.append(self.model)
             if self.run.spec.off_policy:
                 with atomic_path(self.replay_buffer, suffix=".pkl") as tmp:
                     model.save_replay_buffer(tmp)
+                written.append(self.replay_buffer)
             for name, selector in kept.items():  # with the checkpoint, so a resume continues the same search
-                selector.save(self.kept_file(name))
-            state.write(model.num_timesteps)
+                if selector.best_state is not None:  # nothing is written before a choice exists
+                    selector.save(self.kept_file(name))
+                    written.append(self.kept_file(name))
+            state.write(model.num_timesteps, {path.name: file_sha256(path) for path in written})
 
     def has_pretrain(self) -> bool:
         """Whether pretrain.csv is there."""
@@ -579,6 +683,23 @@ class RunFolder:
             with contextlib.suppress(FileNotFoundError):
                 error.unlink()
         return summary
+
+
+#: The files a checkpoint may hold (state.json's record names no others).
+_CHECKPOINT_FILES = (MODEL_FILE, VECNORMALIZE_FILE, REPLAY_BUFFER_FILE, *(files for files, _ in SELECTIONS.values()))
+
+
+def _model_timesteps(path: Path) -> int | None:
+    """The step count an SB3 zip records (its ``data``), None where it cannot be read (loading it says why)."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            steps = json.loads(archive.read("data"))["num_timesteps"]
+    except Exception:  # a damaged or foreign zip: the resume's load names it
+        return None
+    return steps if isinstance(steps, int) and not isinstance(steps, bool) else None
 
 
 # -- what a folder holds ---------------------------------------------------------------------------
@@ -610,6 +731,7 @@ def latest_epoch(output_dir: PathLike) -> int | None:
 __all__ = [
     "AVERAGED_FILE",
     "AVERAGED_MODEL",
+    "CHECKPOINT_KEY",
     "CONFIG_FILE",
     "DISCARDED_CSV",
     "DONE_FILE",

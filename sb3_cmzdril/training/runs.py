@@ -8,7 +8,8 @@ input read and checked before a file is written), its
 model built or resumed, trained, evaluated on the held-out episodes, done.json written.
 
 Resuming: with ``done.json`` the run is skipped. With ``model.zip`` the run continues from that
-checkpoint to the requested total (``learn(..., reset_num_timesteps=False)``). Evaluation rows
+checkpoint to the requested total (``learn(..., reset_num_timesteps=False)``), once every file of the
+checkpoint is found as state.json (written last) records it (``RunFolder.check_resumable``). Evaluation rows
 written after the checkpoint (by the interrupted process, for a policy that no longer exists) are
 moved to ``eval.discarded.csv`` so that ``eval.csv`` describes one training trajectory; nothing is
 deleted.
@@ -26,6 +27,7 @@ This module stays the public path of the planning and run-folder names that user
 from __future__ import annotations
 
 import inspect
+import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -86,6 +88,8 @@ from sb3_cmzdril.training.spec import (
     train_command,
 )
 
+logger = logging.getLogger(__name__)
+
 
 # -- one run -----------------------------------------------------------------------------------
 def run_experiment(
@@ -113,12 +117,16 @@ def run_experiment(
     folder.check_resumable()
     # Read before folder.open() writes config.json: a damaged lowest_u.pt refuses with the folder untouched.
     kept = _kept_policies(run, folder, folder.resumable)
+    _warn_of_device(run)
     with folder.open():  # created and locked; config.json written, or matched with the run there
         resume = folder.resumable
         model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
         discarded = discard_rows_after(folder.eval_csv, start if resume else -1)
-        model.set_logger(folder.segment_logger(start, verbose))
-        state = RunState(folder.path, spec, start)
+        state = RunState(folder.path, spec, start, device=str(model.device))
+        tensorboard = folder.tensorboard_dir(state)
+        if tensorboard is not None:
+            state.data["segments"][-1]["tensorboard"] = str(tensorboard)
+        model.set_logger(folder.segment_logger(start, verbose, tensorboard))
         if discarded:
             state.data["segments"][-1]["discarded_eval_rows"] = discarded
         eval_cb = _eval_callback(run, folder, verbose)
@@ -133,10 +141,21 @@ def run_experiment(
                 if hasattr(selector, "close"):  # the longest-episodes checks' own env
                     selector.close()
             venv.close()
+            model.logger.close()  # the progress CSV and TensorBoard's events flushed
         if not finished:
             return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(folder.path)}
         state.write(model.num_timesteps)
         return folder.finish({**_summary(run, model, folder, state), "final_evaluation": final})
+
+
+def _warn_of_device(run: ResolvedRun) -> None:
+    """A warning line where the model will not run on the device its hyperparameters ask for (SB3 falls
+    back to the CPU without a word where CUDA is missing); config.json and state.json record the one used."""
+    asked = str(run.model_kwargs()["device"])
+    used = run.device()
+    if asked != "auto" and asked.split(":")[0] != used.split(":")[0]:
+        logger.warning("hyperparameters %r in %s ask for device %r, which this machine does not have: the run uses "
+                       "%r (recorded in config.json)", run.hp.key, run.spec.hyperparams, asked, used)
 
 
 def _new_model(run: ResolvedRun, verbose: int) -> tuple[Any, Any, int]:
@@ -287,13 +306,20 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, kept: dic
             if source is not None:
                 summary.update(source.kept())
                 if "timesteps" in summary:  # a choice by steps gets the epoch the tables show too
-                    summary["epoch"] = summary["timesteps"] // epoch_steps(model)
+                    summary["epoch"] = eval_epoch(int(summary["timesteps"]), epoch_steps(model))
             results[name] = summary
             rows += final_eval_rows(name, episodes, ev)
     finally:
         model.policy.load_state_dict(final_state)
     folder.write_final_evaluation(rows)
     return results
+
+
+def eval_epoch(timesteps: int, steps_per_epoch: int) -> int:
+    """The epoch eval.csv gives the policy after ``timesteps`` steps: each epoch's first step is that
+    epoch's row, and a run that ends inside an epoch evaluates that epoch's end as the epoch it was in
+    (:class:`~sb3_cmzdril.metrics.ExpertEvalCallback`), hence the count rounded up."""
+    return -(-int(timesteps) // int(steps_per_epoch)) if timesteps >= 0 else int(timesteps)
 
 
 def final_eval_rows(policy: str, episodes: Sequence[int], ev: Any) -> list[str]:

@@ -55,6 +55,14 @@ OFFPOLICY_EPOCH_STEPS = 2048
 #: from which fraction of the run's steps on an averaged policy is kept and evaluated, and whether the
 #: longest-episodes choice is kept and evaluated too.
 EXPERIMENT_KEYS: tuple[str, ...] = ("n_demos", "longest_tie_break", "episode_length", "average_from", "keep_longest")
+#: Constructor arguments that the run passes itself, each with what sets it: a YAML entry that sets
+#: one too would clash with it in the constructor (a TypeError once config.json is written).
+RUN_SET_KEYS: dict[str, str] = {
+    "seed": "--seed (the trial seed seeds the networks, the env and the split)",
+    "reward": "--reward (the method)",
+    "demonstrations": "--demos and --n-demos",
+    "verbose": "--verbose (-v)",
+}
 #: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
 FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
@@ -193,6 +201,10 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
     hp.check_supported(
         unsupported=("env_wrapper", "vec_env_wrapper", "callback", "frame_stack"), what="sb3-cmzdril train"
     )
+    run_set = [k for k in RUN_SET_KEYS if k in hp.algo_kwargs]
+    if run_set:
+        raise UserError(f"hyperparameters {hp.key!r} in {path}: {run_set[0]} is set by the run, with "
+                        f"{RUN_SET_KEYS[run_set[0]]}, not by the YAML; remove it from the entry")
     settings = {k: hp.algo_kwargs.pop(k) for k in EXPERIMENT_KEYS if k in hp.algo_kwargs}
     for key in ("longest_tie_break", "episode_length"):
         if key not in settings:
@@ -379,6 +391,17 @@ class ResolvedRun:
             kwargs["ensemble_epochs"] = 1
         return kwargs
 
+    def device(self) -> str:
+        """The device the model runs on: the asked one (``device`` of the YAML, else the CPU) as SB3
+        resolves it, which falls back to the CPU, silently, where CUDA is asked for but missing."""
+        from stable_baselines3.common.utils import get_device
+
+        asked = self.model_kwargs()["device"]
+        try:
+            return str(get_device(asked))
+        except (RuntimeError, TypeError, ValueError):  # not a device at all: the preflight's model refuses it
+            return str(asked)
+
 
 def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
     """Read the run's hyperparameters and demo pool and split the pool, once.
@@ -486,6 +509,7 @@ def _preflight(run: ResolvedRun) -> None:
             run.pool.check_spaces(venv.observation_space, venv.action_space)
         except ValueError as e:
             raise UserError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
+        _check_episode_lengths(run)
         _check_starts(run)
         try:
             model = learner(
@@ -502,30 +526,73 @@ def _preflight(run: ResolvedRun) -> None:
     _PREFLIGHT_PASSED.add(key)
 
 
-def _check_starts(run: ResolvedRun) -> None:
-    """UserError unless a held-out episode's recorded reset seed reproduces its first observation.
+def _own_step_limit(env: Any) -> int | None:
+    """The step limit an env keeps itself (an int ``max_steps`` or ``max_episode_steps`` of the
+    unwrapped env, as WaypointNav-v0's ``max_steps`` option), the smallest where both are set; None
+    where it has none. gym.make's TimeLimit (``max_episode_steps``) is not the env's own: it wraps it."""
+    limits = [getattr(env.unwrapped, name, None) for name in ("max_steps", "max_episode_steps")]
+    found = [int(v) for v in limits if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0]
+    return min(found) if found else None
 
-    The evaluation replays held-out episodes from their seeds; a pool recorded on another env with
-    the same spaces (or whose seeds do not reproduce its starts) would compare the agent with an
-    expert that started elsewhere, for the whole run. One reset tells, before any file is written.
+
+def _check_episode_lengths(run: ResolvedRun) -> None:
+    """UserError when a pool episode lasts longer than the step limit the env keeps itself, made with
+    the entry's env_kwargs: the expert's env let it run on, so the run's env is another one (a pool
+    without a sound record of its env_kwargs is held to them this way). gym.make's ``max_episode_steps``
+    is left out, as :func:`_check_pool_env_kwargs` leaves it: a time limit wrapped around the same env,
+    shorter than the pool's episodes, is how a quick run is made."""
+    from sb3_cmzdril.metrics.evaluation import make_env
+
+    spec = run.spec
+    own = _env_own_kwargs(run.hp.env_kwargs or {})
+    env = make_env(spec.env_id, own)
+    try:
+        limit = _own_step_limit(env)
+    finally:
+        env.close()
+    lengths = np.asarray(run.pool.episode_lengths)
+    longer = [int(i) for i in np.flatnonzero(lengths > limit)] if limit is not None else []
+    if longer:
+        shown = ", ".join(map(str, longer[:5])) + (", ..." if len(longer) > 5 else "")
+        longest = int(lengths[longer].max())
+        raise UserError(
+            f"demo pool {spec.demos}: {len(longer)} episode(s) ({shown}) last up to {longest} steps, "
+            f"longer than the {limit}-step limit of {spec.env_id} made with env_kwargs {own} (hyperparameters "
+            f"{run.hp.key!r} in {spec.hyperparams}): the pool was recorded with other env_kwargs; give the entry the "
+            "pool's (a shorter time limit over the same env is gym.make's max_episode_steps)"
+        )
+
+
+def _check_starts(run: ResolvedRun) -> None:
+    """UserError unless every held-out episode's recorded reset seed reproduces its first observation.
+
+    The evaluations replay the held-out episodes from their seeds (every ``eval_every`` epochs the
+    ``eval_idx`` ones, at the end all of them); a pool recorded on another env with the same spaces,
+    or whose seeds do not reproduce its starts, would compare the agent with an expert that started
+    elsewhere. One reset per episode tells, before any file is written; the message names each one.
     """
     from sb3_cmzdril.demos import UNKNOWN_SEED
     from sb3_cmzdril.metrics.evaluation import make_env, same_observation
 
     spec = run.spec
-    episode = next((i for i in run.eval_idx if int(run.pool.seeds[i]) != UNKNOWN_SEED), None)
-    if episode is None:
+    episodes = [i for i in run.held_out if int(run.pool.seeds[i]) != UNKNOWN_SEED]
+    if not episodes:
         return
-    seed = int(run.pool.seeds[episode])
     env = make_env(spec.env_id, run.hp.env_kwargs)
     try:
-        first, _ = env.reset(seed=seed)
+        differing = [i for i in episodes if not same_observation(env.reset(seed=int(run.pool.seeds[i]))[0],
+                                                                 run.pool.episode(i)["observations"])]
     finally:
         env.close()
-    if not same_observation(first, run.pool.episode(episode)["observations"]):
+    if differing:
+        plural = len(differing) > 1
+        more = ", ..." if len(differing) > 10 else ""
+        shown = ", ".join(map(str, differing[:10])) + more
+        seeds = ", ".join(str(int(run.pool.seeds[i])) for i in differing[:10]) + more
         raise UserError(
-            f"demo pool {spec.demos} was not recorded on {spec.env_id} with these env_kwargs: resetting its episode "
-            f"{episode} with its seed {seed} does not give the episode's first observation; pass the pool of "
+            f"demo pool {spec.demos} was not recorded on {spec.env_id} with these env_kwargs: resetting its "
+            f"episode{'s' if plural else ''} {shown} (of {len(episodes)} held out) with {'their' if plural else 'its'} "
+            f"seed{'s' if plural else ''} {seeds} does not give the episode's first observation; pass the pool of "
             f"{spec.env_id} (or the env and env_kwargs it was recorded on)"
         )
 
@@ -653,6 +720,7 @@ __all__ = [
     "OFFPOLICY_METHODS",
     "result_policy",
     "PAPER_METHODS",
+    "RUN_SET_KEYS",
     "ResolvedRun",
     "RunSpec",
     "check_method",

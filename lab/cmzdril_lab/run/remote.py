@@ -23,11 +23,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import json
 import logging
 import shlex
 import tempfile
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -35,7 +37,7 @@ from typing import Any
 from cmzdril_lab.run.worker import RunOutcome, RunStatus, execute_run
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import LOCK_FILE, OutputLock, PathLike, atomic_path, lock_output, unlock_output
-from sb3_cmzdril.training.run_folder import STATE_FILE
+from sb3_cmzdril.training.run_folder import CHECKPOINT_KEY, STATE_FILE
 from sb3_cmzdril.training.spec import RunSpec, file_mtime_ns
 
 logger = logging.getLogger(__name__)
@@ -135,24 +137,47 @@ def _listing(folder: Path) -> Listing:
     return found
 
 
-def read_files(folder: Path, names: Sequence[str], moved: Sequence[tuple[str, str]] = ()) -> dict[str, bytes]:
-    """The named files of ``folder`` (relative paths); JSON records with the worker's paths restored.
+def read_files(folder: Path, names: Sequence[str], moved: Sequence[tuple[str, str]] = (),
+               attempts: int = 20) -> dict[str, bytes]:
+    """The named files of ``folder`` (relative paths), and every file of the checkpoint state.json
+    records; JSON records with the worker's paths restored.
 
-    state.json is read first: a checkpoint writes it last, so the model read after it is at least
-    as new as the step count it records (a resume starts from the model's own count, and state.json
-    only keeps the segments' history). A file that vanished meanwhile is left out.
+    A consistent copy of the checkpoint: state.json (which a checkpoint writes last) records the
+    sha256 of each of the checkpoint's files, and the files are read again, a moment later, until each
+    matches that record (a checkpoint written while they were read leaves a newer model beside an older
+    record, which a resume would refuse). After ``attempts`` reads the last one is sent as it is; a
+    file that vanished meanwhile is left out.
     """
-    files: dict[str, bytes] = {}
-    for name in sorted(names, key=lambda n: n != STATE_FILE):
-        try:
-            data = (folder / name).read_bytes()
-        except FileNotFoundError:
-            continue
-        if moved and name.endswith(_JSON_SUFFIX) and "/" not in name:
+    for attempt in range(attempts):
+        files = _read(folder, names)
+        record = _checkpoint_record(files)
+        files.update(_read(folder, [name for name in record if name not in files]))
+        if all(name in files and hashlib.sha256(files[name]).hexdigest() == digest
+               for name, digest in record.items()) or attempt == attempts - 1:
+            break
+        time.sleep(0.05)
+    if moved:
+        for name in [n for n in files if n.endswith(_JSON_SUFFIX) and "/" not in n]:
             with contextlib.suppress(ValueError):  # a record cut short is sent as it is
-                data = (json.dumps(_restore_paths(json.loads(data), moved), indent=2) + "\n").encode()
-        files[name] = data
+                files[name] = (json.dumps(_restore_paths(json.loads(files[name]), moved), indent=2) + "\n").encode()
     return files
+
+
+def _read(folder: Path, names: Sequence[str]) -> dict[str, bytes]:
+    files: dict[str, bytes] = {}
+    for name in names:
+        with contextlib.suppress(FileNotFoundError):
+            files[name] = (folder / name).read_bytes()
+    return files
+
+
+def _checkpoint_record(files: Mapping[str, bytes]) -> dict[str, str]:
+    """file name -> sha256 of the checkpoint that the state.json among ``files`` records ({} without one)."""
+    try:
+        record = json.loads(files[STATE_FILE]).get(CHECKPOINT_KEY) or {}
+        return {str(name): str(digest) for name, digest in (record.get("sha256") or {}).items()}
+    except (KeyError, ValueError, AttributeError):
+        return {}
 
 
 def _inside(folder: Path, name: str) -> Path:
