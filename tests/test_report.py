@@ -564,3 +564,25 @@ def test_the_published_report_stays_a_page_a_reader_finishes(tmp_path):
     lines = text.splitlines()
     first = next(i for i, line in enumerate(lines) if line.startswith("|"))
     assert lines[first - 2] == "## Headline" and lines[first].startswith("| Env | BC | DRIL | CMZ-DRIL |")
+
+
+def test_an_interrupted_report_leaves_the_one_before_whole(main_grid, tmp_path, monkeypatch, capsys):
+    import cmzdril_lab.report.report as report_module
+
+    out = tmp_path / "report"
+    assert main(["report", str(main_grid), "-o", str(out), "--no-figures"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # A killed report's staging folder (its process is gone) is cleared by the next one.
+    (out / f"{report_module.STAGING_PREFIX}999999999").mkdir()
+    write_run(main_grid, "bc", 9, [1.0, 2.0], final={"final": [5.0, 6.0]})  # a run that changes the tables
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt  # Ctrl-C after the tables are staged, before results.md
+
+    monkeypatch.setattr(report_module, "render_markdown", interrupted)
+    assert main(["report", str(main_grid), "-o", str(out), "--no-figures", "--force"]) == 130
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.undo()
+    assert main(["report", str(main_grid), "-o", str(out), "--no-figures", "--force"]) == 0
+    assert not list(out.glob(f"{report_module.STAGING_PREFIX}*"))
+    assert (out / "final_table.csv").read_bytes() != before["final_table.csv"]

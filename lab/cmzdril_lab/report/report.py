@@ -21,8 +21,11 @@ With ``readme`` the README's results block is replaced by the headline table and
 """
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from cmzdril_lab.report.aggregate import CSV as ACROSS_CSV
@@ -70,7 +73,7 @@ from cmzdril_lab.report.tables import (
     table_one,
 )
 from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.io import PathLike, atomic_write_text
+from sb3_cmzdril.io import PathLike, atomic_write_text, deferred_signals
 from sb3_cmzdril.training.run_folder import TABLE_WINDOW
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
@@ -167,6 +170,36 @@ def _readme_text(reports: Sequence[GridReport], window: int, results: Path, read
     return headline_markdown(rep) + "\n\n" + headline_text(rep, window, f"From {source}", details)
 
 
+#: The folder inside a report's output where its files are written before they replace the old ones.
+STAGING_PREFIX = ".report-staging-"
+
+
+@contextlib.contextmanager
+def staged(out: Path) -> Iterator[Path]:
+    """A fresh staging folder inside ``out`` (removed afterwards), and those that killed reports left."""
+    for stale in out.glob(f"{STAGING_PREFIX}*"):
+        pid = stale.name[len(STAGING_PREFIX):]
+        if not pid.isdigit() or not _alive(int(pid)):
+            shutil.rmtree(stale, ignore_errors=True)
+    stage = out / f"{STAGING_PREFIX}{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir()
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
 def write_report(
     runs_dir: PathLike,
     output_dir: PathLike = "docs",
@@ -210,38 +243,43 @@ def write_report(
     reports = [analyse(grid, int(window), suffix) for grid, suffix in zip(grids, SUFFIXES[: len(grids)], strict=True)]
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = {"results.md"}
-    final_figures: dict[str, Path] = {}
-    for rep, figure_name in zip(reports, (FINAL_FIGURE, FINAL_FIGURE_REFERENCE)[: len(reports)], strict=True):
-        atomic_write_text(out / f"table1{rep.suffix}.csv", table_csv(rep.rows, rep.root))
-        atomic_write_text(out / f"per_run{rep.suffix}.csv", per_run_csv(rep.rows, rep.root))
-        written.update({f"table1{rep.suffix}.csv", f"per_run{rep.suffix}.csv"})
-        if rep.final:
-            atomic_write_text(out / f"final_table{rep.suffix}.csv", final_csv(rep.final, rep.root))
-            atomic_write_text(out / f"paired{rep.suffix}.csv", paired_csv(rep.final))
-            written.update({f"final_table{rep.suffix}.csv", f"paired{rep.suffix}.csv"})
-            if figures:
-                figure = plot_final(rep.final, out / figure_name, f"Final evaluation: {rep.label}")
-                if figure is not None:  # rep.final has rows, so there is one
-                    final_figures[rep.suffix] = figure
-                    written.add(figure_name)
-    curves = []
-    for filename, title, methods in FIGURES if figures else ():
-        path = plot_figure(reports[0].grid.records, methods, out / filename, title, sigma)
-        if path is not None:
-            curves.append((title, path))
-            written.add(filename)
-    across = None
-    if reports[0].final:
-        pooled = list(reports[0].final) + [row for d in aggregate_runs for row in final_table(load_runs(d))]
-        across = write_aggregate(pooled, out, figures)
-        if across is not None:
-            written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
-    notes = link(discussion, out) if discussion is not None else None
-    text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
-    atomic_write_text(out / "results.md", text)
-    for name in set(report_outputs()) - written:
-        (out / name).unlink(missing_ok=True)  # an earlier report's file this one would contradict
+    with staged(out) as stage:
+        written = {"results.md"}
+        final_figures: dict[str, Path] = {}
+        for rep, figure_name in zip(reports, (FINAL_FIGURE, FINAL_FIGURE_REFERENCE)[: len(reports)], strict=True):
+            atomic_write_text(stage / f"table1{rep.suffix}.csv", table_csv(rep.rows, rep.root))
+            atomic_write_text(stage / f"per_run{rep.suffix}.csv", per_run_csv(rep.rows, rep.root))
+            written.update({f"table1{rep.suffix}.csv", f"per_run{rep.suffix}.csv"})
+            if rep.final:
+                atomic_write_text(stage / f"final_table{rep.suffix}.csv", final_csv(rep.final, rep.root))
+                atomic_write_text(stage / f"paired{rep.suffix}.csv", paired_csv(rep.final))
+                written.update({f"final_table{rep.suffix}.csv", f"paired{rep.suffix}.csv"})
+                if figures:
+                    figure = plot_final(rep.final, stage / figure_name, f"Final evaluation: {rep.label}")
+                    if figure is not None:  # rep.final has rows, so there is one
+                        final_figures[rep.suffix] = figure
+                        written.add(figure_name)
+        curves = []
+        for filename, title, methods in FIGURES if figures else ():
+            path = plot_figure(reports[0].grid.records, methods, stage / filename, title, sigma)
+            if path is not None:
+                curves.append((title, path))
+                written.add(filename)
+        across = None
+        if reports[0].final:
+            pooled = list(reports[0].final) + [row for d in aggregate_runs for row in final_table(load_runs(d))]
+            across = write_aggregate(pooled, stage, figures)
+            if across is not None:
+                written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
+        notes = link(discussion, out) if discussion is not None else None
+        text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
+        atomic_write_text(stage / "results.md", text)
+        # The new report replaces the old one at once: an interruption leaves one or the other, never a mix.
+        with deferred_signals():
+            for name in sorted(written):
+                os.replace(stage / name, out / name)
+            for name in set(report_outputs()) - written:
+                (out / name).unlink(missing_ok=True)  # an earlier report's file this one would contradict
     if readme is not None:
         update_readme(
             readme,
