@@ -351,7 +351,29 @@ CASES = [
          r"pool .*agent.npz would replace the expert's file .*agent.npz"),
     Case("train-expert", "timesteps -1 (30.16)", lambda ws, c: _expert(ws, c / "e", "--timesteps", "-1"),
          r"timesteps \(--timesteps\) must be a positive integer, got -1"),
+    # -- the fourth probe (issue 75) ------------------------------------------------------------------
+    Case("train", "YAML key written twice (75.10)",
+         lambda ws, c: _cmz(ws, c / "out", hyperparams=_appended(ws, c, "  n_epochs: 3\n  n_epochs: 4\n")),
+         r"duplicate key 'n_epochs' at line \d+ \(first at line \d+\)"),
+    Case("train", "YAML verbose (75.15)", lambda ws, c: _cmz_yaml(ws, c, "  verbose: 1\n"), "verbose"),
+    Case("train", "cmz-sac YAML gradient_steps 0 (75.6)",
+         lambda ws, c: _train(c / "out", "--reward", "cmz-sac", "--demos", str(ws / "demos.npz"),
+                              "--hyperparams", _yaml(ws, c, "  gradient_steps: 0\n", "sac.yml")), "gradient_steps"),
+    Case("benchmark", "--hyperparams that no method reads (75.5)",
+         lambda ws, c: [*_benchmark(ws, c), "--methods", "cmz-sac"],
+         r"--hyperparams .* is read by the PPO methods only and --methods has none \(cmz-sac\)"),
+    Case("benchmark", "a per_method n_demos (75.3)",
+         lambda ws, c: [*_benchmark(ws, c), "--methods", "bc,cmz", "--eval-episodes", "2", "--hyperparams",
+                        _appended(ws, c, "  per_method:\n    cmz:\n      n_demos: 2\n")],
+         r"trial 0: the methods would split the demo pool differently"),
 ]
+
+
+def _appended(ws: Path, case: Path, text: str) -> str:
+    """A copy of the workspace's tiny YAML with ``text`` appended under its env key, as it is."""
+    path = case / "appended.yml"
+    path.write_text((ws / "cmzdril.yml").read_text() + text)
+    return str(path)
 
 
 def _expert_named(ws: Path, case: Path, name: str) -> str:
