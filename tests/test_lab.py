@@ -209,3 +209,15 @@ def test_a_report_says_which_runs_on_a_published_pool_were_made_with_other_versi
                for r in records[:3]]
     (line,) = note_versions([*changed, *records[3:]], REPO)
     assert f"3 of {len(records)} runs were made with mujoco 9.9.9 (published: 4.0.0)" in line
+
+
+def test_the_new_tasks_page_regenerates_from_the_compact_records_unchanged(tmp_path):
+    script = REPO / "benchmarks" / "studies" / "new_tasks.py"
+    subprocess.run([sys.executable, str(script), "--output", str(tmp_path), "--force"], cwd=REPO, check=True,
+                   capture_output=True)
+
+    def rows(path: Path) -> list[str]:
+        return [line for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("|")]
+
+    published = rows(REPO / "docs" / "new_tasks.md")
+    assert len(published) > 100 and rows(tmp_path / "new_tasks.md") == published
