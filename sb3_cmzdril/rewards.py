@@ -268,7 +268,7 @@ class DisagreementReward(VecEnvWrapper):
         passes it for ``absorbing_score="terminal"``.
 
     Put it above any Monitor/VecMonitor so they record the true return (``CMZDRIL`` does; by default
-    it does not use this wrapper at all but scores whole rollouts, see :mod:`sb3_cmzdril.scoring`).
+    it does not use this wrapper at all but scores whole rollouts, see :mod:`sb3_cmzdril.cmzdril.scoring`).
     """
 
     def __init__(

@@ -22,7 +22,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_cmzdril.algorithm import CMZDRIL, DemosLike
+from sb3_cmzdril.cmzdril import CMZDRIL
+from sb3_cmzdril.common.imitation import DemosLike
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.extras import require_extra

@@ -367,7 +367,7 @@ def test_pretrain_keys_reach_tensorboard_on_the_first_learn(pendulum_demos, tmp_
 
 
 def test_progress_bar_total_is_the_steps_learn_takes(pendulum_demos, monkeypatch):
-    import sb3_cmzdril.algorithm as algorithm
+    import sb3_cmzdril.cmzdril.cmzdril as algorithm
 
     bars = []
 
@@ -532,7 +532,7 @@ def test_auto_disagreement_chooses_from_the_demonstrations_and_survives_save_loa
 
 def test_cmz_clip_at_zero_disagreement_names_the_option(pendulum_demos, monkeypatch):
     # an ensemble agreeing exactly on most demo steps puts the quantile at 0: every state would score alike
-    monkeypatch.setattr("sb3_cmzdril.imitation.quantile_of_disagreement", lambda *args: 0.0)
+    monkeypatch.setattr("sb3_cmzdril.common.imitation.quantile_of_disagreement", lambda *args: 0.0)
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=0.5, **TINY)
     with pytest.raises(ValueError, match=r"cmz_clip_quantile=0.5 clips u at 0, .* choose a higher quantile or None"):
         model.pretrain()

@@ -64,7 +64,7 @@ def test_switched_off_the_policy_sees_raw_observations(pendulum_demos):
 
 def test_a_users_extractor_is_composed_and_vecnormalize_wins(pendulum_demos, caplog):
     kwargs = {**TINY, "policy_kwargs": {"features_extractor_class": FlattenExtractor, "net_arch": [8]}}
-    with caplog.at_level(logging.INFO, logger="sb3_cmzdril.algorithm"):
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
         model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **kwargs)
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer) and type(ext.extractor) is FlattenExtractor

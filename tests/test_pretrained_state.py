@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import TINY, TINY_SAC
-from sb3_cmzdril import CMZDRIL, Demonstrations
-from sb3_cmzdril.sac import CMZDRILSAC
+from sb3_cmzdril import CMZDRIL, CMZDRILSAC, Demonstrations
 
 TINY_FOR = {
     CMZDRIL: TINY,

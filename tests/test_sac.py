@@ -18,9 +18,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from helpers import TINY, TINY_SAC
 from sb3_cmzdril import CMZDRIL, CMZReward, Demonstrations, DRILReward, UserError
-from sb3_cmzdril.demo_replay import DemoReplayBuffer, DemoTransitions
+from sb3_cmzdril.cmzdril_sac.cmzdril_sac import CMZDRILSAC, ScaledActionMSE
+from sb3_cmzdril.cmzdril_sac.demo_replay import DemoReplayBuffer, DemoTransitions
 from sb3_cmzdril.rewards import EnvReward, ZeroReward
-from sb3_cmzdril.sac import CMZDRILSAC, ScaledActionMSE
 from sb3_cmzdril.selection import LongestEpisodesPolicy, kept_check
 
 #: A CMZDRILSAC whose learn() calls take a second: TINY's networks and fits, TINY_SAC's buffer.

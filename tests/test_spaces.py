@@ -24,7 +24,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNorm
 from helpers import TINY
 from sb3_cmzdril import CMZDRIL, BCEnsemble, Demonstrations
 from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
-from sb3_cmzdril.scoring import buffer_actions
+from sb3_cmzdril.common.imitation import buffer_actions
 from sb3_cmzdril.spaces import ObsEncoder, reshape_rows
 
 VEC = spaces.Box(-1.0, 1.0, (4,), np.float32)
@@ -248,7 +248,7 @@ def test_images_through_a_cnn_trunk(vector, caplog):
     env = SpacesEnv(space, ACTION_SPACES["discrete"])
     demos = record(env, n_episodes=2)  # channel-last, as the env gives them
     policy = "MultiInputPolicy" if vector else "CnnPolicy"
-    with caplog.at_level(logging.INFO, logger="sb3_cmzdril.algorithm"):
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
         extractor_kwargs = dict(cnn_output_dim=8) if vector else dict(features_dim=8)
         policy_kwargs = dict(net_arch=[8], features_extractor_kwargs=extractor_kwargs)
         model = CMZDRIL(policy, env, demonstrations=demos, **{**TINY, "policy_kwargs": policy_kwargs})

@@ -25,7 +25,7 @@ UPDATE_SIZE = 2048
 
 #: (label, file suffix, function name) of the parts to report.
 PARTS = (
-    ("PPO update + NLL epoch (CMZDRIL.train)", "sb3_cmzdril/algorithm.py", "train"),
+    ("PPO update + NLL epoch (CMZDRIL.train)", "sb3_cmzdril/cmzdril/cmzdril.py", "train"),
     ("rollouts (collect_rollouts)", "common/on_policy_algorithm.py", "collect_rollouts"),
     ("  env steps (DummyVecEnv.step_wait)", "vec_env/dummy_vec_env.py", "step_wait"),
     ("    MuJoCo (mj_step)", "~", "<built-in method mujoco._functions.mj_step>"),
@@ -58,7 +58,7 @@ def main() -> None:
     profile.disable()
     env.close()
     stats = pstats.Stats(profile)
-    total = cumulative_seconds(stats, "sb3_cmzdril/algorithm.py", "learn")
+    total = cumulative_seconds(stats, "sb3_cmzdril/common/imitation.py", "learn")
     print(f"{args.env}, {args.n_envs} envs, {args.steps} steps: {total:.1f} profiled seconds in learn()")
     for label, suffix, name in PARTS:
         seconds = cumulative_seconds(stats, suffix, name)

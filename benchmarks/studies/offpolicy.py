@@ -3,7 +3,7 @@
     python benchmarks/studies/offpolicy.py NAME --env Walker2d-v5 --trials 0 1 --cpu-minutes 25 \
         [--set net_arch=[64,64] --set absorbing=auto ...]
 
-Each trial trains :class:`sb3_cmzdril.sac.CMZDRILSAC` on the grid's training episode of that trial
+Each trial trains :class:`sb3_cmzdril.cmzdril_sac.CMZDRILSAC` on the grid's training episode of that trial
 (the split of ``sb3-cmzdril benchmark``: same pool, same held-out episodes) until the process has
 spent ``--cpu-minutes`` of CPU time (pretraining included), then replays every held-out pool
 episode with the final policy. Comparing methods at equal CPU time, not equal steps, is the point:
@@ -60,7 +60,7 @@ from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import atomic_path, atomic_write_text, deferred_signals, read_json, write_json
 from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
-from sb3_cmzdril.sac import CMZDRILSAC
+from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
 from sb3_cmzdril.selection import LongestEpisodesPolicy
 from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,

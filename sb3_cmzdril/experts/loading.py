@@ -166,7 +166,7 @@ def is_cmzdril_data(data: dict[str, Any]) -> bool:
 def _algorithm_from_data(path: Path, data: dict[str, Any]) -> list[type[BaseAlgorithm]]:
     """The algorithm classes that may have saved the zip, most likely first."""
     if is_cmzdril_data(data):
-        from sb3_cmzdril.algorithm import CMZDRIL
+        from sb3_cmzdril.cmzdril import CMZDRIL
 
         return [CMZDRIL]
     parts = _policy_module(data).split(".")
