@@ -9,8 +9,8 @@ final policy's % of the expert's return on the held-out episodes (mean over tria
 and trial by trial), the lowest-u policy's, the Table I window's return, the CPU minutes a run took
 (where its records kept them), and in how many shared
 trials the final policy beats the env's reference variant (the first listed). The numbers come from
-the runs' final_eval.csv and done.json (:mod:`.final_eval`, :mod:`.records`); a hand-written reading
-is appended from ``docs/new_tasks_discussion.md`` when it exists. :class:`AcrossTasks` compares
+the runs' final_eval.csv and done.json (:mod:`.final_eval`, :mod:`.records`); the hand-written reading,
+``docs/new_tasks_discussion.md``, is linked when it exists. :class:`AcrossTasks` compares
 learners over several tasks at once, with the report's rliable aggregates (:mod:`.aggregate`), so
 a learner outside the grid (the off-policy one) meets the grid's methods on one scale.
 """
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -742,8 +743,9 @@ def render(
         # Folders shared by several tables are loaded once per table: list what each leaves out once.
         text.append("Left out: " + "; ".join(dict.fromkeys(s.text(root) for s in skipped)))
     discussion = root / "docs" / "new_tasks_discussion.md"
-    if discussion.is_file():
-        text.append("## Reading\n\n" + discussion.read_text().strip())
+    if discussion.is_file():  # linked, not copied: the hand-written text lives in one place
+        where = os.path.relpath(discussion, figures.parent) if figures is not None else discussion.name
+        text.append(f"## Reading\n\nWhat these tables mean, written by hand: [the reading]({Path(where).as_posix()}).")
     return "\n\n".join(text) + "\n"
 
 
