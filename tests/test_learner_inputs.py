@@ -210,3 +210,31 @@ def test_fractional_seeds_are_refused_not_truncated(pendulum_demos, tmp_path):
         "episodes [1] have [nan]"
     )
     assert Demonstrations(d.observations, d.actions, d.episode_lengths, seeds=[4.0, -1.0]).seeds.tolist() == [4, -1]
+
+
+@pytest.mark.parametrize("learner, file", [("CMZDRIL", "cmzdril.yml"), ("CMZDRILSAC", "cmzdril_sac.yml")])
+def test_the_shipped_default_entry_runs_the_constructors_defaults(learner, file):
+    # `sb3-cmzdril train` on a task with no entry and the learner built in Python run the same method.
+    import inspect
+
+    import yaml
+
+    import sb3_cmzdril
+    from sb3_cmzdril.cmzdril_sac.cmzdril_sac import DEFAULT_POLICY_KWARGS
+    from sb3_cmzdril.hyperparams import safe_eval
+    from sb3_cmzdril.shipped import shipped_file
+
+    cls = getattr(sb3_cmzdril, learner)
+    defaults = {name: p.default for name, p in inspect.signature(cls.__init__).parameters.items()}
+    if learner == "CMZDRILSAC":
+        defaults["policy_kwargs"] = DEFAULT_POLICY_KWARGS
+    entry = yaml.safe_load(shipped_file("hyperparams", file).read_text())["default"]
+    differ = {}
+    for key, value in entry.items():
+        if key not in defaults or key == "policy":
+            continue
+        value = safe_eval(value) if key == "policy_kwargs" else value
+        default = list(defaults[key]) if isinstance(defaults[key], tuple) else defaults[key]
+        if value != default:
+            differ[key] = (value, default)
+    assert differ == {}

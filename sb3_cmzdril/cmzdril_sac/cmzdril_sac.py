@@ -129,6 +129,11 @@ def _read_number(text: str) -> float | None:
     return value if np.isfinite(value) else None
 
 
+#: The actor's and critics' layers when ``policy_kwargs`` is not given: the ensemble members' size (SAC's
+#: default is 256x256), what the command line's shipped settings were chosen with.
+DEFAULT_POLICY_KWARGS: dict[str, Any] = {"net_arch": [64, 64]}
+
+
 class CMZDRILSAC(ImitationLearner, SAC):
     """SAC trained on CMZ-DRIL's disagreement reward, with the demonstrations in every batch and
     BC steps on them (see the module's docstring).
@@ -147,11 +152,11 @@ class CMZDRILSAC(ImitationLearner, SAC):
     :param ema: CMZ EMA factor (paper: 0.99), over the agent's collected steps.
     :param u0: initial EMA value (paper: 0).
     :param dril_quantile: DRIL threshold quantile of u on the demos.
-    :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (None:
-        no clip). Clipped, the reward is bounded as DRIL's is, and so is the absorbing state's value
+    :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (default
+        0.98; None: no clip). Clipped, the reward is bounded as DRIL's is, and so is the absorbing state's value
         (the reward at the highest u seen, for ever): unclipped, one far-off state sets it.
-    :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"``
-        (unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
+    :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"`` (the
+        default: unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members.
     :param ensemble_hidden: hidden layer widths of each member.
     :param ensemble_epochs: epochs of ensemble fitting.
@@ -178,7 +183,7 @@ class CMZDRILSAC(ImitationLearner, SAC):
         head outputs this constant until SAC learns it (None keeps its initialisation, about 0:
         a standard deviation of 1 before the tanh, which buries the clone in noise).
     :param absorbing: score a true termination as entering an absorbing state at the highest u seen
-        so far (``True``, ``False`` or ``"auto"``: the ``"cmz"`` reward, where every demonstration
+        so far (``True``, the default, ``False`` or ``"auto"``: the ``"cmz"`` reward, where every demonstration
         lasts the env's time limit), as :class:`~sb3_cmzdril.cmzdril.CMZDRIL` does.
     :param absorbing_score: the absorbing state's disagreement: ``"highest"``, the highest u seen so
         far (every termination as bad as the worst state met); ``"terminal"``, the ensemble's u at the
@@ -187,6 +192,9 @@ class CMZDRILSAC(ImitationLearner, SAC):
         state it ends in is worth, and a crash what staying in the crashed state would be. Where the
         expert ends its episodes, ``"highest"`` makes every ending, the expert's own included, the
         worst outcome, and no absorbing state makes it free under the mean-zero reward.
+    :param buffer_size: replay buffer size (default 200,000: every step of the shipped budgets, without
+        SB3's million transitions held and pickled with every checkpoint).
+    :param policy_kwargs: SB3's; None gives :data:`DEFAULT_POLICY_KWARGS` (64x64 layers).
     :param ent_coef: SAC's entropy coefficient; ``"auto_0.01"`` by default (learnt, from 0.01)
         rather than SAC's ``"auto"`` (from 1.0), which spreads a cloned actor's actions before the
         critic has learnt anything.
@@ -206,8 +214,8 @@ class CMZDRILSAC(ImitationLearner, SAC):
         ema: float = 0.99,
         u0: float = 0.0,
         dril_quantile: float = 0.98,
-        cmz_clip_quantile: float | None = None,
-        disagreement: str = "std",
+        cmz_clip_quantile: float | None = 0.98,
+        disagreement: str = "auto",
         ensemble_size: int = 5,
         ensemble_hidden: Sequence[int] = (64, 64),
         ensemble_epochs: int = 200,
@@ -224,10 +232,10 @@ class CMZDRILSAC(ImitationLearner, SAC):
         bc_learning_rate: float = 1e-3,
         critic_warmup_steps: int = 0,
         log_std_init: float | None = -1.0,
-        absorbing: bool | str = False,
+        absorbing: bool | str = True,
         absorbing_score: str = "highest",
         learning_rate: float | Schedule = 3e-4,
-        buffer_size: int = 1_000_000,
+        buffer_size: int = 200_000,
         learning_starts: int = 100,
         batch_size: int = 256,
         tau: float = 0.005,
@@ -294,6 +302,8 @@ class CMZDRILSAC(ImitationLearner, SAC):
         self.log_std_init = None if log_std_init is None else float(log_std_init)
         self._u_sum, self._u_count = 0.0, 0
         env = made_env(env, verbose)
+        if policy_kwargs is None:
+            policy_kwargs = dict(DEFAULT_POLICY_KWARGS)
         super().__init__(**arguments_for(SAC.__init__, locals(), _init_setup_model=False))
         if _init_setup_model:
             self._setup_model()
