@@ -418,15 +418,21 @@ def _check_format_version(path: Path, version: np.ndarray | None) -> None:
         )
 
 
+def time_limit(venv: VecEnv) -> int | None:
+    """The step limit of the env's gymnasium spec (``max_episode_steps``); None where there is none."""
+    try:
+        spec = venv.get_attr("spec", [0])[0]
+    except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
+        return None
+    limit = getattr(spec, "max_episode_steps", None)
+    return None if limit is None else int(limit)
+
+
 def expert_never_terminates(demonstrations: Demonstrations, venv: VecEnv) -> bool:
     """Whether every demonstration lasts the env's time limit (``absorbing="auto"``'s test): then a
     termination is something the expert never did. False for an env without a gymnasium spec or
     time limit, whose episodes' ends say nothing about the expert."""
-    try:
-        spec = venv.get_attr("spec", [0])[0]
-    except (AttributeError, IndexError):  # an env without a gymnasium spec: its time limit is unknown
-        return False
-    limit = getattr(spec, "max_episode_steps", None)
+    limit = time_limit(venv)
     return limit is not None and bool(np.all(demonstrations.episode_lengths >= limit))
 
 

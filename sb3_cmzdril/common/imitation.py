@@ -51,8 +51,8 @@ from sb3_cmzdril.common.saving import (
     unpack_observations,
     weights_brought_by_user,
 )
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations, expert_never_terminates
-from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement
+from sb3_cmzdril.demos import Demonstrations, as_demonstrations, expert_never_terminates, time_limit
+from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, BCEnsemble, quantile_of_disagreement, share_on_bound
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
@@ -245,6 +245,8 @@ class ImitationLearner(_Algorithm):
         self._pretrain_log_pending = False
         #: how a Dict space's demo observations are packed into one saved tensor (None: not a dict)
         self._demo_obs_layout: list | None = None
+        #: what each ``"auto"`` setting was decided to be, and why: ``{name: {"value": ..., "reason": ...}}``
+        self.rules: dict[str, dict[str, Any]] = {}
 
     def _setup_model(self) -> None:
         self._check_learner_spaces()
@@ -386,6 +388,7 @@ class ImitationLearner(_Algorithm):
             assert self.ensemble.train_loss_ is not None  # set by fit()
             info["ensemble_loss"] = float(np.mean(self.ensemble.train_loss_))
             info["ensemble_seconds"] = time.perf_counter() - start
+        self._record_disagreement_rule()
         missing = (self.reward == "dril" and self.dril_threshold is None) or (
             self.reward == "cmz" and self.cmz_clip_quantile is not None and self.cmz_u_max is None
         )
@@ -459,12 +462,43 @@ class ImitationLearner(_Algorithm):
         raise NotImplementedError
 
     def _absorbing_applies(self) -> bool:
-        """``absorbing`` resolved: ``"auto"`` is the ``"cmz"`` reward where the expert never terminates."""
+        """``absorbing`` resolved: ``"auto"`` is the ``"cmz"`` reward where the expert never terminates
+        (the decision and its reason go to :attr:`rules`)."""
         if self.absorbing != "auto":
             return bool(self.absorbing)
         if self.reward != "cmz" or self.demonstrations is None or self.env is None:
             return False
-        return expert_never_terminates(self.demonstrations, self.env)
+        on = expert_never_terminates(self.demonstrations, self.env)
+        limit = time_limit(self.env)
+        lengths = self.demonstrations.episode_lengths
+        if on:
+            reason = (f"every demonstration lasts the env's time limit ({limit} steps): an episode that ends "
+                      "earlier is one the expert never had")
+        elif limit is None:
+            reason = "the env has no time limit in its spec, so an early end cannot be told from the expert's"
+        else:
+            reason = (f"{int(np.sum(lengths < limit))} of {len(lengths)} demonstrations end before the env's "
+                      f"time limit ({limit} steps): the expert ends its own episodes")
+        self._record_rule("absorbing", on, reason)
+        return on
+
+    def _record_rule(self, name: str, value: Any, reason: str) -> None:
+        """Keep a setting an ``"auto"`` rule decided, with why, in :attr:`rules`, and say it once in a log
+        line (the command line prints it; a run's records keep :attr:`rules`)."""
+        decided = {"value": value, "reason": reason}
+        if self.rules.get(name) != decided:
+            self.rules[name] = decided
+            logger.info("%s %s: %s", name, _describe(value), reason)
+
+    def _record_disagreement_rule(self) -> None:
+        """:attr:`rules`' entry for ``disagreement="auto"`` once the ensemble has chosen its form."""
+        if self.ensemble.requested_disagreement != "auto" or self.demonstrations is None:
+            return
+        share = share_on_bound(self.demonstrations.actions, self.action_space)
+        self._record_rule("disagreement", self.ensemble.disagreement_form,
+                          f"{share:.1%} of the demonstrations' action entries sit on a bound of the action space "
+                          f"({'at least' if share >= AUTO_UNCLIPPED_SHARE else 'under'} "
+                          f"{AUTO_UNCLIPPED_SHARE:.0%})")
 
     def _log_reward_state(self, absorbing: bool) -> None:
         """Log the reward rule's mean per-env state and, where terminations are scored as an absorbing
@@ -479,7 +513,7 @@ class ImitationLearner(_Algorithm):
     # -- saving and loading --------------------------------------------------------------------
     def _excluded_save_params(self) -> list[str]:
         return super()._excluded_save_params() + [
-            "demonstrations", "reward_rule", "ensemble", "bc", "_pretrain_log_pending"
+            "demonstrations", "reward_rule", "ensemble", "bc", "_pretrain_log_pending", "rules"
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
@@ -606,6 +640,14 @@ class ImitationLearner(_Algorithm):
                 self.reward_rule.absorbing_u = float(self._saved_absorbing_u.item())
             elif legacy_absorbing_u is not None:
                 self.reward_rule.absorbing_u = float(legacy_absorbing_u)
+
+
+
+def _describe(value: Any) -> str:
+    """How a rule's log line says what it decided: "on"/"off" for a switch, the value otherwise."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return repr(value)
 
 
 __all__ = ["DemosLike", "ImitationLearner", "arguments_for", "buffer_actions",

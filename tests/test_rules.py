@@ -1,0 +1,65 @@
+"""Settings an ``"auto"`` rule decides from the demonstrations and the env: each decision is kept with
+its reason in ``model.rules`` and said once in a log line."""
+from __future__ import annotations
+
+import logging
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from helpers import TINY, TINY_SAC
+from sb3_cmzdril import CMZDRIL, CMZDRILSAC, Demonstrations
+
+
+def _pendulum(limit: int):
+    return gym.make("Pendulum-v1", max_episode_steps=limit)
+
+
+@pytest.mark.parametrize("learner", [CMZDRIL, CMZDRILSAC])
+def test_the_absorbing_rule_says_what_it_decided_and_why(pendulum_demos, learner, caplog):
+    # The fixture's two episodes last 100 steps: the time limit of the env they are held to decides.
+    kwargs = dict(TINY_SAC, ensemble_hidden=(16, 16), ensemble_epochs=5, bc_pretrain_epochs=5, seed=0) \
+        if learner is CMZDRILSAC else dict(TINY)
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
+        model = learner("MlpPolicy", _pendulum(100), demonstrations=pendulum_demos, absorbing="auto", **kwargs)
+        model.learn(64 if learner is CMZDRIL else 20)
+    assert model.rules["absorbing"] == {
+        "value": True,
+        "reason": "every demonstration lasts the env's time limit (100 steps): an episode that ends earlier is "
+                  "one the expert never had",
+    }
+    assert "absorbing on: every demonstration lasts the env's time limit (100 steps)" in caplog.text
+
+    shorter = learner("MlpPolicy", _pendulum(150), demonstrations=pendulum_demos, absorbing="auto", **kwargs)
+    shorter.learn(64 if learner is CMZDRIL else 20)
+    assert shorter.rules["absorbing"]["value"] is False
+    assert shorter.rules["absorbing"]["reason"].startswith(
+        "2 of 2 demonstrations end before the env's time limit (150 steps)")
+
+
+def test_the_disagreement_rule_reads_how_many_expert_actions_sit_on_a_bound(pendulum_demos, caplog):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, disagreement="auto", **TINY)
+    model.learn(64)
+    on_bound = float(np.mean(np.abs(pendulum_demos.actions) == 2.0))
+    expected = "std_unclipped" if on_bound >= 0.01 else "std"
+    assert model.rules["disagreement"]["value"] == expected
+    assert f"{on_bound:.1%} of the demonstrations' action entries sit on a bound" in \
+        model.rules["disagreement"]["reason"]
+    # Actions clipped to the bound everywhere: the unclipped form.
+    clipped = Demonstrations(pendulum_demos.observations, np.sign(pendulum_demos.actions) * 2.0,
+                             pendulum_demos.episode_lengths)
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
+        bound = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=clipped, disagreement="auto", **TINY)
+        bound.learn(64)
+    assert bound.rules["disagreement"] == {
+        "value": "std_unclipped",
+        "reason": "100.0% of the demonstrations' action entries sit on a bound of the action space (at least 1%)",
+    }
+    assert "disagreement 'std_unclipped': 100.0% of the demonstrations' action entries" in caplog.text
+
+
+def test_settings_given_outright_are_no_rule(pendulum_demos):
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, absorbing=True, **TINY)
+    model.learn(64)
+    assert model.rules == {}
