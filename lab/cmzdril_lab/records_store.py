@@ -12,7 +12,6 @@ into it; new or changed runs in it are refused in one line until they are packed
 """
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -24,6 +23,7 @@ from filelock import FileLock
 
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
+from sb3_cmzdril.training.run_folder import file_sha256
 
 #: An archived study ``results/NAME`` is the file ``results/NAME`` + this suffix.
 SUFFIX = ".tar.xz"
@@ -56,14 +56,6 @@ def materialize_all(results: PathLike) -> list[Path]:
     for folder in folders:
         unpack(archive_of(folder), folder)
     return folders
-
-
-def _digest(path: Path) -> str:
-    sha = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            sha.update(block)
-    return sha.hexdigest()
 
 
 def _listing(folder: Path) -> dict[str, list[int]]:
@@ -104,7 +96,7 @@ def unpack(archive: PathLike, folder: PathLike) -> None:
         were added or changed since (runs that are not packed yet).
     """
     archive, folder = Path(archive), Path(folder)
-    digest = _digest(archive)
+    digest = file_sha256(archive)
     with FileLock(str(folder.with_name(f".{folder.name}.lock"))):
         stamp = _read_stamp(folder)
         if stamp is not None and stamp.get("archive_sha256") == digest:
@@ -150,7 +142,7 @@ def pack(folder: PathLike) -> Path:
     archive = archive_of(folder)
     with atomic_path(archive) as tmp:
         tmp.write_bytes(buffer.getvalue())
-    _write_stamp(folder, _digest(archive))
+    _write_stamp(folder, file_sha256(archive))
     return archive
 
 
