@@ -4,14 +4,14 @@ Fine-tuning can drift away from a near-expert behaviour-cloned start, or find th
 and lose it again, and the true reward is not available to an imitation learner to notice it. Two
 signals are:
 
-* :class:`LowestDisagreementPolicy` (for :class:`~sb3_cmzdril.algorithm.CMZDRIL`): the ensemble's
+* :class:`LowestDisagreementPolicy` (for :class:`~sb3_cmzdril.cmzdril.CMZDRIL`): the ensemble's
   disagreement is low where the expert's data is dense. It watches the mean disagreement ``u`` of each
   training rollout (``CMZDRIL.rollout_disagreement``, computed by the rollout scorer for every reward
   mode) and keeps a copy of the policy that collected the rollout with the lowest one. Rollout ``k``
   is collected by the policy after ``k`` updates, so epoch ``k`` here is the same policy that the
   per-epoch evaluation calls epoch ``k``; epoch 0 is the behaviour-cloned start.
 * :class:`LongestEpisodesPolicy` (any SB3 algorithm, meant for the off-policy
-  :class:`~sb3_cmzdril.sac.CMZDRILSAC`): on a task that ends an episode when the agent fails (a
+  :class:`~sb3_cmzdril.cmzdril_sac.CMZDRILSAC`): on a task that ends an episode when the agent fails (a
   fall), an expert's episodes run to the time limit. Every ``check_every`` steps it plays the policy
   deterministically from a fixed set of starts and keeps the policy whose episodes lasted longest,
   the latest on a tie (``tie_break="latest"``), or on a tie the one whose episodes' states the
@@ -22,7 +22,7 @@ signals are:
   ``episode_length="expert"`` keeps the check whose episodes last as long as the demonstrations'.
 
 A third policy is made rather than chosen: :class:`AveragedPolicy` (for an on-policy learner such as
-:class:`~sb3_cmzdril.algorithm.CMZDRIL`) averages the policy weights after each update over the last
+:class:`~sb3_cmzdril.cmzdril.CMZDRIL`) averages the policy weights after each update over the last
 part of training, as stochastic weight averaging does (Izmailov et al., 2018; for deep RL, Nikishin et
 al., 2018), so that the policy a run ends with depends less on where its last update happened to land.
 """
@@ -142,7 +142,7 @@ class _KeptWeights(BaseCallback):
 class LowestDisagreementPolicy(_KeptWeights):
     """Keep the policy weights of the training rollout with the lowest mean disagreement.
 
-    Use with :class:`~sb3_cmzdril.algorithm.CMZDRIL` (any reward mode). After ``learn()``,
+    Use with :class:`~sb3_cmzdril.cmzdril.CMZDRIL` (any reward mode). After ``learn()``,
     :meth:`apply` loads the kept weights into a model; :meth:`save`/:meth:`load` persist the choice
     so a resumed run continues the same search.
     """
@@ -191,7 +191,7 @@ class LongestEpisodesPolicy(_KeptWeights):
     training data; they cost CPU time and env steps (:attr:`env_steps`) beside the training's.
 
     When the model has an ensemble (``model.ensemble.disagreement(obs, actions)``, as
-    :class:`~sb3_cmzdril.sac.CMZDRILSAC`), each check also records the mean disagreement ``u`` over
+    :class:`~sb3_cmzdril.cmzdril_sac.CMZDRILSAC`), each check also records the mean disagreement ``u`` over
     its episodes' states and the actions played there. Where every episode reaches the time limit
     (HalfCheetah's always do) length cannot tell a policy that runs from one that has stalled;
     ``tie_break="lowest_u"`` then prefers the policy whose states the ensemble knows best, the
@@ -366,7 +366,7 @@ def _stacked(observations: list[Any]) -> Any:
 class AveragedPolicy(_KeptWeights):
     """The uniform average of the policy's weights after every update from ``start_timesteps`` on.
 
-    For an on-policy learner (a rollout per update, as :class:`~sb3_cmzdril.algorithm.CMZDRIL`): the
+    For an on-policy learner (a rollout per update, as :class:`~sb3_cmzdril.cmzdril.CMZDRIL`): the
     weights are added at the start of each rollout whose policy has trained for at least
     ``start_timesteps`` steps, and once more when training ends (the last update's weights). Every
     floating-point tensor of the policy's state is averaged (in float64, cast back); the rest are

@@ -210,9 +210,9 @@ def test_annotation_alternatives(annotation, expected):
 def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
     from stable_baselines3 import PPO, SAC
 
-    from sb3_cmzdril.algorithm import CMZDRIL
+    from sb3_cmzdril.cmzdril import CMZDRIL
+    from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
     from sb3_cmzdril.hyperparams import check_constructor_kwargs, read_hyperparams_file
-    from sb3_cmzdril.sac import CMZDRILSAC
     from sb3_cmzdril.training.runs import load_run_hyperparams
     from sb3_cmzdril.training.spec import PAPER_METHODS
 
@@ -254,7 +254,7 @@ def test_check_constructor_kwargs_accepts_the_shipped_files_and_zoo_forms():
 def test_check_constructor_kwargs_names_the_key(entry, message):
     from stable_baselines3 import PPO
 
-    from sb3_cmzdril.algorithm import CMZDRIL
+    from sb3_cmzdril.cmzdril import CMZDRIL
     from sb3_cmzdril.hyperparams import check_constructor_kwargs
 
     with pytest.raises(ValueError, match=message):

@@ -17,8 +17,8 @@ import pytest
 from cmzdril_lab.run.grid import plan_grid
 from helpers import ENV, POOL_EPISODES, SHORT_OFFPOLICY_EPOCH, TINY_SAC, Interrupt, write_tiny_yaml
 from sb3_cmzdril.cli import main
+from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.sac import CMZDRILSAC
 from sb3_cmzdril.training.runs import plan_run, run_experiment, split_episodes
 from sb3_cmzdril.training.spec import PAPER_METHODS, train_command
 

@@ -63,3 +63,19 @@ def test_settings_given_outright_are_no_rule(pendulum_demos):
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, absorbing=True, **TINY)
     model.learn(64)
     assert model.rules == {}
+
+
+def test_a_runs_record_keeps_what_its_rules_decided(tiny_experiment, tmp_path):
+    import json
+
+    from helpers import ENV
+    from sb3_cmzdril.training.runs import plan_run, run_experiment
+
+    hp = tmp_path / "auto.yml"
+    hp.write_text(tiny_experiment["hp"].read_text() + "  absorbing: auto\n  disagreement: auto\n")
+    spec = plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], n_eval_episodes=1, timesteps=128,
+                    hyperparams=hp, output_dir=tmp_path / "run")
+    run_experiment(spec)
+    rules = json.loads((tmp_path / "run" / "done.json").read_text())["rules"]
+    assert set(rules) == {"absorbing", "disagreement"} and rules["absorbing"]["value"] is True
+    assert rules["absorbing"]["reason"].startswith("every demonstration lasts the env's time limit (50 steps)")

@@ -137,7 +137,7 @@ def _copy(folder: Path, tmp_path: Path) -> Path:
 def _model_at(path: Path, steps: int) -> None:
     """model.zip as a checkpoint at ``steps`` writes it, the rest of the folder left as it was: what a
     process killed after writing model.zip, before the replay buffer, longest.pt and state.json, leaves."""
-    from sb3_cmzdril.sac import CMZDRILSAC
+    from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
 
     model = CMZDRILSAC.load(path, device="cpu")
     model.num_timesteps = steps

@@ -35,8 +35,8 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from cmzdril_lab.report.formatting import md_table
 from sb3_cmzdril import CMZDRIL, Demonstrations
-from sb3_cmzdril.io import atomic_write_text, command_line
 from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
+from sb3_cmzdril.io import atomic_write_text, command_line
 from sb3_cmzdril.training.spec import load_run_hyperparams
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -56,11 +56,11 @@ from stable_baselines3.common.monitor import Monitor
 from tune import parse_sets  # the sibling script's (its folder is on sys.path when this one runs)
 
 from cmzdril_lab.report.records import relative
+from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import atomic_path, atomic_write_text, deferred_signals, read_json, write_json
 from sb3_cmzdril.metrics import ExpertEvalCallback, evaluate_against_expert
-from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
 from sb3_cmzdril.selection import LongestEpisodesPolicy
 from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,

@@ -92,12 +92,12 @@ def _run_train(args) -> int:
 
     from sb3_cmzdril.experts import check_threads, command_line
     from sb3_cmzdril.training.runs import run_experiment
-    from sb3_cmzdril.training.spec import plan_run
+    from sb3_cmzdril.training.spec import prepare_run
 
     threads = check_threads(args.threads)
     if threads is not None:
         torch.set_num_threads(threads)
-    spec = plan_run(
+    run = prepare_run(  # read and checked once; the run trains the model its checks built
         args.env,
         args.reward,
         args.seed,
@@ -110,11 +110,13 @@ def _run_train(args) -> int:
         eval_every=args.eval_every,
         checkpoint_every=args.checkpoint_every,
         command=command_line(),
+        verbose=args.verbose,
     )
+    spec = run.spec
     note = published_versions_note(spec.demos)
     if note:
         print(note)
-    result = run_experiment(spec, progress_bar=not args.no_progress, verbose=args.verbose)
+    result = run_experiment(run, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
         print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
     window = result.get("final_window")

@@ -30,7 +30,8 @@
                            the final policy ("final"), by the kept one ("lowest_u" or "longest") and by
                            the averaged one ("averaged"), one row per (policy, episode)
     DIR/logs/progress_<T>.csv  SB3's training log of the segment that started at step T
-    DIR/done.json          written last: the final summary; its presence means "finished"
+    DIR/done.json          written last: the final summary (with what each "auto" rule decided, and why);
+                           its presence means "finished"
 
 Here: :class:`RunFolder`, through which a run writes every one of those files; the file names,
 eval.csv as columns and its Table I window (:func:`read_eval_csv`, :func:`window_means`), moving
@@ -45,6 +46,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import csv
+import functools
 import hashlib
 import math
 import os
@@ -75,6 +77,7 @@ from sb3_cmzdril.io import (
     versions,
     write_json,
 )
+from sb3_cmzdril.training.methods import Method
 from sb3_cmzdril.training.spec import ResolvedRun, RunSpec, resolve_run, train_command
 
 #: Table I averages each run over its last this-many epochs (paper, Table I caption).
@@ -299,7 +302,7 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "env_id": spec.env_id,
         "env_name": env_name(spec.env_id),
         "method": spec.method,
-        "reward": "none (BC: pretrained policy only)" if spec.method == "bc" else spec.method,
+        "reward": Method.of(spec.method).recorded_reward,
         "seed": spec.seed,
         "network_seed": spec.seed,
         "env_seed": spec.seed,
@@ -461,40 +464,18 @@ def check_finished(spec: RunSpec, run: ResolvedRun | None = None) -> dict[str, A
         whose numbers must not pass for this run's; or this run, finished with fewer steps than
         ``spec.timesteps`` asks for.
     """
-    out = Path(spec.output_dir)
+    done_path = _done_path(Path(spec.output_dir))
+    if done_path is None:
+        return None
+    run = run if run is not None else resolve_run(spec, check=False)  # finished: nothing left to check
+    return RunFolder(run).finished_at(done_path)
+
+
+def _done_path(out: Path) -> Path | None:
+    """The done.json of ``out``, a run folder of ours (:func:`check_run_folder`); None where it has none."""
     check_run_folder(out)
     done_path = out / DONE_FILE
-    if not done_path.is_file():
-        return None
-    done = read_json(done_path)
-    # done.json repeats the first identity entries, for a folder whose config.json went missing.
-    saved = read_json(out / CONFIG_FILE) if (out / CONFIG_FILE).is_file() else done
-    run = run if run is not None else resolve_run(spec, check=False)  # finished: nothing left to check
-    check_same_run(out, saved, as_stored(_config_of(run)), "a different, finished run")
-    steps = done.get("num_timesteps", 0)
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-        raise UserError(
-            f"{done_path} is not what sb3-cmzdril wrote: num_timesteps is {steps!r}, not a number of steps; "
-            "delete it to let the run finish again, or use another output folder"
-        )
-    if spec.timesteps > steps:
-        if spec.off_policy:
-            # Its replay buffer went when it finished (finish()): without it no resume is the same run.
-            raise UserError(
-                f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; a finished "
-                f"{spec.method} run cannot train further (its {REPLAY_BUFFER_FILE}, which resuming needs, is removed "
-                f"when it finishes): train {spec.timesteps} steps into another output folder"
-            )
-        raise UserError(
-            f"{out} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to train it "
-            f"further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), or use "
-            "another output folder"
-        )
-    return done
-
-
-def _config_of(run: ResolvedRun) -> dict[str, Any]:
-    return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool, run.device())
+    return done_path if done_path.is_file() else None
 
 
 class RunFolder:
@@ -506,14 +487,47 @@ class RunFolder:
         self.model = self.path / MODEL_FILE
         self.vecnormalize = self.path / VECNORMALIZE_FILE
         self.eval_csv = self.path / EVAL_CSV
-        #: final_eval.csv's name of the run's reward-free choice
-        self.selection_name = "longest" if run.spec.off_policy else "lowest_u"
         self.replay_buffer = self.path / REPLAY_BUFFER_FILE
         self.config: dict[str, Any] = {}  #: config.json's content, once :meth:`open` has written or read it
 
+    @functools.cached_property
+    def fresh_config(self) -> dict[str, Any]:
+        """config.json's content for this run (:func:`run_config`), made once."""
+        run = self.run
+        return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool, run.device)
+
     def finished(self) -> dict[str, Any] | None:
         """done.json's summary of this very run, or None (:func:`check_finished`)."""
-        return check_finished(self.run.spec, self.run)
+        done_path = _done_path(self.path)
+        return None if done_path is None else self.finished_at(done_path)
+
+    def finished_at(self, done_path: Path) -> dict[str, Any]:
+        """done.json's summary (at ``done_path``), once it is this very run's (:func:`check_finished`)."""
+        spec = self.run.spec
+        done = read_json(done_path)
+        # done.json repeats the first identity entries, for a folder whose config.json went missing.
+        saved = read_json(self.path / CONFIG_FILE) if (self.path / CONFIG_FILE).is_file() else done
+        check_same_run(self.path, saved, as_stored(self.fresh_config), "a different, finished run")
+        steps = done.get("num_timesteps", 0)
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+            raise UserError(
+                f"{done_path} is not what sb3-cmzdril wrote: num_timesteps is {steps!r}, not a number of steps; "
+                "delete it to let the run finish again, or use another output folder"
+            )
+        if spec.timesteps > steps:
+            if self.run.method.off_policy:
+                # Its replay buffer went when it finished (finish()): without it no resume is the same run.
+                raise UserError(
+                    f"{self.path} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; a "
+                    f"finished {spec.method} run cannot train further (its {REPLAY_BUFFER_FILE}, which resuming needs, "
+                    f"is removed when it finishes): train {spec.timesteps} steps into another output folder"
+                )
+            raise UserError(
+                f"{self.path} is finished at {steps} steps (done.json), fewer than the {spec.timesteps} asked; to "
+                f"train it further, delete {done_path} and run the command again (it continues from {MODEL_FILE}), "
+                "or use another output folder"
+            )
+        return done
 
     @contextlib.contextmanager
     def open(self) -> Iterator[RunFolder]:
@@ -522,13 +536,13 @@ class RunFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         with locked(self.path):
             remove_stale_temporaries(self.path)
-            self.config = check_or_write_config(self.path, _config_of(self.run))
+            self.config = check_or_write_config(self.path, self.fresh_config)
             yield self
 
     @property
     def resumable(self) -> bool:
         """Whether the run continues from a checkpoint (BC has none to continue from: it is retrained)."""
-        return self.run.spec.method != "bc" and self.model.is_file()
+        return not self.run.method.pretrain_only and self.model.is_file()
 
     def check_resumable(self) -> None:
         """UserError, naming the file, unless the checkpoint is one whole that the run can go on from.
@@ -578,13 +592,13 @@ class RunFolder:
     def _needed_files(self) -> list[str]:
         """The files every checkpoint of this run holds: model.zip, an off-policy learner's replay buffer,
         the VecNormalize statistics where the hyperparameters normalise."""
-        return [MODEL_FILE, *([REPLAY_BUFFER_FILE] if self.run.spec.off_policy else []),
+        return [MODEL_FILE, *([REPLAY_BUFFER_FILE] if self.run.method.off_policy else []),
                 *([VECNORMALIZE_FILE] if self.run.hp.normalize not in (None, False) else [])]
 
     def _check_unrecorded_checkpoint(self, state: Mapping[str, Any], restart: str) -> None:
         """A state.json without a checkpoint record (written before they were kept): its step count must
         be model.zip's, and an off-policy run needs its replay buffer."""
-        if self.run.spec.off_policy and not self.replay_buffer.is_file():
+        if self.run.method.off_policy and not self.replay_buffer.is_file():
             raise UserError(
                 f"{self.path} holds {MODEL_FILE} but not {REPLAY_BUFFER_FILE}, which an off-policy run needs to "
                 f"resume; {restart}"
@@ -647,7 +661,7 @@ class RunFolder:
             with atomic_path(self.model, suffix=".zip") as tmp:
                 model.save(tmp)
             written.append(self.model)
-            if self.run.spec.off_policy:
+            if self.run.method.off_policy:
                 with atomic_path(self.replay_buffer, suffix=".pkl") as tmp:
                     model.save_replay_buffer(tmp)
                 written.append(self.replay_buffer)

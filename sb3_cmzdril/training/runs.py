@@ -1,11 +1,15 @@
 """One run of the paper's experiment: one env, one method, one trial seed.
 
-A run is described by a :class:`~sb3_cmzdril.training.spec.RunSpec` (built and validated by
-:func:`~sb3_cmzdril.training.spec.plan_run`) and executed here by :func:`run_experiment`, top to
-bottom: the spec resolved once into a :class:`~sb3_cmzdril.training.spec.ResolvedRun` (every
-input read and checked before a file is written), its
-:class:`~sb3_cmzdril.training.run_folder.RunFolder` opened (the folder owns every file), the
-model built or resumed, trained, evaluated on the held-out episodes, done.json written.
+A run is resolved once into a :class:`~sb3_cmzdril.training.spec.ResolvedRun` (every input read and
+checked before a file is written, the env and model the checks build kept:
+:func:`~sb3_cmzdril.training.spec.prepare_run`; a :class:`~sb3_cmzdril.training.spec.RunSpec` planned
+by :func:`~sb3_cmzdril.training.spec.plan_run` for another process is resolved where it runs) and
+executed here by :func:`run_experiment`, top to bottom: its
+:class:`~sb3_cmzdril.training.run_folder.RunFolder` opened (the folder owns every file), the model the
+checks built trained (or the checkpoint resumed), evaluated on the held-out episodes, done.json written.
+
+Methods are entries of :data:`~sb3_cmzdril.training.methods.METHOD_REGISTRY`: the run asks its entry
+(``run.method``: the learner, the reward, what it keeps), never compares names.
 
 Resuming: with ``done.json`` the run is skipped. With ``model.zip`` the run continues from that
 checkpoint to the requested total (``learn(..., reset_num_timesteps=False)``), once every file of the
@@ -26,11 +30,11 @@ This module stays the public path of the planning and run-folder names that user
 """
 from __future__ import annotations
 
-import inspect
+import functools
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +42,7 @@ from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import check_env_id
 from sb3_cmzdril.experts.callbacks import ProgressCallback
 from sb3_cmzdril.io import PathLike, portable_path
+from sb3_cmzdril.training.methods import LEARNERS
 from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DISCARDED_CSV,
@@ -74,11 +79,10 @@ from sb3_cmzdril.training.spec import (
     OFFPOLICY_EPOCH_STEPS,
     ResolvedRun,
     RunSpec,
+    build_model,
     check_method,
     default_demos_path,
     default_output_dir,
-    epoch_steps,
-    learner_classes,
     load_run_hyperparams,
     make_training_env,
     missing_pool_error,
@@ -93,7 +97,7 @@ logger = logging.getLogger(__name__)
 
 # -- one run -----------------------------------------------------------------------------------
 def run_experiment(
-    spec: RunSpec,
+    run: RunSpec | ResolvedRun,
     *,
     progress_bar: bool = False,
     callbacks: Sequence[Any] = (),
@@ -101,15 +105,25 @@ def run_experiment(
 ) -> dict[str, Any]:
     """Execute (or resume, or skip) one run; returns its summary with a ``status`` entry.
 
-    ``status`` is ``"skipped"`` (done.json was there: its content is returned), ``"done"`` (the
-    summary just written to done.json) or ``"stopped"`` (a callback ended training early: no
-    done.json, the checkpoint allows resuming). Exceptions propagate; the last checkpoint stays.
-    Whatever :func:`~sb3_cmzdril.training.spec.resolve_run` or the folder refuses is refused
-    before a file is written.
+    ``run`` is resolved already (:func:`~sb3_cmzdril.training.spec.prepare_run`: the ``train``
+    command), or a spec planned elsewhere (a grid's worker), resolved here once
+    (:func:`~sb3_cmzdril.training.spec.resolve_run`). ``status`` is ``"skipped"`` (done.json was
+    there: its content is returned), ``"done"`` (the summary just written to done.json) or
+    ``"stopped"`` (a callback ended training early: no done.json, the checkpoint allows resuming).
+    Exceptions propagate; the last checkpoint stays. Whatever the resolution or the folder refuses
+    is refused before a file is written. A new run trains the model its checks built.
 
     :param callbacks: extra SB3 callbacks for the PPO training (not used by ``bc``).
     """
-    run = resolve_run(spec)  # every input read and checked, once
+    if not isinstance(run, ResolvedRun):
+        run = resolve_run(run, keep=True, verbose=verbose)  # every input read and checked, once
+    try:
+        return _execute(run, progress_bar=progress_bar, callbacks=list(callbacks), verbose=verbose)
+    finally:
+        run.built.close()  # what the run did not take: a finished run's, say
+
+
+def _execute(run: ResolvedRun, *, progress_bar: bool, callbacks: list[Any], verbose: int) -> dict[str, Any]:
     folder = RunFolder(run)
     done = folder.finished()  # refuses a folder that holds someone's files or another run
     if done is not None:
@@ -122,7 +136,7 @@ def run_experiment(
         resume = folder.resumable
         model, venv, start = _resume(run, folder) if resume else _new_model(run, verbose)
         discarded = discard_rows_after(folder.eval_csv, start if resume else -1)
-        state = RunState(folder.path, spec, start, device=str(model.device))
+        state = RunState(folder.path, run.spec, start, device=str(model.device))
         tensorboard = folder.tensorboard_dir(state)
         if tensorboard is not None:
             state.data["segments"][-1]["tensorboard"] = str(tensorboard)
@@ -131,9 +145,9 @@ def run_experiment(
             state.data["segments"][-1]["discarded_eval_rows"] = discarded
         eval_cb = _eval_callback(run, folder, verbose)
         try:
-            _train(run, folder, model, state, eval_cb, kept, list(callbacks), start=start, resume=resume,
+            _train(run, folder, model, state, eval_cb, kept, callbacks, start=start, resume=resume,
                    progress_bar=progress_bar)
-            finished = model.num_timesteps >= spec.timesteps
+            finished = model.num_timesteps >= run.spec.timesteps
             final = _final_evaluation(run, folder, model, kept) if finished else None
         finally:
             eval_cb.close()
@@ -152,31 +166,26 @@ def _warn_of_device(run: ResolvedRun) -> None:
     """A warning line where the model will not run on the device its hyperparameters ask for (SB3 falls
     back to the CPU without a word where CUDA is missing); config.json and state.json record the one used."""
     asked = str(run.model_kwargs()["device"])
-    used = run.device()
-    if asked != "auto" and asked.split(":")[0] != used.split(":")[0]:
+    if asked != "auto" and asked.split(":")[0] != run.device.split(":")[0]:
         logger.warning("hyperparameters %r in %s ask for device %r, which this machine does not have: the run uses "
-                       "%r (recorded in config.json)", run.hp.key, run.spec.hyperparams, asked, used)
+                       "%r (recorded in config.json)", run.hp.key, run.spec.hyperparams, asked, run.device)
 
 
 def _new_model(run: ResolvedRun, verbose: int) -> tuple[Any, Any, int]:
-    """(model, its training env, 0): a fresh model on the run's training episodes."""
-    learner, _ = learner_classes(run.spec.method)
-    venv = make_training_env(run.spec, run.hp, run.spec.seed, None)
-    model = learner(
-        run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
-        seed=run.spec.seed, verbose=verbose, **run.model_kwargs(),
-    )
+    """(model, its training env, 0): the fresh model the run's checks built, else one built now."""
+    venv, model = run.built.take() or build_model(run, verbose)
     return model, venv, 0
 
 
 def _resume(run: ResolvedRun, folder: RunFolder) -> tuple[Any, Any, int]:
-    """(model, its training env, its step count): the run's checkpoint, to train on from where it stopped."""
-    learner, _ = learner_classes(run.spec.method)
-    venv = make_training_env(run.spec, run.hp, run.spec.seed, folder.vecnormalize)
+    """(model, its training env, its step count): the run's checkpoint, to train on from where it stopped,
+    in the envs the run's checks made where they made them."""
+    built = run.built.take()  # the checks' model is new: the checkpoint's replaces it
+    venv = make_training_env(run.spec, run.hp, run.spec.seed, folder.vecnormalize, built[0] if built else None)
     source = folder.model
     try:
-        model = learner.load(source, env=venv, device=run.model_kwargs()["device"])
-        if run.spec.off_policy:
+        model = run.learner.load(source, env=venv, device=run.model_kwargs()["device"])
+        if run.method.off_policy:
             source = folder.replay_buffer
             model.load_replay_buffer(source)
     except Exception as e:  # files are written atomically, so this is a foreign or damaged one
@@ -197,25 +206,23 @@ LONGEST_CHECK_EPISODES, LONGEST_CHECK_SEED = 5, 100_000
 
 def _kept_policies(run: ResolvedRun, folder: RunFolder, resume: bool) -> dict[str, Any]:
     """The policies a run keeps beside its last weights (final_eval.csv's name -> selector), continued
-    from the checkpoint's: its reward-free choice, the lowest-disagreement rollout's policy for CMZDRIL
-    or the policy with the longest episodes for CMZDRILSAC, whose rollouts are single steps; for
-    CMZDRIL with ``keep_longest`` in the hyperparameters, the longest-episodes choice beside its own;
-    and, with ``average_from``, the average of the policies after every update from that fraction of
-    the run's steps on. The longest-episodes checks come every ``eval_every`` epochs."""
+    from the checkpoint's: its learner's reward-free choice (:attr:`~.methods.Learner.kept`), the
+    lowest-disagreement rollout's policy for CMZDRIL or the policy with the longest episodes for
+    CMZDRILSAC, whose rollouts are single steps; for CMZDRIL with ``keep_longest`` in the
+    hyperparameters, the longest-episodes choice beside its own; and, with ``average_from``, the average
+    of the policies after every update from that fraction of the run's steps on. The longest-episodes
+    checks come every ``eval_every`` epochs."""
     from sb3_cmzdril.selection import AveragedPolicy, LowestDisagreementPolicy
 
-    kept: dict[str, Any] = {}
-    if run.spec.off_policy:
-        kept[folder.selection_name] = _longest_policy(run, OFFPOLICY_EPOCH_STEPS)
-    else:
-        kept[folder.selection_name] = LowestDisagreementPolicy()
-    if run.spec.method != "bc" and run.settings.get("keep_longest"):  # PPO methods only (spec.py refuses cmz-sac)
-        # the model is not built yet: its rollout length from the YAML, else the learner's default
-        learner, _ = learner_classes(run.spec.method)
-        n_steps = run.model_kwargs().get("n_steps", inspect.signature(learner).parameters["n_steps"].default)
-        kept["longest"] = _longest_policy(run, int(n_steps) * run.hp.n_envs)
+    choices: dict[str, Callable[[], Any]] = {
+        "lowest_u": LowestDisagreementPolicy, "longest": functools.partial(_longest_policy, run, run.epoch),
+    }
+    kept: dict[str, Any] = {run.method.learner.kept: choices[run.method.learner.kept]()}
+    trains = not run.method.pretrain_only
+    if trains and run.settings.get("keep_longest"):  # PPO methods only (spec.py refuses cmz-sac)
+        kept["longest"] = choices["longest"]()
     average_from = run.settings.get("average_from")
-    if average_from is not None and run.spec.method != "bc":
+    if average_from is not None and trains:
         kept["averaged"] = AveragedPolicy(math.ceil(average_from * run.spec.timesteps))
     if resume:
         for name, selector in kept.items():
@@ -241,7 +248,8 @@ def _eval_callback(run: ResolvedRun, folder: RunFolder, verbose: int) -> Any:
     return ExpertEvalCallback(
         run.spec.env_id, run.pool.select(run.eval_idx), eval_every=run.spec.eval_every, csv_path=folder.eval_csv,
         env_kwargs=run.hp.env_kwargs, verbose=verbose,
-        steps_per_epoch=OFFPOLICY_EPOCH_STEPS if run.spec.off_policy else None,
+        # an off-policy epoch is a length of steps; a PPO one its rollout, which the callback reads off the model
+        steps_per_epoch=run.epoch if run.method.off_policy else None,
     )
 
 
@@ -258,13 +266,13 @@ def _train(
     # resumed model carries its history in the checkpoint, for a folder whose pretrain.csv is missing.
     if model.pretrain_history and (not resume or not folder.has_pretrain()):
         folder.write_pretrain(model.pretrain_history)
-    if spec.method == "bc":
+    if run.method.pretrain_only:
         # learn(0): pretraining, then the callback's end-of-training evaluation at epoch 0.
         model.learn(0, callback=[eval_cb])
         folder.checkpoint(model, {}, state)  # the BC policy itself, for `sb3-cmzdril evaluate`
         return
     checkpoint_cb = _checkpoint_callback_class()(
-        lambda m: folder.checkpoint(m, kept, state), spec.checkpoint_every, epoch_steps(model)
+        lambda m: folder.checkpoint(m, kept, state), spec.checkpoint_every, run.epoch
     )
     progress_cb = ProgressCallback(spec.timesteps, show=progress_bar)
     model.learn(
@@ -289,7 +297,7 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, kept: dic
     episodes = run.held_out
     held_out = run.pool.select(episodes)
     policies: dict[str, Any] = {"final": None}
-    if run.spec.method != "bc":
+    if not run.method.pretrain_only:
         policies.update((name, selector) for name, selector in kept.items() if selector.best_state is not None)
     results: dict[str, Any] = {"episodes": episodes}
     rows = []
@@ -306,7 +314,7 @@ def _final_evaluation(run: ResolvedRun, folder: RunFolder, model: Any, kept: dic
             if source is not None:
                 summary.update(source.kept())
                 if "timesteps" in summary:  # a choice by steps gets the epoch the tables show too
-                    summary["epoch"] = eval_epoch(int(summary["timesteps"]), epoch_steps(model))
+                    summary["epoch"] = eval_epoch(int(summary["timesteps"]), run.epoch)
             results[name] = summary
             rows += final_eval_rows(name, episodes, ev)
     finally:
@@ -361,13 +369,15 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "eval_episodes": folder.config["eval_episodes"],
         "num_timesteps": int(model.num_timesteps),
         "requested_timesteps": spec.timesteps,
-        "epochs": int(model.num_timesteps // epoch_steps(model)),
+        "epochs": int(model.num_timesteps // run.epoch),
         "n_evaluations": int(columns["epoch"].size),
         "last_evaluation": last,
         # What Table I takes from this run (the report recomputes it from eval.csv).
         "final_window": {"window_epochs": TABLE_WINDOW, **window_means(columns)},
         "pretrain": dict(model.pretrain_info),
         "dril_threshold": model.dril_threshold,
+        # what each "auto" setting was decided to be, and why (the learner's rules)
+        "rules": dict(getattr(model, "rules", {})),
         "wall_time_s": round(state.wall_time(), 2),
         "cpu_time_s": round(state.cpu_time(), 2),
         "segments": len(state.data["segments"]),
@@ -395,8 +405,7 @@ def load_evaluation_model(
     if not path.is_file():
         raise MissingFileError(f"model file not found: {path}")
     model = None
-    for method in ("cmz", "cmz-sac"):
-        learner, _ = learner_classes(method)
+    for learner in (learned.classes()[0] for learned in LEARNERS):
         try:
             model = learner.load(path, device="cpu")
             break
@@ -533,6 +542,7 @@ __all__ = [
     "EXPERIMENT_KEYS",
     "FALLBACK_N_DEMOS",
     "HYPERPARAMS_NAME",
+    "OFFPOLICY_EPOCH_STEPS",
     "TABLE_WINDOW",
     "CONFIG_FILE",
     "DISCARDED_CSV",

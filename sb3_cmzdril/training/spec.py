@@ -1,11 +1,12 @@
 """What a run is and whether it can start: its specification, resolved once, and every check.
 
-:func:`plan_run` resolves a run's defaults (demo pool, number of demos and steps, output folder,
-hyperparameters) into a :class:`RunSpec`: plain values that travel to another process or Ray worker.
-:func:`resolve_run` turns a spec into a :class:`ResolvedRun`, everything the run needs read and
-checked once (hyperparameters, demo pool, split), and refuses whatever would fail after the run folder
-is written, down to building the run's env and model once (:func:`make_training_env`, which the run
-itself uses too) and checking the values the constructors accept but training cannot use.
+:func:`prepare_run` resolves a run's defaults (demo pool, number of demos and steps, output folder,
+hyperparameters) and everything the run needs, once: the hyperparameter file read and validated, the
+demo pool read and split, the method's entry of the registry (:mod:`.methods`), the device and the
+epoch. It refuses whatever would fail after the run folder is written, down to building the run's env
+and model (:func:`build_model`), which it keeps for the run to train: a :class:`ResolvedRun`.
+:func:`plan_run` is the same for a run that executes elsewhere (another process or Ray worker): it
+returns the :class:`RunSpec`, plain values, which :func:`resolve_run` resolves there.
 :func:`split_episodes` is the demo split every method of a trial shares; :func:`train_command` is the
 ``sb3-cmzdril train`` line of a spec. A run executes in :mod:`sb3_cmzdril.training.runs` and
 writes the files of :mod:`sb3_cmzdril.training.run_folder`.
@@ -25,25 +26,25 @@ import numpy as np
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations, pool_provenance
 from sb3_cmzdril.io import PathLike, jsonable, portable_path
+from sb3_cmzdril.training.methods import (
+    HYPERPARAMS_NAME,
+    METHOD_REGISTRY,
+    METHODS,
+    OFFPOLICY_HYPERPARAMS_NAME,
+    OFFPOLICY_METHODS,
+    PAPER_METHODS,
+    Method,
+    check_method,
+    default_hyperparams_name,
+    is_off_policy,
+    learner_classes,
+    result_policy,
+)
 
 if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
-    from stable_baselines3.common.base_class import BaseAlgorithm
-
     from sb3_cmzdril.demos import Demonstrations
     from sb3_cmzdril.hyperparams import Hyperparams
 
-#: Methods of the paper's comparison: plain BC and the four reward modes of CMZDRIL (PPO), then
-#: the off-policy learner CMZDRILSAC with each reward mode (:data:`OFFPOLICY_METHODS`).
-METHODS: tuple[str, ...] = ("bc", "zero", "env", "dril", "cmz", "cmz-sac", "dril-sac", "zero-sac", "env-sac")
-#: Methods trained by CMZDRILSAC, each with the reward mode it names before ``-sac``: ``cmz-sac`` is
-#: the package's off-policy method, the others its comparisons (DRIL's reward, none, the env's).
-OFFPOLICY_METHODS: tuple[str, ...] = ("cmz-sac", "dril-sac", "zero-sac", "env-sac")
-#: The paper's comparison: what a grid runs when no method is named.
-PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m not in OFFPOLICY_METHODS)
-#: Hyperparameter file of the repository used when none is given (hyperparams/cmzdril.yml).
-HYPERPARAMS_NAME = "cmzdril"
-#: The same for the off-policy methods (hyperparams/cmzdril_sac.yml).
-OFFPOLICY_HYPERPARAMS_NAME = "cmzdril_sac"
 #: An off-policy run's epoch, in env steps: what ``eval_every``, ``checkpoint_every`` and Table I's
 #: window count for it. SAC updates after every step, so its epoch is a length chosen to match a PPO
 #: rollout of the shipped settings (``n_steps: 2048``, one env): both learners then evaluate, keep
@@ -101,41 +102,6 @@ class RunSpec:
         return is_off_policy(self.method)
 
 
-def is_off_policy(method: str) -> bool:
-    """Whether ``method`` is trained by CMZDRILSAC (:data:`OFFPOLICY_METHODS`)."""
-    return method in OFFPOLICY_METHODS
-
-
-def result_policy(method: str) -> str:
-    """The final-evaluation policy ``method`` hands back as its result: "longest" for the off-policy
-    methods, whose last weights can fall in a run's last steps after walking for most of it (the policy
-    whose deterministic episodes from fixed starts lasted longest, chosen without the env reward; the
-    comparison of the two is in docs/beyond_home_tasks.md), "final" (the last weights) for the others."""
-    return "longest" if is_off_policy(method) else "final"
-
-
-def learner_classes(method: str) -> tuple[Any, type[BaseAlgorithm]]:
-    """(the package's class, the SB3 class it extends) that train ``method``: their constructors
-    take the YAML entry's keys. The first is CMZDRIL or CMZDRILSAC, whose constructors and methods
-    differ beyond what a common type would say (hence Any)."""
-    if is_off_policy(method):
-        from stable_baselines3 import SAC
-
-        from sb3_cmzdril.sac import CMZDRILSAC
-
-        return CMZDRILSAC, SAC
-    from stable_baselines3 import PPO
-
-    from sb3_cmzdril.algorithm import CMZDRIL
-
-    return CMZDRIL, PPO
-
-
-def default_hyperparams_name(method: str) -> str:
-    """The shipped hyperparameter file a method reads when none is given: cmzdril.yml (PPO), cmzdril_sac.yml."""
-    return OFFPOLICY_HYPERPARAMS_NAME if is_off_policy(method) else HYPERPARAMS_NAME
-
-
 def epoch_steps(model: Any) -> int:
     """Env steps per epoch of a built model: a PPO rollout (``n_steps * n_envs``), else
     :data:`OFFPOLICY_EPOCH_STEPS`."""
@@ -163,13 +129,6 @@ def split_episodes(n_pool: int, n_train: int, n_eval: int, seed: int) -> tuple[l
     return [int(i) for i in order[:n_train]], [int(i) for i in order[n_train:n_train + n_eval]]
 
 
-def check_method(method: str) -> str:
-    """The method name, or a ValueError listing the known ones."""
-    if method not in METHODS:
-        raise UserError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
-    return method
-
-
 def default_demos_path(env_id: str, demos_dir: PathLike = "experts") -> Path:
     """``<demos_dir>/<EnvName>/demos.npz`` (where collect-demos puts an env's demo pool); for the
     default folder, the shipped pool when the working directory has none."""
@@ -185,16 +144,18 @@ def default_output_dir(env_id: str, method: str, seed: int, runs_dir: PathLike =
 
 def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tuple[Hyperparams, dict[str, Any]]:
     """The env's entry of a cmzdril.yml (cmzdril_sac.yml for an off-policy ``method``) as
-    ``(Hyperparams, experiment settings)``.
+    ``(Hyperparams, experiment settings)``, read and validated once.
 
     Experiment keys (:data:`EXPERIMENT_KEYS`) are removed from the constructor kwargs; keys this
     code does not implement (env/vec-env wrappers, callbacks, frame stacking) are refused, and so are
-    keys the method's learner (:func:`learner_classes`) does not take.
+    keys the method's learner (:meth:`~.methods.Learner.classes`) does not take and values of a type
+    its constructor's annotations rule out.
     """
-    from sb3_cmzdril.hyperparams import load_hyperparams
+    from sb3_cmzdril.hyperparams import check_constructor_kwargs, load_hyperparams
 
+    learner = Method.of(method).learner
     hp = load_hyperparams(Path(path), env_id, method)
-    unknown_methods = [name for name in hp.per_method_names if name not in METHODS]
+    unknown_methods = [name for name in hp.per_method_names if name not in METHOD_REGISTRY]
     if unknown_methods:
         raise UserError(f"hyperparameters {hp.key!r} in {path}: per_method names unknown methods "
                         f"{unknown_methods}; choose from {', '.join(METHODS)}")
@@ -213,7 +174,7 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         from sb3_cmzdril.selection import EPISODE_LENGTHS, TIE_BREAKS
 
         allowed = TIE_BREAKS if key == "longest_tie_break" else EPISODE_LENGTHS
-        if not is_off_policy(method):
+        if not learner.off_policy:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: {key} applies only to the off-policy "
                             f"methods {list(OFFPOLICY_METHODS)} (their longest-episodes choice), not to {method!r}")
         if settings[key] not in allowed:
@@ -222,11 +183,11 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
     average_from = settings.get("average_from")
     if average_from is not None:
         # bc has no updates to average and ignores it, as it ignores the reward's keys.
-        if is_off_policy(method):
+        if learner.off_policy:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: average_from applies only to the PPO methods "
                             f"(it averages the policy after each rollout's update), not to {method!r}")
-        if isinstance(average_from, bool) or not isinstance(average_from, (int, float)) \
-                or not 0 <= average_from < 1:
+        fraction = not isinstance(average_from, bool) and isinstance(average_from, (int, float))
+        if not fraction or not 0 <= average_from < 1:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: average_from must be a fraction of the run's "
                             f"steps in [0, 1) or null, got {average_from!r}")
     keep_longest = settings.get("keep_longest")
@@ -234,24 +195,12 @@ def load_run_hyperparams(path: PathLike, env_id: str, method: str = "cmz") -> tu
         if not isinstance(keep_longest, bool):
             raise UserError(f"hyperparameters {hp.key!r} in {path}: keep_longest must be true or false, "
                             f"got {keep_longest!r}")
-        if is_off_policy(method):
+        if learner.off_policy:
             raise UserError(f"hyperparameters {hp.key!r} in {path}: keep_longest applies only to the PPO methods; "
                             f"{method!r} always keeps the longest-episodes choice (its result)")
-    classes = learner_classes(method)
-    unknown = sorted(set(hp.algo_kwargs) - _constructor_kwargs(classes))
-    if unknown:
-        # Caught here, a typo fails the whole grid at once instead of every run in its worker.
-        names = "/".join(c.__name__ for c in classes)
-        raise UserError(f"hyperparameters {hp.key!r} in {path}: {unknown} are not {names} arguments")
+    # Caught here, a typo or a wrong type fails the whole grid at once instead of every run in its worker.
+    check_constructor_kwargs(hp, list(learner.classes()))
     return hp, settings
-
-
-@functools.lru_cache(maxsize=2)
-def _constructor_kwargs(classes: tuple[type, ...]) -> frozenset:
-    import inspect
-
-    names = set().union(*(inspect.signature(c).parameters for c in classes))
-    return frozenset(names - {"self", "policy", "env", "_init_setup_model", "ppo_kwargs"})
 
 
 @functools.lru_cache(maxsize=4)
@@ -285,7 +234,7 @@ def _positive_int(name: str, value: int) -> int:
     return int(value)
 
 
-def plan_run(
+def prepare_run(
     env_id: str,
     method: str,
     seed: int,
@@ -299,8 +248,11 @@ def plan_run(
     eval_every: int = 1,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     command: str | None = None,
-) -> RunSpec:
-    """Resolve defaults and check everything that can fail before training starts.
+    verbose: int = 0,
+    keep: bool = True,
+) -> ResolvedRun:
+    """Resolve defaults and everything the run needs, once, and check everything that can fail before
+    training starts; the run to hand to :func:`~sb3_cmzdril.training.runs.run_experiment`.
 
     :param demos: the env's demo pool (default ``experts/<EnvName>/demos.npz``).
     :param n_demos: training episodes (default: ``n_demos`` of the YAML entry, else 1).
@@ -308,22 +260,25 @@ def plan_run(
     :param output_dir: default ``runs/<EnvName>/<method>/trial<seed>``.
     :param hyperparams: zoo-format YAML (default: the repository's ``hyperparams/cmzdril.yml``,
         ``hyperparams/cmzdril_sac.yml`` for an off-policy method).
+    :param verbose: the SB3 verbosity of the model the checks build.
+    :param keep: keep that env and model in the run (:attr:`ResolvedRun.built`) for it to train;
+        without, they are closed.
     :raises ValueError: unknown method or env, bad counts, a pool too small for the split, anything
         :func:`resolve_run` refuses.
     :raises FileNotFoundError: no demo pool or hyperparameter file.
     """
     from sb3_cmzdril.hyperparams import default_hyperparams_path
 
-    check_method(method)
+    chosen = Method.of(method)
     check_env_id(env_id)
     seed = check_seed(seed)
     if hyperparams is None:
-        hyperparams = default_hyperparams_path(default_hyperparams_name(method))
+        hyperparams = default_hyperparams_path(chosen.learner.hyperparams_name)
     hp_path = Path(hyperparams)
     hp, settings = load_run_hyperparams(hp_path, env_id, method)
     n_demos = _positive_int("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
     n_eval_episodes = _positive_int("n_eval_episodes", n_eval_episodes)
-    if method == "bc":
+    if chosen.pretrain_only:
         timesteps = 0  # BC is the pretrained policy: no PPO steps
     else:
         timesteps = timesteps if timesteps is not None else hp.n_timesteps
@@ -351,22 +306,59 @@ def plan_run(
         checkpoint_every=_positive_int("checkpoint_every", checkpoint_every),
         command=command,
     )
-    resolve_run(spec)  # everything else that can fail before training, the pool's fit included
-    return spec
+    # everything else that can fail before training, the pool's fit included
+    return _resolved(spec, hp, settings, check=True, keep=keep, verbose=verbose)
+
+
+def plan_run(env_id: str, method: str, seed: int, **options: Any) -> RunSpec:
+    """:func:`prepare_run`'s checks (``options``: its keyword arguments) for a run that executes
+    elsewhere (a grid's worker): its :class:`RunSpec`, which
+    :func:`~sb3_cmzdril.training.runs.run_experiment` resolves there."""
+    return prepare_run(env_id, method, seed, **options, keep=False).spec
+
+
+class BuiltModel:
+    """The training env and fresh model that a run's checks built (:func:`build_model`), for the run to
+    train instead of building its own: taken once; what is not taken is closed. Empty where the checks
+    built none (this process passed them before) or were not asked to keep them."""
+
+    def __init__(self, venv: Any = None, model: Any = None) -> None:
+        self._parts: tuple[Any, Any] | None = None if venv is None else (venv, model)
+
+    def take(self) -> tuple[Any, Any] | None:
+        """(env, model), the first time; None after, or where there are none."""
+        parts, self._parts = self._parts, None
+        return parts
+
+    def close(self) -> None:
+        """Close the env unless it was taken."""
+        parts = self.take()
+        if parts is not None:
+            parts[0].close()
 
 
 @dataclasses.dataclass(frozen=True)
 class ResolvedRun:
-    """A run with every input read and checked: what :func:`~sb3_cmzdril.training.runs.run_experiment`
-    trains and evaluates, and what its config.json records. Build it with :func:`resolve_run`."""
+    """A run with every input read and checked, once: what :func:`~sb3_cmzdril.training.runs.run_experiment`
+    trains and evaluates, and what its config.json records. Build it with :func:`prepare_run` or
+    :func:`resolve_run`."""
 
     spec: RunSpec
+    method: Method  #: the registry's entry for ``spec.method``
+    learner: Any  #: the class that trains it: CMZDRIL or CMZDRILSAC (:meth:`~.methods.Learner.classes`)
     hp: Hyperparams
     pool: Demonstrations  #: the whole demo pool; the run trains on ``train_idx`` and evaluates on the rest
     train_idx: tuple[int, ...]
-    eval_idx: tuple[int, ...]  #: the episodes of the evaluation every ``eval_every`` PPO updates
+    eval_idx: tuple[int, ...]  #: the episodes of the evaluation every ``eval_every`` epochs
     #: the YAML entry's experiment keys (:data:`EXPERIMENT_KEYS`) that it sets
-    settings: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    settings: Mapping[str, Any]
+    #: the device the model runs on: the asked one (``device`` of the YAML, else the CPU) as SB3 resolves
+    #: it, which falls back to the CPU, silently, where CUDA is asked for but missing
+    device: str
+    #: env steps per epoch: a PPO rollout (``n_steps * n_envs``), or :data:`OFFPOLICY_EPOCH_STEPS`
+    epoch: int
+    #: the env and model the checks built, for the run to train (:func:`prepare_run`'s ``keep``)
+    built: BuiltModel = dataclasses.field(default_factory=BuiltModel, compare=False, repr=False)
 
     @property
     def held_out(self) -> list[int]:
@@ -375,59 +367,84 @@ class ResolvedRun:
 
     @property
     def reward(self) -> str:
-        """The learner's reward mode: BC is CMZDRIL's pretrained policy, trained with no reward at all;
-        an off-policy method's is the name before ``-sac``."""
-        if self.spec.method == "bc":
-            return "zero"
-        return self.spec.method.removesuffix("-sac")
+        """The learner's reward mode (:attr:`Method.reward`): BC is CMZDRIL's pretrained policy, trained
+        with no reward at all."""
+        return self.method.reward
 
     def model_kwargs(self) -> dict[str, Any]:
         """The model's constructor kwargs: the YAML's, on the CPU unless it says otherwise."""
-        kwargs = self.hp.model_kwargs()
-        kwargs.setdefault("device", "cpu")  # small MLPs: the CPU beats a GPU's launch overheads
-        if self.spec.method == "bc":
-            # The ensemble is not used by BC; one epoch (the minimum) instead of hundreds. It is fitted
-            # after the policy's NLL pretraining, so the BC policy equals the other methods' epoch 0.
-            kwargs["ensemble_epochs"] = 1
-        return kwargs
-
-    def device(self) -> str:
-        """The device the model runs on: the asked one (``device`` of the YAML, else the CPU) as SB3
-        resolves it, which falls back to the CPU, silently, where CUDA is asked for but missing."""
-        from stable_baselines3.common.utils import get_device
-
-        asked = self.model_kwargs()["device"]
-        try:
-            return str(get_device(asked))
-        except (RuntimeError, TypeError, ValueError):  # not a device at all: the preflight's model refuses it
-            return str(asked)
+        return _model_kwargs(self.hp, self.method)
 
 
-def resolve_run(spec: RunSpec, *, check: bool = True) -> ResolvedRun:
-    """Read the run's hyperparameters and demo pool and split the pool, once.
+def _model_kwargs(hp: Hyperparams, method: Method) -> dict[str, Any]:
+    kwargs = hp.model_kwargs()
+    kwargs.setdefault("device", "cpu")  # small MLPs: the CPU beats a GPU's launch overheads
+    if method.pretrain_only:
+        # The ensemble is not used by BC; one epoch (the minimum) instead of hundreds. It is fitted
+        # after the policy's NLL pretraining, so the BC policy equals the other methods' epoch 0.
+        kwargs["ensemble_epochs"] = 1
+    return kwargs
+
+
+def _device(asked: Any) -> str:
+    from stable_baselines3.common.utils import get_device
+
+    try:
+        return str(get_device(asked))
+    except (RuntimeError, TypeError, ValueError):  # not a device at all: the preflight's model refuses it
+        return str(asked)
+
+
+def _epoch(hp: Hyperparams, method: Method, learner: Any, kwargs: Mapping[str, Any]) -> int:
+    """Env steps per epoch (:func:`epoch_steps` of the model the run builds, before it is built): the
+    rollout length of the YAML, else the learner's default, times the envs; an off-policy epoch's length."""
+    if method.off_policy:
+        return OFFPOLICY_EPOCH_STEPS
+    import inspect
+
+    n_steps = kwargs.get("n_steps", inspect.signature(learner).parameters["n_steps"].default)
+    return int(n_steps) * hp.n_envs
+
+
+def resolve_run(spec: RunSpec, *, check: bool = True, keep: bool = False, verbose: int = 0) -> ResolvedRun:
+    """``spec`` resolved where it executes: its hyperparameters read and validated, its demo pool read
+    and split, once.
 
     With ``check`` (the default), also refuse everything that would otherwise fail after the run
     folder is written: held-out episodes without a reset seed to replay them from, an env or model
     the hyperparameters cannot build, a pool recorded on another env, values the constructors accept
-    but training cannot use. :func:`plan_run` calls it, so a planned grid fails at once, not run by run.
+    but training cannot use. With ``keep``, the env and model those checks build (``verbose``: the
+    model's SB3 verbosity) stay in the run for it to train.
 
     :raises ValueError: naming the file and the value at fault.
     """
     hp, settings = load_run_hyperparams(spec.hyperparams, spec.env_id, spec.method)
+    return _resolved(spec, hp, settings, check=check, keep=keep, verbose=verbose)
+
+
+def _resolved(spec: RunSpec, hp: Hyperparams, settings: dict[str, Any], *, check: bool, keep: bool,
+              verbose: int) -> ResolvedRun:
+    """The run of ``spec`` with its hyperparameters read: the pool read and split, the settings that
+    follow from them resolved, and (``check``) every check before training passed."""
     pool = load_pool(spec.demos, file_mtime_ns(spec.demos))
     try:
         train_idx, eval_idx = split_episodes(pool.n_episodes, spec.n_demos, spec.n_eval_episodes, spec.seed)
     except ValueError as e:
         raise UserError(f"{spec.demos}: {e}") from None
-    run = ResolvedRun(spec, hp, pool, tuple(train_idx), tuple(eval_idx), settings)
-    if check:
-        from sb3_cmzdril.hyperparams import check_constructor_kwargs
-
-        check_constructor_kwargs(hp, list(learner_classes(spec.method)))
-        _check_reset_seeds(run)
-        _check_pool_env_kwargs(run)
-        _preflight(run)
-    return run
+    method = Method.of(spec.method)
+    learner, _ = method.learner.classes()
+    kwargs = _model_kwargs(hp, method)
+    run = ResolvedRun(spec, method, learner, hp, pool, tuple(train_idx), tuple(eval_idx), settings,
+                      device=_device(kwargs["device"]), epoch=_epoch(hp, method, learner, kwargs))
+    if not check:
+        return run
+    _check_reset_seeds(run)
+    _check_pool_env_kwargs(run)
+    built = _preflight(run, verbose)
+    if not keep:
+        built.close()
+        return run
+    return dataclasses.replace(run, built=built)
 
 
 def _env_own_kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -474,15 +491,15 @@ def _check_reset_seeds(run: ResolvedRun) -> None:
 _PREFLIGHT_PASSED: set = set()
 
 
-def _preflight(run: ResolvedRun) -> None:
-    """Build the run's env and model, without training, and fit the demo pool to their spaces.
+def _preflight(run: ResolvedRun, verbose: int) -> BuiltModel:
+    """Build the run's env and model (:func:`build_model`), without training, and fit the demo pool to
+    their spaces; the env and model built (none where this process passed the same checks before).
 
     What fails here would otherwise fail in the run after config.json is written: SB3's own checks
     (``n_steps * n_envs > 1``), env_kwargs the env does not take, a pool recorded on another env,
     values only training would trip over (:func:`_check_values`).
     """
     spec = run.spec
-    learner, _ = learner_classes(spec.method)
     key = (
         spec.env_id,
         spec.method,
@@ -492,18 +509,8 @@ def _preflight(run: ResolvedRun) -> None:
         file_mtime_ns(spec.demos),
     )
     if key in _PREFLIGHT_PASSED:
-        return
-    where = f"hyperparameters {run.hp.key!r} in {spec.hyperparams}"
-    configured = [k for k in ("env_kwargs", "normalize") if getattr(run.hp, k) not in (None, False, {})]
-    try:
-        venv = make_training_env(spec, run.hp, spec.seed, None)
-    except (TypeError, ValueError, AssertionError) as e:
-        if not configured:  # the YAML passes nothing to the env: the env's own failure, traceback and all
-            raise
-        # how envs and VecNormalize refuse a keyword or a value; anything else is the env's own bug
-        raise UserError(
-            f"cannot make {spec.env_id} with the {'/'.join(configured)} of {where}: {type(e).__name__}: {e}"
-        ) from e
+        return BuiltModel()
+    venv = _training_env(run)
     try:
         try:
             run.pool.check_spaces(venv.observation_space, venv.action_space)
@@ -511,19 +518,57 @@ def _preflight(run: ResolvedRun) -> None:
             raise UserError(f"demo pool {spec.demos} does not fit {spec.env_id}: {e}") from None
         _check_episode_lengths(run)
         _check_starts(run)
-        try:
-            model = learner(
-                run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool, reward=run.reward, seed=spec.seed,
-                **run.model_kwargs(),
-            )
-        except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
-            raise UserError(
-                f"{where} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}"
-            ) from e
-        _check_values(model, where)
-    finally:
+        model = _model(run, venv, verbose)
+        _check_values(model, _where(run))
+    except BaseException:
         venv.close()
+        raise
     _PREFLIGHT_PASSED.add(key)
+    return BuiltModel(venv, model)
+
+
+def build_model(run: ResolvedRun, verbose: int = 0) -> tuple[Any, Any]:
+    """(the run's training env, its fresh model on the run's training episodes; ``verbose``: SB3's
+    verbosity), refused with a UserError naming the hyperparameters where they cannot be made."""
+    venv = _training_env(run)
+    try:
+        return venv, _model(run, venv, verbose)
+    except BaseException:
+        venv.close()
+        raise
+
+
+def _where(run: ResolvedRun) -> str:
+    return f"hyperparameters {run.hp.key!r} in {run.spec.hyperparams}"
+
+
+def _training_env(run: ResolvedRun) -> Any:
+    """:func:`make_training_env` for a new run, refused with a UserError naming what the YAML gives the env."""
+    spec = run.spec
+    configured = [k for k in ("env_kwargs", "normalize") if getattr(run.hp, k) not in (None, False, {})]
+    try:
+        return make_training_env(spec, run.hp, spec.seed, None)
+    except (TypeError, ValueError, AssertionError) as e:
+        if not configured:  # the YAML passes nothing to the env: the env's own failure, traceback and all
+            raise
+        # how envs and VecNormalize refuse a keyword or a value; anything else is the env's own bug
+        raise UserError(
+            f"cannot make {spec.env_id} with the {'/'.join(configured)} of {_where(run)}: {type(e).__name__}: {e}"
+        ) from e
+
+
+def _model(run: ResolvedRun, venv: Any, verbose: int) -> Any:
+    """The run's fresh model on ``venv`` and the run's training episodes."""
+    spec = run.spec
+    try:
+        return run.learner(
+            run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
+            seed=spec.seed, verbose=verbose, **run.model_kwargs(),
+        )
+    except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
+        raise UserError(
+            f"{_where(run)} do not make a {spec.method} model for {spec.env_id}: {type(e).__name__}: {e}"
+        ) from e
 
 
 def _own_step_limit(env: Any) -> int | None:
@@ -675,7 +720,7 @@ def train_command(spec: RunSpec) -> str:
         "-o",
         portable_path(spec.output_dir),
     ]
-    if spec.method != "bc":
+    if not Method.of(spec.method).pretrain_only:
         args[6:6] = ["--timesteps", str(spec.timesteps)]
     return shlex.join(args)
 
@@ -693,13 +738,17 @@ def _normalize_kwargs(hp) -> dict[str, Any] | None:
     return kwargs
 
 
-def make_training_env(spec: RunSpec, hp, env_seed: int, vecnormalize_path: Path | None):
-    """The training VecEnv (Monitor inside), with VecNormalize when asked (loaded from a checkpoint)."""
+def make_training_env(spec: RunSpec, hp, env_seed: int, vecnormalize_path: Path | None, venv: Any = None):
+    """The training VecEnv (Monitor inside), with VecNormalize when asked (loaded from a checkpoint);
+    ``venv``: one made so before, whose envs are used again instead of new ones."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     from sb3_cmzdril.experts.envs import make_vec_env
 
-    venv = make_vec_env(spec.env_id, hp.n_envs, env_seed, hp.env_kwargs)
+    if venv is None:
+        venv = make_vec_env(spec.env_id, hp.n_envs, env_seed, hp.env_kwargs)
+    elif isinstance(venv, VecNormalize):
+        venv = venv.venv  # the envs beneath the statistics, which come from vecnormalize_path or anew
     normalize = _normalize_kwargs(hp)
     if normalize is None:
         return venv
@@ -715,14 +764,17 @@ __all__ = [
     "FALLBACK_N_DEMOS",
     "HYPERPARAMS_NAME",
     "METHODS",
+    "METHOD_REGISTRY",
     "OFFPOLICY_EPOCH_STEPS",
     "OFFPOLICY_HYPERPARAMS_NAME",
     "OFFPOLICY_METHODS",
-    "result_policy",
     "PAPER_METHODS",
     "RUN_SET_KEYS",
+    "BuiltModel",
+    "Method",
     "ResolvedRun",
     "RunSpec",
+    "build_model",
     "check_method",
     "default_demos_path",
     "default_hyperparams_name",
@@ -736,7 +788,9 @@ __all__ = [
     "make_training_env",
     "missing_pool_error",
     "plan_run",
+    "prepare_run",
     "resolve_run",
+    "result_policy",
     "split_episodes",
     "train_command",
 ]

@@ -29,6 +29,7 @@ import numpy as np
 
 from cmzdril_lab.report.formatting import fmt_ci, md_table
 from cmzdril_lab.report.records import METHOD_ORDER, POLICIES, RunRecord, env_key, group, label, result_policy
+from sb3_cmzdril.training.methods import METHOD_REGISTRY
 
 #: Final-evaluation metrics: (final_eval.csv column, table header).
 FINAL_METRICS: tuple[tuple[str, str], ...] = (
@@ -189,8 +190,13 @@ def paired(row: FinalRow, baseline: FinalRow | None, column: str = "return") -> 
     return Paired(trials, [mine[t] - theirs[t] for t in trials])
 
 
-#: CMZ-DRIL's methods and their ablations without reward: the same learner, everything but the reward.
-NO_REWARD_ABLATION: dict[str, str] = {"cmz": "zero", "cmz-sac": "zero-sac"}
+#: CMZ-DRIL's methods and their ablations without reward: the same learner, everything but the reward
+#: (from the registry of methods: "cmz" -> "zero", "cmz-sac" -> "zero-sac").
+NO_REWARD_ABLATION: dict[str, str] = {
+    m.name: a.name
+    for m in METHOD_REGISTRY.values() if m.reward == "cmz"
+    for a in METHOD_REGISTRY.values() if a.learner == m.learner and a.reward == "zero" and not a.pretrain_only
+}
 
 
 def baselines(rows: Sequence[FinalRow], row: FinalRow) -> tuple[FinalRow | None, FinalRow | None]:

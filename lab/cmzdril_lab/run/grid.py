@@ -56,11 +56,10 @@ from sb3_cmzdril.training.spec import (
     DEFAULT_CHECKPOINT_EVERY,
     DEFAULT_EVAL_EPISODES,
     PAPER_METHODS,
+    Method,
     RunSpec,
-    check_method,
     default_demos_path,
     default_output_dir,
-    is_off_policy,
     missing_pool_error,
     plan_run,
 )
@@ -110,11 +109,10 @@ def plan_grid(
         raise UserError("no environment given")
     if not names:
         raise UserError("no method given")
-    for method in names:
-        check_method(method)
+    chosen = [Method.of(name) for name in names]
     for option, path, learner, readers in (
-        ("--hyperparams", hyperparams, "PPO", [m for m in names if not is_off_policy(m)]),
-        ("--sac-hyperparams", offpolicy_hyperparams, "off-policy", [m for m in names if is_off_policy(m)]),
+        ("--hyperparams", hyperparams, "PPO", [m.name for m in chosen if not m.off_policy]),
+        ("--sac-hyperparams", offpolicy_hyperparams, "off-policy", [m.name for m in chosen if m.off_policy]),
     ):
         if path is not None and not readers:
             raise UserError(f"{option} {path} is read by the {learner} methods only and --methods has none "
@@ -133,21 +131,21 @@ def plan_grid(
     specs = [
         plan_run(
             env_id,
-            method,
+            method.name,
             trial,
             demos=default_demos_path(env_id, demos_dir),
             n_demos=n_demos,
             n_eval_episodes=n_eval_episodes,
             timesteps=timesteps,
-            output_dir=default_output_dir(env_id, method, trial, runs_dir),
-            hyperparams=offpolicy_hyperparams if is_off_policy(method) else hyperparams,
+            output_dir=default_output_dir(env_id, method.name, trial, runs_dir),
+            hyperparams=offpolicy_hyperparams if method.off_policy else hyperparams,
             eval_every=eval_every,
             checkpoint_every=checkpoint_every,
             command=command,
         )
         for trial in indices
         for env_id in envs
-        for method in names
+        for method in chosen
     ]
     check_shared_splits(specs)
     return specs
