@@ -585,8 +585,10 @@ def test_a_pool_is_held_to_the_env_kwargs_it_was_recorded_with(tiny_experiment, 
 def test_a_published_run_folder_is_still_the_same_run():
     """A run folder written before the run half was restructured (results/runs) is recognised as the
     finished run of the same spec: config.json's identity is what it was."""
+    from cmzdril_lab.records_store import materialize
+
     repo = Path(__file__).resolve().parent.parent
-    out = repo / "results" / "runs" / "Hopper-v5" / "cmz" / "trial0"
+    out = materialize(repo / "results" / "runs" / "Hopper-v5" / "cmz" / "trial0")  # unpacked from runs.tar.xz
     config = _config(out)
     spec = RunSpec(
         env_id=config["env_id"], method=config["method"], demos=str(repo / "experts" / "Hopper-v5" / "demos.npz"),

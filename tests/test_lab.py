@@ -221,3 +221,16 @@ def test_the_new_tasks_page_regenerates_from_the_compact_records_unchanged(tmp_p
 
     published = rows(REPO / "docs" / "new_tasks.md")
     assert len(published) > 100 and rows(tmp_path / "new_tasks.md") == published
+
+
+def test_an_archive_keeps_the_records_and_leaves_the_models_out(tmp_path):
+    from cmzdril_lab.records_store import pack
+
+    folder = _study(tmp_path)
+    run = folder / "Env-v0" / "cmz" / "trial0"
+    for name in ("model.zip", "model_lowest_u.zip", "lowest_u.pt", "replay_buffer.pkl", "log.txt", ".lock"):
+        (run / name).write_bytes(b"x")
+    with tarfile.open(pack(folder), "r:xz") as tar:
+        names = sorted(tar.getnames())
+    assert names == ["Env-v0/cmz/trial0/eval.csv", "Env-v0/cmz/trial0/logs/progress_0.csv",
+                     "Env-v0/cmz/trial1/eval.csv", "Env-v0/cmz/trial1/logs/progress_0.csv"]

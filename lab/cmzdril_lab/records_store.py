@@ -12,12 +12,13 @@ into it; new or changed runs in it are refused in one line until they are packed
 """
 from __future__ import annotations
 
+import fnmatch
 import io
 import json
 import os
 import shutil
 import tarfile
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from filelock import FileLock
 
@@ -29,6 +30,9 @@ from sb3_cmzdril.training.run_folder import file_sha256
 SUFFIX = ".tar.xz"
 #: Inside an unpacked folder: the archive's digest and the files as unpacked (path -> size, mtime).
 STAMP = ".unpacked.json"
+#: What a run folder holds besides its records, left out of an archive: checkpoints and kept policies
+#: (the models; a record keeps what they scored), the replay buffer, the text log, locks.
+NOT_RECORDS: tuple[str, ...] = ("model*.zip", "*.pt", "*.pkl", "log.txt", ".lock", "*.lock")
 
 
 def archive_of(folder: PathLike) -> Path:
@@ -127,14 +131,17 @@ def unpack(archive: PathLike, folder: PathLike) -> None:
 
 
 def pack(folder: PathLike) -> Path:
-    """Write ``folder``'s files into its archive (sorted, with no times or owners: the same files make
-    the same bytes) and mark the folder as unpacked from it. Returns the archive's path."""
+    """Write ``folder``'s run records into its archive (sorted, with no times or owners: the same files
+    make the same bytes; :data:`NOT_RECORDS` left out) and mark the folder as unpacked from it. Returns
+    the archive's path."""
     folder = Path(folder)
     if not folder.is_dir():
         raise UserError(f"not a folder: {folder}")
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w:xz", format=tarfile.PAX_FORMAT) as tar:
         for relative in _listing(folder):
+            if any(fnmatch.fnmatch(PurePosixPath(relative).name, pattern) for pattern in NOT_RECORDS):
+                continue
             data = (folder / relative).read_bytes()
             info = tarfile.TarInfo(relative)
             info.size, info.mode, info.mtime = len(data), 0o644, 0
