@@ -741,6 +741,27 @@ MOUNTAIN_ROWS: tuple[Variant, ...] = (
 )
 
 #: The variants, reference first per env. Add a variant by adding a line.
+#: One shared default for every task in place of the per-task entries (issue 77's first candidate): the rules
+#: `absorbing: auto` and `disagreement: auto`, no NLL epochs, reward normalisation, u clipped at its
+#: 0.98-quantile; tuning trials 0-4 (Walker2d-v5's entry is this already, given what the rules decide there).
+SHARED_DEFAULT = (f"--set absorbing=auto --set disagreement=auto {BCUPD0} {NORMREW} {CLIP98}")
+SHARED_DEFAULT_LABEL = ("one shared default (`absorbing: auto`, `disagreement: auto`, no NLL epochs, reward "
+                        "normalisation, u clipped at its 0.98-quantile)")
+SHARED_DEFAULT_MUJOCO = tune_command("D1-shared", SHARED_DEFAULT, "Hopper-v5,HalfCheetah-v5,Swimmer-v5", "0-4")
+SHARED_DEFAULT_ROWS: tuple[Variant, ...] = (
+    *(Variant(env, "cmz", f"{SHARED_DEFAULT_LABEL}: trials 0-4", "results/tuning/D1-shared",
+              SHARED_DEFAULT_MUJOCO + " --no-progress", trials=(0, 1, 2, 3, 4))
+      for env in ("Hopper-v5", "HalfCheetah-v5", "Swimmer-v5")),
+    Variant("WaypointNav-v0", "cmz", f"{SHARED_DEFAULT_LABEL}: trials 0-4", "results/tuning/D1-shared-wn",
+            tune_command("D1-shared-wn", SHARED_DEFAULT, "sb3_cmzdril:WaypointNav-v0", "0-4") + " --no-progress",
+            trials=(0, 1, 2, 3, 4)),
+    Variant("Swimmer-v5", "cmz", f"{SHARED_DEFAULT_LABEL} with the NLL epochs back: trials 0-4",
+            "results/tuning/D1-epochs-swimmer",
+            tune_command("D1-epochs-swimmer", SHARED_DEFAULT.replace(BCUPD0, "--set bc_epochs_per_update=1"),
+                         "Swimmer-v5", "0-4") + " --no-progress",
+            trials=(0, 1, 2, 3, 4)),
+)
+
 ABLATIONS: tuple[Variant, ...] = (
     *entry_rows("Walker2d-v5", walker_clip_command("0-4", "moved to results/runs"),
                 walker_before("cmz", "0-4") + "; trials 0-1 at commit a3f38d8, when `absorbing: auto` was the "
@@ -973,6 +994,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *BIPEDAL_ROWS,
     *PENDULUM_ROWS,
     *MOUNTAIN_ROWS,
+    *SHARED_DEFAULT_ROWS,
 )
 
 
