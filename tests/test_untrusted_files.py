@@ -104,3 +104,13 @@ def test_loading_model_files_says_once_that_they_can_run_code(model_zip, tmp_pat
                  "-o", str(tmp_path / "d.npz")]) == 0
     out, err = capsys.readouterr()
     assert out.count("run code") == 1 and err == ""
+
+
+def test_a_pickle_naming_a_submodule_this_install_lacks_counts_as_not_loading():
+    # numpy 2's pickles name numpy._core, which numpy 1 lacks: such an entry is replaced, not unpickled
+    # (the floors job loads the shipped SAC expert, pickled under numpy 2, with numpy 1.24).
+    payload = b"\x80\x02cjson.no_such_submodule\nThing\n."  # a pickle of the global json.no_such_submodule.Thing
+    error = loading._unresolvable({":serialized:": base64.b64encode(payload).decode()})
+    assert isinstance(error, ModuleNotFoundError) and "json.no_such_submodule" in str(error)
+    whole = pickle.dumps(json.JSONDecoder, protocol=4)
+    assert loading._unresolvable({":serialized:": base64.b64encode(whole).decode()}) is None

@@ -38,6 +38,7 @@ from __future__ import annotations
 import base64
 import functools
 import importlib
+import importlib.machinery
 import importlib.util
 import io
 import json
@@ -223,17 +224,40 @@ class _DryRunUnpickler(pickle.Unpickler):
         return _Inert()
 
 
-def _missing_global(module: str, name: str) -> Exception | None:
-    """The error unpickling would raise for the global ``module.name`` where it is plainly not here:
-    its package is not installed, or its module is imported and lacks it. Nothing is imported to tell."""
-    top = module.split(".")[0]
-    if top not in sys.modules:
+def _missing_module(module: str) -> Exception | None:
+    """ModuleNotFoundError where ``module`` is plainly not here: its package is not installed, or a
+    package on its path is imported and holds no such submodule (numpy 1's lacks numpy 2's
+    ``numpy._core``). Looked up in the finders, never imported; a submodule below a package that is not
+    imported yet cannot be told that way and counts as here."""
+    parts = module.split(".")
+    for depth in range(1, len(parts) + 1):
+        prefix = ".".join(parts[:depth])
+        if prefix in sys.modules:
+            continue
+        parent = sys.modules.get(".".join(parts[: depth - 1])) if depth > 1 else None
+        if depth > 1 and parent is None:
+            return None
         try:
-            spec = importlib.util.find_spec(top)  # a top-level name: looked up, not imported
+            if parent is None:
+                spec = importlib.util.find_spec(prefix)  # a top-level name: looked up, not imported
+            else:
+                path = getattr(parent, "__path__", None)
+                spec = None if path is None else importlib.machinery.PathFinder.find_spec(prefix, path)
         except (ImportError, ValueError):
             spec = None
         if spec is None:
-            return ModuleNotFoundError(f"No module named {top!r}", name=top)
+            return ModuleNotFoundError(f"No module named {prefix!r}", name=prefix)
+        return None
+    return None
+
+
+def _missing_global(module: str, name: str) -> Exception | None:
+    """The error unpickling would raise for the global ``module.name`` where it is plainly not here:
+    its module is not (:func:`_missing_module`), or it is imported and lacks the name. Nothing is
+    imported to tell."""
+    missing = _missing_module(module)
+    if missing is not None:
+        return missing
     found: Any = sys.modules.get(module)
     for part in name.split(".") if found is not None else ():
         if not hasattr(found, part):
