@@ -250,3 +250,13 @@ def test_an_archive_keeps_the_records_and_leaves_the_models_out(tmp_path):
         names = sorted(tar.getnames())
     assert names == ["Env-v0/cmz/trial0/eval.csv", "Env-v0/cmz/trial0/logs/progress_0.csv",
                      "Env-v0/cmz/trial1/eval.csv", "Env-v0/cmz/trial1/logs/progress_0.csv"]
+
+
+def test_the_labs_own_command_names_itself(capsys):
+    from cmzdril_lab.cli import main as lab_main
+
+    with pytest.raises(SystemExit) as exit_info:
+        lab_main(["--help"])
+    out = capsys.readouterr().out
+    assert exit_info.value.code == 0 and out.startswith("usage: cmzdril-lab")
+    assert "The sb3-cmzdril lab" in out and "pack" in out and "unpack" in out and "train-expert" not in out

@@ -244,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     """``cmzdril-lab``: the lab's commands with the library command line's error handling."""
     from sb3_cmzdril.cli import main as library_main
 
-    return library_main(argv, prog="cmzdril-lab", commands=(add_benchmark, add_report, add_pack, add_unpack))
+    return library_main(argv, prog="cmzdril-lab", commands=(add_benchmark, add_report, add_pack, add_unpack),
+                        description="The sb3-cmzdril lab: the trial grid, its report and the compact run records.")
 
 
 __all__ = ["add_benchmark", "add_pack", "add_report", "add_unpack", "main", "trial_indices"]

@@ -70,15 +70,16 @@ def _moved(name: str, what: str) -> AddCommand:
     return add
 
 
+#: What ``sb3-cmzdril --help`` says the command line is.
+DESCRIPTION = "CMZ-DRIL imitation learning for stable-baselines3: experts, demos, training, benchmarks."
+
+
 def build_parser(
-    prog: str = "sb3-cmzdril", commands: Sequence[AddCommand] | None = None
+    prog: str = "sb3-cmzdril", commands: Sequence[AddCommand] | None = None, description: str = DESCRIPTION
 ) -> argparse.ArgumentParser:
     """The ``sb3-cmzdril`` parser: the library's :data:`_COMMANDS` and those the lab adds (or their
-    stand-ins); ``commands`` gives another console script its own list."""
-    parser = argparse.ArgumentParser(
-        prog=prog,
-        description="CMZ-DRIL imitation learning for stable-baselines3: experts, demos, training, benchmarks.",
-    )
+    stand-ins); ``commands`` and ``description`` give another console script its own."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
     from sb3_cmzdril._version import __version__
 
     parser.add_argument("--version", action="version", version=f"{prog} {__version__}")
@@ -146,7 +147,11 @@ def _check_output_option(args: argparse.Namespace) -> None:
 
 
 def main(
-    argv: list[str] | None = None, *, prog: str = "sb3-cmzdril", commands: Sequence[AddCommand] | None = None
+    argv: list[str] | None = None,
+    *,
+    prog: str = "sb3-cmzdril",
+    commands: Sequence[AddCommand] | None = None,
+    description: str = DESCRIPTION,
 ) -> int:
     """Run one command; every user error ends here as one line on stderr and exit code 2, an
     interruption as one line and exit code 130 (Ctrl-C, SIGINT) or 143 (SIGTERM). ``prog`` and
@@ -155,7 +160,7 @@ def main(
     from sb3_cmzdril.console import show_library_messages
     from sb3_cmzdril.extras import require_extra
 
-    parser = build_parser(prog, commands)
+    parser = build_parser(prog, commands, description)
     args = parser.parse_args(argv)
     route_mujoco_warnings()
     again = "resume" if args.command in RESUMABLE else "start again"
