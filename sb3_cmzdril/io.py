@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import json
 import logging
 import math
@@ -162,19 +163,13 @@ def is_temporary(name: str) -> bool:
     return match is not None and match["suffix"] in ("", Path(match["name"]).suffix)
 
 
-def _writer_alive(name: str) -> bool:
-    """Whether the process a temporary's name says wrote it may still be writing it.
-
-    A name without a process id (an older release's) and a process that has ended count as not; on a
-    system without POSIX signals, where ``os.kill(pid, 0)`` would end the process, the folder's lock
-    alone decides, as it did before names carried ids.
-    """
-    match = _TEMPORARY.match(name)
-    if match is None or match["pid"] is None or os.name != "posix":
-        return False
-    pid = int(match["pid"])
+def process_alive(pid: int) -> bool | None:
+    """Whether process ``pid`` of this machine is running (this process included); None where that cannot
+    be asked without harm: on a system without POSIX signals ``os.kill(pid, 0)`` would end the process."""
+    if os.name != "posix":
+        return None
     if pid == os.getpid():
-        return True  # another thread of this process may be writing it
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -182,6 +177,17 @@ def _writer_alive(name: str) -> bool:
     except OSError:  # PermissionError: the process exists, under another user
         return True
     return True
+
+
+def _writer_alive(name: str) -> bool:
+    """Whether the process a temporary's name says wrote it may still be writing it.
+
+    A name without a process id (an older release's) and a process that has ended count as not, and so
+    does any where :func:`process_alive` cannot tell: the folder's lock alone decides there, as it did
+    before names carried ids.
+    """
+    match = _TEMPORARY.match(name)
+    return match is not None and match["pid"] is not None and bool(process_alive(int(match["pid"])))
 
 
 def remove_stale_temporaries(*folders: Path) -> list[Path]:
@@ -204,6 +210,15 @@ def remove_stale_temporaries(*folders: Path) -> list[Path]:
         logger.info("removed %d temporary %s that a write cut short left behind: %s", len(removed),
                     "file" if len(removed) == 1 else "files", ", ".join(str(p) for p in removed))
     return removed
+
+
+def file_sha256(path: PathLike) -> str:
+    """The file's sha256 (hex): a run's fingerprint of its demo pool, a checkpoint's of its files."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 # -- JSON ------------------------------------------------------------------------------------------

@@ -13,10 +13,11 @@ Swimmer-v5 pools) are not redistributed: their ``metadata.json`` says where they
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from sb3_cmzdril.errors import MissingFileError
-from sb3_cmzdril.io import PathLike
+from sb3_cmzdril.io import PathLike, file_sha256
 
 _PACKAGE = Path(__file__).resolve().parent
 #: Where a wheel install holds the shipped files.
@@ -68,6 +69,20 @@ def version_differences(used: dict[str, str]) -> list[str]:
         if mine is not None and mine.split("+", 1)[0] != version:
             differ.append(f"{name} {mine} (published: {version})")
     return differ
+
+
+def constraints_advice() -> str:
+    """How to install what the published records were made with, naming the shipped constraints file."""
+    path = shipped_file(*PUBLISHED_CONSTRAINTS)
+    where = f" (in the repository; installed as {path})" if path is not None else ""
+    return f"`pip install -c {'/'.join(PUBLISHED_CONSTRAINTS)}`{where} installs those versions"
+
+
+@functools.lru_cache(maxsize=1)
+def published_pool_digests() -> frozenset[str]:
+    """The sha256 of each shipped demo pool: a run on one of them is comparable to the published records."""
+    pools = (shipped_file("experts", env, "demos.npz") for env in shipped_envs())
+    return frozenset(file_sha256(pool) for pool in pools if pool is not None)
 
 
 def _env_folder(env_id: str) -> str:
@@ -158,7 +173,9 @@ __all__ = [
     "BUNDLED_DIR",
     "CHECKOUT_DIR",
     "PUBLISHED_CONSTRAINTS",
+    "constraints_advice",
     "local_or_shipped_demos",
+    "published_pool_digests",
     "published_versions",
     "shipped_demos",
     "shipped_envs",

@@ -23,8 +23,7 @@ from pathlib import Path, PurePosixPath
 from filelock import FileLock
 
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.io import PathLike, atomic_path
-from sb3_cmzdril.training.run_folder import file_sha256
+from sb3_cmzdril.io import PathLike, atomic_path, file_sha256
 
 #: An archived study ``results/NAME`` is the file ``results/NAME`` + this suffix.
 SUFFIX = ".tar.xz"

@@ -163,7 +163,7 @@ def _evaluation_episodes(text: str | None, n_pool: int, demos_path, run_config: 
     """
     from pathlib import Path
 
-    from sb3_cmzdril.training.run_folder import file_sha256
+    from sb3_cmzdril.io import file_sha256
 
     if text:
         try:

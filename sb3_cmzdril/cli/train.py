@@ -137,19 +137,16 @@ def published_versions_note(demos: PathLike) -> str | None:
     """A line saying that this run's packages differ from those the published records were made with,
     where the run is one of theirs (its demo pool a shipped one): its numbers then need not repeat
     theirs; None where nothing differs or there is nothing published to compare with."""
-    from pathlib import Path
+    from sb3_cmzdril.io import file_sha256, versions
+    from sb3_cmzdril.shipped import constraints_advice, published_pool_digests, version_differences
 
-    from sb3_cmzdril.io import versions
-    from sb3_cmzdril.shipped import PUBLISHED_CONSTRAINTS, shipped_envs, shipped_file, version_differences
-
-    pools = {shipped_file("experts", env, "demos.npz") for env in shipped_envs()}
-    if Path(demos).resolve() not in {pool.resolve() for pool in pools if pool is not None}:
+    if file_sha256(demos) not in published_pool_digests():
         return None
     differ = version_differences(versions())
     if not differ:
         return None
     return (f"note: {', '.join(differ)}: the published records were made with other versions, so this run's "
-            f"numbers may differ from theirs; `pip install -c {'/'.join(PUBLISHED_CONSTRAINTS)}` installs theirs")
+            f"numbers may differ from theirs; {constraints_advice()}")
 
 
 def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, method: str) -> list[str]:

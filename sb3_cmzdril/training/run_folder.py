@@ -47,7 +47,6 @@ import collections
 import contextlib
 import csv
 import functools
-import hashlib
 import math
 import os
 import re
@@ -65,6 +64,7 @@ from sb3_cmzdril.io import (
     PathLike,
     atomic_path,
     deferred_signals,
+    file_sha256,
     is_temporary,
     jsonable,
     lock_output,
@@ -241,15 +241,6 @@ def write_pretrain_csv(path: Path, history: Mapping[str, Sequence[float]]) -> No
 
 
 # -- config.json, state.json, the lock -----------------------------------------------------------
-def file_sha256(path: PathLike) -> str:
-    """The file's sha256 (hex): config.json's fingerprint of the demo pool."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 class RunState:
     """state.json: step count, wall and CPU time across segments, and how each segment started and
     on which machine (CPU model, logical CPUs, torch's threads, OS).

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import json
 import logging
 from collections.abc import Iterable, Sequence
@@ -26,14 +25,13 @@ from cmzdril_lab.records_store import materialize
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
-from sb3_cmzdril.shipped import shipped_envs, shipped_file, version_differences
+from sb3_cmzdril.shipped import constraints_advice, published_pool_digests, version_differences
 from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
     EVAL_CSV,
     FINAL_EVAL_COLUMNS,
     FINAL_EVAL_CSV,
-    file_sha256,
     read_eval_csv,
     run_status,
 )
@@ -251,26 +249,18 @@ def _check_shared_splits(records: Sequence[RunRecord], root: Path) -> None:
                             f"be paired ({splits}); rerun them on one split")
 
 
-@functools.lru_cache(maxsize=1)
-def _published_pools() -> frozenset[str]:
-    """The sha256 of every shipped demo pool: runs on one of them are comparable to the published records."""
-    pools = (shipped_file("experts", env, "demos.npz") for env in shipped_envs())
-    return frozenset(file_sha256(pool) for pool in pools if pool is not None)
-
-
 def note_versions(records: Sequence[RunRecord], root: Path) -> list[str]:
     """Log (and return) a line for the runs on a shipped demo pool that were made with other versions of
     the packages than the published records (``constraints/published.txt``): their numbers need not
     repeat the published ones."""
     by_difference: dict[str, int] = {}
     for record in records:
-        if record.config.get("demos_sha256") in _published_pools():
+        if record.config.get("demos_sha256") in published_pool_digests():
             differ = ", ".join(version_differences(record.config.get("versions") or {}))
             if differ:
                 by_difference[differ] = by_difference.get(differ, 0) + 1
     lines = [f"{root}: {n} of {len(records)} runs were made with {differ}; their numbers may differ from the "
-             "published records' (pip install -c constraints/published.txt installs those versions)"
-             for differ, n in by_difference.items()]
+             f"published records' ({constraints_advice()})" for differ, n in by_difference.items()]
     for line in lines:
         logger.warning("%s", line)
     return lines

@@ -73,7 +73,7 @@ from cmzdril_lab.report.tables import (
     table_one,
 )
 from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.io import PathLike, atomic_write_text, deferred_signals
+from sb3_cmzdril.io import PathLike, atomic_write_text, deferred_signals, process_alive
 from sb3_cmzdril.training.run_folder import TABLE_WINDOW
 
 #: Output file name suffixes: the main grid's files, then the reference grid's.
@@ -179,7 +179,7 @@ def staged(out: Path) -> Iterator[Path]:
     """A fresh staging folder inside ``out`` (removed afterwards), and those that killed reports left."""
     for stale in out.glob(f"{STAGING_PREFIX}*"):
         pid = stale.name[len(STAGING_PREFIX):]
-        if not pid.isdigit() or not _alive(int(pid)):
+        if not pid.isdigit() or process_alive(int(pid)) is False:  # None: cannot tell, so it stays
             shutil.rmtree(stale, ignore_errors=True)
     stage = out / f"{STAGING_PREFIX}{os.getpid()}"
     shutil.rmtree(stage, ignore_errors=True)
@@ -189,15 +189,6 @@ def staged(out: Path) -> Iterator[Path]:
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
 
 
 def write_report(
