@@ -377,7 +377,7 @@ def _summary(run: ResolvedRun, model: Any, folder: RunFolder, state: RunState) -
         "pretrain": dict(model.pretrain_info),
         "dril_threshold": model.dril_threshold,
         # what each "auto" setting was decided to be, and why (the learner's rules)
-        "rules": dict(getattr(model, "rules", {})),
+        "rules": dict(model.rules),
         "wall_time_s": round(state.wall_time(), 2),
         "cpu_time_s": round(state.cpu_time(), 2),
         "segments": len(state.data["segments"]),
