@@ -603,14 +603,18 @@ def _config_spaces(cfg: dict[str, Any]) -> tuple[spaces.Space, spaces.Space]:
     return obs_space, act_space
 
 
-def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> float:
-    """The q-quantile of u over the demonstration steps, with the expert's own actions."""
-    if not 0.0 < q <= 1.0:
-        raise UserError(f"quantile q must lie in (0, 1], got {q}")
-    u = np.concatenate(
+def disagreement_on_demos(ensemble: Any, demos: Demonstrations) -> np.ndarray:
+    """u at every demonstration step, with the expert's own actions, (N,) float64."""
+    return np.concatenate(
         [
             ensemble.disagreement(take(demos.observations, slice(i, i + 4096)), demos.actions[i : i + 4096])
             for i in range(0, len(demos), 4096)
         ]
     )
-    return float(np.quantile(u, q))
+
+
+def quantile_of_disagreement(ensemble: Any, demos: Demonstrations, q: float) -> float:
+    """The q-quantile of u over the demonstration steps, with the expert's own actions."""
+    if not 0.0 < q <= 1.0:
+        raise UserError(f"quantile q must lie in (0, 1], got {q}")
+    return float(np.quantile(disagreement_on_demos(ensemble, demos), q))

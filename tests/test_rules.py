@@ -79,3 +79,68 @@ def test_a_runs_record_keeps_what_its_rules_decided(tiny_experiment, tmp_path):
     rules = json.loads((tmp_path / "run" / "done.json").read_text())["rules"]
     assert set(rules) == {"absorbing", "disagreement"} and rules["absorbing"]["value"] is True
     assert rules["absorbing"]["reason"].startswith("every demonstration lasts the env's time limit (50 steps)")
+
+
+def _auto_epochs(env, demos, **kwargs):
+    return CMZDRIL("MlpPolicy", env, demonstrations=demos, bc_epochs_per_update="auto", **{**TINY, **kwargs})
+
+
+@pytest.mark.parametrize("limit, epochs, words", [
+    (1e9, 1, "under 1000000000.0: the clone stays on them, one NLL epoch after each update holds the policy there"),
+    (0.0, 0, "at least 0.0: the clone leaves them, so no NLL epoch pulls the policy back to it"),
+])
+def test_the_nll_epochs_rule_reads_how_far_the_clone_leaves_the_demonstrations(
+        pendulum_demos, monkeypatch, caplog, limit, epochs, words):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    monkeypatch.setattr(cmzdril_module, "DRIFT_LIMIT", limit)
+    model = _auto_epochs(_pendulum(40), pendulum_demos)
+    with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
+        model.learn(64)
+    decided = model.rules["bc_epochs_per_update"]
+    assert decided["value"] == epochs and model.bc_epochs_active == epochs
+    # Five episodes of 40 steps: the probe stops when the fifth ends.
+    assert decided["reason"].startswith("the clone's own path scores u ")
+    assert "times its mean on the demonstrations (5 episodes, 200 steps), " + words in decided["reason"]
+    assert "bc_epochs_per_update " + str(epochs) + ": the clone's own path" in caplog.text
+    # The NLL epochs ran after the update only where the rule kept them.
+    assert ("train/bc_nll" in model.logger.name_to_value) == bool(epochs)
+    assert model.bc_epochs_per_update == "auto"
+
+
+def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(pendulum_demos):
+    auto = _auto_epochs(_pendulum(40), pendulum_demos, seed=3)
+    auto.learn(128)
+    decided = auto.rules["bc_epochs_per_update"]["value"]
+    given = CMZDRIL("MlpPolicy", _pendulum(40), demonstrations=pendulum_demos,
+                    **{**TINY, "seed": 3, "bc_epochs_per_update": decided})
+    given.learn(128)
+    for (name, a), (_, b) in zip(auto.policy.state_dict().items(), given.policy.state_dict().items(), strict=True):
+        assert np.array_equal(a.cpu().numpy(), b.cpu().numpy()), name
+    assert auto.num_timesteps == given.num_timesteps == 128
+
+
+def test_a_loaded_model_keeps_its_decision_without_a_new_probe(pendulum_demos, tmp_path, monkeypatch):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    model = _auto_epochs(_pendulum(40), pendulum_demos)
+    model.learn(64)
+    model.save(tmp_path / "model.zip")
+
+    def no_probe(*args, **kwargs):
+        raise AssertionError("a decided rule probes again")
+
+    monkeypatch.setattr(cmzdril_module, "clone_drift", no_probe)
+    loaded = CMZDRIL.load(tmp_path / "model.zip", env=_pendulum(40))
+    assert loaded.rules["bc_epochs_per_update"] == model.rules["bc_epochs_per_update"]
+    loaded.learn(64, reset_num_timesteps=False)
+    assert loaded.bc_epochs_active == model.bc_epochs_active
+
+
+def test_the_nll_epochs_take_a_count_or_auto(pendulum_demos):
+    from sb3_cmzdril.errors import UserError
+
+    with pytest.raises(UserError, match=r"bc_epochs_per_update must be a whole number >= 0 or 'auto', got 'yes'"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update="yes")
+    with pytest.raises(UserError, match="bc_epochs_per_update must be >= 0, got -1"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)

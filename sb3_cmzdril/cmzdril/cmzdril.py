@@ -46,6 +46,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril.cmzdril.scoring import RolloutRecord, score_rollout
 from sb3_cmzdril.common.bc import BehaviourCloner
+from sb3_cmzdril.common.drift import DRIFT_LIMIT, clone_drift
 from sb3_cmzdril.common.imitation import (
     DemosLike,
     ImitationLearner,
@@ -54,6 +55,7 @@ from sb3_cmzdril.common.imitation import (
     made_env,
 )
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
+from sb3_cmzdril.ensemble import disagreement_on_demos
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.policies import floor_log_std, mean_log_std
@@ -102,7 +104,11 @@ class CMZDRIL(ImitationLearner, PPO):
         fifth. Off by default: the published grids ran without it (measurements:
         docs/bc_single_episode.md).
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
-        disables).
+        disables). ``"auto"``: the paper's one epoch where the pretrained clone stays on the
+        demonstrations, none where it leaves them: at the first ``learn()`` the clone plays a few
+        episodes deterministically, and the epochs are off when the ensemble's mean u along them is at
+        least :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT` times its mean on the demonstrations (the
+        decision and its reason go to :attr:`rules`; the probe's steps are not counted).
     :param bc_update_std: whether the NLL epochs after each PPO update also fit the policy's
         state-independent log-std (``policy.log_std``: a Gaussian's, or gSDE's exploration
         parameters), as the paper's NLL does. They pull it toward the demonstrations' residual
@@ -178,7 +184,7 @@ class CMZDRIL(ImitationLearner, PPO):
         bc_validation_fraction: float = 0.2,
         bc_patience: int = 20,
         bc_refit: bool = False,
-        bc_epochs_per_update: int = 1,
+        bc_epochs_per_update: int | str = 1,
         bc_update_std: bool = True,
         bc_batch_size: int = 64,
         bc_learning_rate: float | Schedule | str = 1e-3,
@@ -212,7 +218,11 @@ class CMZDRIL(ImitationLearner, PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        counts = dict(bc_epochs_per_update=bc_epochs_per_update, critic_warmup_updates=critic_warmup_updates)
+        if isinstance(bc_epochs_per_update, str) and bc_epochs_per_update != "auto":
+            raise UserError(f"bc_epochs_per_update must be a whole number >= 0 or 'auto', got {bc_epochs_per_update!r}")
+        counts: dict[str, Any] = dict(critic_warmup_updates=critic_warmup_updates)
+        if bc_epochs_per_update != "auto":
+            counts["bc_epochs_per_update"] = bc_epochs_per_update
         self._init_imitation(**arguments_for(self._init_imitation, locals(), counts=counts))
         check_finite(
             bc_learning_rate=bc_learning_rate, log_std_floor=log_std_floor, learning_rate=learning_rate, gamma=gamma,
@@ -227,7 +237,9 @@ class CMZDRIL(ImitationLearner, PPO):
                        target_kl=target_kl, max_grad_norm=max_grad_norm)
         check_interval("[0, inf)", vf_coef=vf_coef)
         self.bc_refit = bool(bc_refit)
-        self.bc_epochs_per_update = int(bc_epochs_per_update)
+        self.bc_epochs_per_update: int | str = (
+            "auto" if bc_epochs_per_update == "auto" else int(bc_epochs_per_update)
+        )
         self.bc_update_std = bool(bc_update_std)
         #: a number or a schedule of the progress remaining (see :meth:`_bc_learning_rate`)
         self.bc_learning_rate: float | Schedule = parse_schedule(bc_learning_rate, "bc_learning_rate")
@@ -372,9 +384,48 @@ class CMZDRIL(ImitationLearner, PPO):
             self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
             self.bc.set_demonstrations(self.demonstrations)
             self._prepare_reward(progress_bar)
+        self._decide_bc_epochs()
         self._wrap_training_env()
         vec_normalize = self.get_vec_normalize_env()
         self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
+
+    def _decide_bc_epochs(self) -> None:
+        """``bc_epochs_per_update="auto"`` resolved, once per model (a loaded one keeps its decision):
+        the pretrained clone's drift (:func:`~sb3_cmzdril.common.drift.clone_drift`) against
+        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`."""
+        if self.bc_epochs_per_update != "auto" or "bc_epochs_per_update" in self.rules:
+            return
+        if self.env is None:
+            raise UserError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
+        assert self.demonstrations is not None
+        vec_normalize = self.get_vec_normalize_env()
+
+        def disagreement(raw_obs: Any) -> np.ndarray:
+            return disagreement_where_ended(self.ensemble, self.policy, raw_obs, self.action_space, vec_normalize)
+
+        drift = clone_drift(self.policy, self.env, disagreement,
+                            float(np.mean(disagreement_on_demos(self.ensemble, self.demonstrations))), vec_normalize)
+        if self.seed is not None:
+            self.env.seed(self.seed)  # the first rollout starts where it would have without the probe
+        self._last_obs = None  # learn() resets the env after the probe
+        keep = drift.ratio < DRIFT_LIMIT
+        where = (f"the clone's own path scores u {drift.ratio:.2f} times its mean on the demonstrations "
+                 f"({drift.episodes} episodes, {drift.steps} steps)")
+        if keep:
+            reason = (f"{where}, under {DRIFT_LIMIT}: the clone stays on them, one NLL epoch after each update "
+                      "holds the policy there")
+        else:
+            reason = (f"{where}, at least {DRIFT_LIMIT}: the clone leaves them, so no NLL epoch pulls the policy "
+                      "back to it")
+        self._record_rule("bc_epochs_per_update", 1 if keep else 0, reason)
+
+    @property
+    def bc_epochs_active(self) -> int:
+        """NLL epochs after each PPO update: ``bc_epochs_per_update``, or what ``"auto"`` decided (the
+        paper's 1 until it has)."""
+        if self.bc_epochs_per_update != "auto":
+            return int(self.bc_epochs_per_update)
+        return int(self.rules.get("bc_epochs_per_update", {}).get("value", 1))
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
@@ -436,14 +487,14 @@ class CMZDRIL(ImitationLearner, PPO):
             self.logger.record("train/critic_warmup", 1.0)
             return
         super().train()
-        if self.bc_epochs_per_update and self.demonstrations is not None:
+        if self.bc_epochs_active and self.demonstrations is not None:
             transform = self._demo_obs_transform()
             held = [] if self.bc_update_std else _log_std_parameters(self.policy)
             bc_lr = self._bc_learning_rate(self._current_progress_remaining)
             update_learning_rate(self.bc.optimizer, bc_lr)
             self.logger.record("train/bc_learning_rate", bc_lr)
             with _without_gradient(held):
-                for _ in range(self.bc_epochs_per_update):
+                for _ in range(self.bc_epochs_active):
                     nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
 

@@ -513,7 +513,7 @@ class ImitationLearner(_Algorithm):
     # -- saving and loading --------------------------------------------------------------------
     def _excluded_save_params(self) -> list[str]:
         return super()._excluded_save_params() + [
-            "demonstrations", "reward_rule", "ensemble", "bc", "_pretrain_log_pending", "rules"
+            "demonstrations", "reward_rule", "ensemble", "bc", "_pretrain_log_pending"
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
