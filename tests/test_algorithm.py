@@ -285,6 +285,70 @@ def test_reward_normalising_vecnormalize_scores_per_step(pendulum_demos):
     assert model.env is venv and isinstance(venv.venv, DisagreementReward)
 
 
+@pytest.mark.parametrize("reward", ["cmz", "env"])
+def test_normalize_reward_scales_the_rollout_as_a_reward_normalising_vecnormalize(reward, pendulum_demos):
+    # Two rollouts of 160 steps in two envs, with Pendulum's time-limit truncation inside: the option,
+    # applied to the scored buffer, gives the rollout a VecNormalize(norm_reward=True) gives step by step.
+    def plain():
+        return DummyVecEnv([lambda: gym.make("Pendulum-v1")] * 2)
+
+    def normalising():
+        return VecNormalize(plain(), norm_obs=False, norm_reward=True, gamma=0.99)
+
+    option = _rollout_of(plain, pendulum_demos, reward=reward, normalize_reward=True)
+    wrapper = _rollout_of(normalising, pendulum_demos, reward=reward)
+    _assert_same_rollouts(option, wrapper)
+    vec_normalize = wrapper.get_vec_normalize_env()
+    assert option.return_scale.rms.count == pytest.approx(vec_normalize.ret_rms.count)
+    np.testing.assert_allclose(option.return_scale.rms.var, vec_normalize.ret_rms.var, rtol=1e-5)
+
+
+def test_return_scale_against_hand_computed_values():
+    from sb3_cmzdril.cmzdril.scoring import ReturnScale
+
+    scale = ReturnScale(gamma=0.5, clip=100.0)
+    scale.rms.var, scale.rms.count = np.float64(3.0), 1.0  # statistics carried from earlier rollouts
+    rewards = np.array([[2.0], [4.0], [1.0]], np.float32)
+    dones = np.array([[False], [True], [False]])
+    out = scale.apply(rewards, dones)
+    # Returns 2, then 0.5 * 2 + 4 = 5; the episode ended, so the third starts again at 1.
+    mean, var, count = 0.0, 3.0, 1.0
+    expected = []
+    for r, ret in zip((2.0, 4.0, 1.0), (2.0, 5.0, 1.0), strict=True):
+        delta, total = ret - mean, count + 1
+        mean, var, count = mean + delta / total, (var * count + delta**2 * count / total) / total, total
+        expected.append(r / np.sqrt(var + 1e-8))
+    np.testing.assert_allclose(out[:, 0], expected, rtol=1e-6)
+    np.testing.assert_array_equal(scale.returns, [1.0])
+    assert out.dtype == np.float32
+
+
+def test_normalize_reward_refuses_what_would_divide_twice_or_step_by_step(pendulum_demos):
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=True)
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, normalize_reward=True, **TINY)
+    with pytest.raises(UserError, match="normalize_reward=True and a VecNormalize that normalises rewards would "
+                                        "divide the reward twice"):
+        model.learn(64)
+    with pytest.raises(UserError, match=r"normalize_reward=True needs batch_scoring=True"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, normalize_reward=True,
+                batch_scoring=False, **TINY)
+
+
+def test_normalize_reward_keeps_its_statistics_through_save_and_load(pendulum_demos, tmp_path):
+    from stable_baselines3.common.logger import configure
+
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, normalize_reward=True, **TINY)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(64)
+    logged = np.genfromtxt(tmp_path / "progress.csv", delimiter=",", names=True)
+    assert float(np.atleast_1d(logged["rolloutreward_scale"])[-1]) == pytest.approx(model.return_scale.scale, rel=1e-5)
+    model.save(tmp_path / "m.zip")
+    loaded = CMZDRIL.load(tmp_path / "m.zip", env=gym.make("Pendulum-v1"))
+    assert loaded.normalize_reward is True
+    assert loaded.return_scale.rms.count == model.return_scale.rms.count
+    np.testing.assert_array_equal(loaded.return_scale.returns, model.return_scale.returns)
+
+
 def _forbid(model: CMZDRIL, *, clone: bool = False, fit: bool = False) -> None:
     """Make the model's BC pretraining and/or ensemble fit fail the test if they run."""
     if clone:

@@ -44,7 +44,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import update_learning_rate
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from sb3_cmzdril.cmzdril.scoring import RolloutRecord, score_rollout
+from sb3_cmzdril.cmzdril.scoring import ReturnScale, RolloutRecord, score_rollout
 from sb3_cmzdril.common.bc import BehaviourCloner
 from sb3_cmzdril.common.drift import DRIFT_LIMIT, clone_drift
 from sb3_cmzdril.common.imitation import (
@@ -151,6 +151,11 @@ class CMZDRIL(ImitationLearner, PPO):
         :mod:`sb3_cmzdril.cmzdril.scoring`); False scores every step inside a
         :class:`~sb3_cmzdril.rewards.DisagreementReward` wrapper, which a reward-normalising
         VecNormalize gets anyway. The rewards are the same.
+    :param normalize_reward: divide the reward PPO learns from (the rule's, or the env's for
+        ``reward="env"``) by the running standard deviation of its discounted return, as
+        ``VecNormalize(norm_obs=False, norm_reward=True)`` does (:class:`~sb3_cmzdril.cmzdril.scoring.ReturnScale`),
+        so that its size does not depend on the task's. Needs ``batch_scoring``; a VecNormalize that
+        normalises rewards as well is refused. Logged as ``rollout/reward_scale``.
 
     Pretraining happens once, in the first ``learn()`` (or :meth:`pretrain`) of a model whose
     :attr:`pretrained` is False; it never overwrites weights the user brought (see :attr:`pretrained`).
@@ -193,6 +198,7 @@ class CMZDRIL(ImitationLearner, PPO):
         absorbing_score: str = "highest",
         critic_warmup_updates: int = 0,
         batch_scoring: bool = True,
+        normalize_reward: bool = False,
         learning_rate: float | Schedule = 3e-4,
         n_steps: int = 2048,
         batch_size: int = 64,
@@ -248,6 +254,12 @@ class CMZDRIL(ImitationLearner, PPO):
         #: value-only updates done so far (saved with the model: a resumed run does not warm up again)
         self.critic_warmup_done = 0
         self.batch_scoring = bool(batch_scoring)
+        if normalize_reward and not batch_scoring:
+            raise UserError("normalize_reward=True needs batch_scoring=True (or a VecNormalize(norm_reward=True) "
+                            "around the env instead)")
+        self.normalize_reward = bool(normalize_reward)
+        #: the running scale of normalize_reward (saved with the model: a resumed run goes on with it)
+        self.return_scale: ReturnScale | None = None
         self.rollout_disagreement: float | None = None
         #: whether the policy was trained on VecNormalize'd observations (saved with the model, so that
         #: an evaluation without the statistics can be refused instead of silently wrong)
@@ -384,9 +396,12 @@ class CMZDRIL(ImitationLearner, PPO):
             self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
             self.bc.set_demonstrations(self.demonstrations)
             self._prepare_reward(progress_bar)
+        vec_normalize = self.get_vec_normalize_env()
+        if getattr(self, "normalize_reward", False) and vec_normalize is not None and vec_normalize.norm_reward:
+            raise UserError("normalize_reward=True and a VecNormalize that normalises rewards would divide the reward "
+                            "twice: set norm_reward=False on the VecNormalize, or normalize_reward=False")
         self._decide_bc_epochs()
         self._wrap_training_env()
-        vec_normalize = self.get_vec_normalize_env()
         self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
 
     def _decide_bc_epochs(self) -> None:
@@ -464,11 +479,17 @@ class CMZDRIL(ImitationLearner, PPO):
                 self._absorbing_gamma(),
                 self._terminal_disagreement(),
             )
-            if self.reward != "env":
-                # Swap the env reward for the rule's; the truncation bootstrap in the buffer stays.
-                buffer.rewards += scores.rewards - record.env_rewards
-                buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
+            learned = scores.rewards if self.reward != "env" else record.env_rewards
             stats = scores.stats()
+            if getattr(self, "normalize_reward", False):  # a model saved before the option has none
+                if self.return_scale is None:
+                    self.return_scale = ReturnScale(self.gamma)
+                learned = self.return_scale.apply(learned, record.dones)
+                stats["reward_scale"] = self.return_scale.scale
+            if learned is not record.env_rewards:
+                # Swap the env reward for the one learned from; the truncation bootstrap in the buffer stays.
+                buffer.rewards += learned - record.env_rewards
+                buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
         for key, value in stats.items():
             self.logger.record(f"rollout/{key}", value)
         self.rollout_disagreement = stats.get("disagreement_mean")

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_cmzdril.common.imitation import buffer_actions
@@ -55,6 +56,8 @@ class RolloutRecord:
         self.env_rewards = np.zeros((n_steps, n_envs), np.float32)
         #: which envs' episodes terminated (not truncated) at each step
         self.terminated = np.zeros((n_steps, n_envs), bool)
+        #: which envs' episodes ended at each step, terminated or truncated
+        self.dones = np.zeros((n_steps, n_envs), bool)
         self._vec_normalize = vec_normalize
         self._raw_obs: list[Any] | None = None
         if vec_normalize is not None:
@@ -69,6 +72,7 @@ class RolloutRecord:
         t = self._t
         self.env_rewards[t] = rewards
         self.terminated[t] = terminations(dones, infos)
+        self.dones[t] = dones
         if self._keep_terminal:
             for i in np.flatnonzero(self.terminated[t]):
                 obs = infos[i]["terminal_observation"]
@@ -134,6 +138,38 @@ def score_rollout(
     return RolloutScores(u, rewards)
 
 
+class ReturnScale:
+    """Rewards divided by the running standard deviation of their discounted return, as SB3's
+    ``VecNormalize(norm_obs=False, norm_reward=True)`` divides the rewards it passes on, step by step:
+    the return of each env is discounted by ``gamma`` and restarts where its episode ended, the
+    statistics take every step's returns before that step's rewards are divided, and the result is
+    clipped to ``[-clip, clip]``. What the learner sees is then about the same size on every task."""
+
+    def __init__(self, gamma: float, epsilon: float = 1e-8, clip: float = 10.0) -> None:
+        self.gamma = float(gamma)
+        self.epsilon = float(epsilon)
+        self.clip = float(clip)
+        self.rms = RunningMeanStd(shape=())
+        self.returns = np.zeros(0)
+
+    def apply(self, rewards: np.ndarray, dones: np.ndarray) -> np.ndarray:
+        """``rewards`` and ``dones`` of a rollout, (n_steps, n_envs): the scaled rewards, float32."""
+        if self.returns.shape != rewards.shape[1:]:
+            self.returns = np.zeros(rewards.shape[1:])  # the first rollout, or another number of envs
+        out = np.empty(rewards.shape, np.float64)
+        for t in range(len(rewards)):
+            self.returns = self.returns * self.gamma + rewards[t]
+            self.rms.update(self.returns)
+            out[t] = np.clip(rewards[t] / np.sqrt(self.rms.var + self.epsilon), -self.clip, self.clip)
+            self.returns[dones[t]] = 0.0
+        return out.astype(np.float32)
+
+    @property
+    def scale(self) -> float:
+        """What a reward is divided by now."""
+        return float(np.sqrt(self.rms.var + self.epsilon))
+
+
 def _copy(obs: Any) -> Any:
     return {k: np.array(v) for k, v in obs.items()} if isinstance(obs, dict) else np.array(obs)
 
@@ -143,4 +179,4 @@ def _row(obs: Any) -> Any:
     return {k: v[None] for k, v in obs.items()} if isinstance(obs, dict) else obs[None]
 
 
-__all__ = ["RolloutRecord", "RolloutScores", "score_rollout"]
+__all__ = ["ReturnScale", "RolloutRecord", "RolloutScores", "score_rollout"]
