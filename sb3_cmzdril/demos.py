@@ -328,6 +328,7 @@ class Demonstrations:
         new one, otherwise ``self``.
         """
         obs = match_observations(self.observations, observation_space)
+        check_action_space(action_space)  # refuses an unsupported one, naming it: the others are handled below
         if obs is not self.observations:
             return Demonstrations(obs, self.actions, self.episode_lengths, self.rewards, self.seeds).check_spaces(
                 observation_space, action_space
@@ -352,8 +353,6 @@ class Demonstrations:
             return self
         if isinstance(action_space, (spaces.MultiDiscrete, spaces.MultiBinary)):
             return self._check_multi_actions(action_space)
-        if not isinstance(action_space, spaces.Box):
-            check_action_space(action_space)  # refuses, naming it: the supported others are handled above
         assert isinstance(action_space, spaces.Box)
         if self.actions.shape[1:] != action_space.shape:
             raise UserError(

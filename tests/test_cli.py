@@ -511,7 +511,7 @@ def test_keyboard_interrupt_is_one_line_and_130(setup, tmp_path, capsys, monkeyp
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runs, "run_experiment", interrupted)
+    monkeypatch.setattr(runs, "execute_run", interrupted)
     assert main(train_args(setup, "-o", str(tmp_path / "run"))) == 130
     assert capsys.readouterr().err == "sb3-cmzdril train: interrupted; rerun the same command to resume\n"
 
@@ -584,7 +584,7 @@ def test_train_shows_progress_unless_told_not_to(setup, tmp_path, monkeypatch):
 
     seen = []
     monkeypatch.setattr(
-        runs, "run_experiment", lambda spec, **kwargs: seen.append(kwargs["progress_bar"]) or {"status": "stopped"}
+        runs, "execute_run", lambda run, **kwargs: seen.append(kwargs["progress_bar"]) or {"status": "stopped"}
     )
     args = [a for a in train_args(setup, "-o", str(tmp_path / "run")) if a != "--no-progress"]
     main(args)

@@ -91,7 +91,7 @@ def _run_train(args) -> int:
     import torch
 
     from sb3_cmzdril.experts import check_threads, command_line
-    from sb3_cmzdril.training.runs import run_experiment
+    from sb3_cmzdril.training.runs import execute_run
     from sb3_cmzdril.training.spec import prepare_run
 
     threads = check_threads(args.threads)
@@ -116,7 +116,7 @@ def _run_train(args) -> int:
     note = published_versions_note(spec.demos)
     if note:
         print(note)
-    result = run_experiment(run, progress_bar=not args.no_progress, verbose=args.verbose)
+    result = execute_run(run, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
         print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
     window = result.get("final_window")

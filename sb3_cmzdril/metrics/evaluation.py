@@ -223,6 +223,7 @@ def evaluate_against_expert(
     env_obj, owned, env_id = _make_env(env, env_kwargs)
     try:
         demos = _checked(demos, env_obj)
+        experts = [demos.episode(i) for i in range(demos.n_episodes)]
         features = trajectory_fn if trajectory_fn is not None else trajectory_features(env_id)
         transform = _observation_transform(model, obs_transform)
         space = _model_action_space(model)
@@ -234,14 +235,13 @@ def evaluate_against_expert(
 
         if start_mismatch == "raise":
             # Every start before the first rollout: the error names each episode that differs.
-            differing = [i for i in range(demos.n_episodes) if not same_observation(
-                env_obj.reset(seed=int(demos.seeds[i]))[0], demos.episode(i)["observations"])]
+            differing = [i for i, expert in enumerate(experts) if not same_observation(
+                env_obj.reset(seed=int(demos.seeds[i]))[0], expert["observations"])]
             if differing:
                 raise UserError(_start_mismatch_message(differing, demos.seeds))
 
         returns, lengths, frechet, matches, trajectories = [], [], [], [], []
-        for i in range(demos.n_episodes):
-            expert = demos.episode(i)
+        for expert in experts:
             agent_obs, total = _rollout(model, env_obj, expert["seed"], transform, max_steps)
             matches.append(same_observation(agent_obs[0], expert["observations"]))
             returns.append(total)

@@ -117,6 +117,18 @@ def run_experiment(
     """
     if not isinstance(run, ResolvedRun):
         run = resolve_run(run, keep=True, verbose=verbose)  # every input read and checked, once
+    return execute_run(run, progress_bar=progress_bar, callbacks=callbacks, verbose=verbose)
+
+
+def execute_run(
+    run: ResolvedRun,
+    *,
+    progress_bar: bool = False,
+    callbacks: Sequence[Any] = (),
+    verbose: int = 0,
+) -> dict[str, Any]:
+    """:func:`run_experiment` of a run resolved already (the ``train`` command's, by
+    :func:`~sb3_cmzdril.training.spec.prepare_run`): executed, resumed or skipped, the same summary."""
     try:
         return _execute(run, progress_bar=progress_bar, callbacks=list(callbacks), verbose=verbose)
     finally:
@@ -522,6 +534,7 @@ __all__ = [
     "RunSpec",
     "plan_run",
     "run_experiment",
+    "execute_run",
     "split_episodes",
     "read_eval_csv",
     "window_means",

@@ -267,14 +267,14 @@ def prepare_run(
         :func:`resolve_run` refuses.
     :raises FileNotFoundError: no demo pool or hyperparameter file.
     """
-    from sb3_cmzdril.hyperparams import default_hyperparams_path
+    from sb3_cmzdril.shipped import local_or_shipped_demos, shipped_hyperparams
 
     chosen = Method.of(method)
     check_env_id(env_id)
     seed = check_seed(seed)
-    if hyperparams is None:
-        hyperparams = default_hyperparams_path(chosen.learner.hyperparams_name)
-    hp_path = Path(hyperparams)
+    # where neither file is named, the shipped ones (the pool is found to be there after the hyperparameters)
+    hp_path = Path(hyperparams) if hyperparams is not None else shipped_hyperparams(chosen.learner.hyperparams_name)
+    demos_path = Path(demos) if demos is not None else local_or_shipped_demos(env_id)
     hp, settings = load_run_hyperparams(hp_path, env_id, method)
     n_demos = _positive_int("n_demos", n_demos if n_demos is not None else settings.get("n_demos", FALLBACK_N_DEMOS))
     n_eval_episodes = _positive_int("n_eval_episodes", n_eval_episodes)
@@ -285,7 +285,6 @@ def prepare_run(
         if timesteps is None:
             raise UserError(f"no number of timesteps: pass --timesteps or set n_timesteps in {hp_path}")
         timesteps = _positive_int("timesteps", timesteps)
-    demos_path = Path(demos) if demos is not None else default_demos_path(env_id)
     if not demos_path.is_file():
         raise missing_pool_error(env_id, demos_path, "pass the path of an existing pool with --demos")
     if output_dir is not None and not str(output_dir).strip():
