@@ -43,6 +43,20 @@ def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_ST
     return mean.astype(np.float32), std.astype(np.float32)
 
 
+def bounded_statistics(
+    space: spaces.Box, mean: np.ndarray, std: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """``mean`` and ``std`` with every entry that ``space`` bounds on both sides replaced by its bounds'
+    centre and half-width (such an entry is mapped onto [-1, 1]), and how many entries that is."""
+    low = np.asarray(space.low, np.float64).reshape(-1)
+    high = np.asarray(space.high, np.float64).reshape(-1)
+    bounded = np.isfinite(low) & np.isfinite(high) & (high > low)
+    with np.errstate(invalid="ignore", over="ignore"):  # inf - inf where unbounded: not taken
+        centre, half_width = (high + low) / 2, (high - low) / 2
+    return (np.where(bounded, centre, mean).astype(np.float32), np.where(bounded, half_width, std).astype(np.float32),
+            int(bounded.sum()))
+
+
 def standardized_keys(observation_space: spaces.Space) -> list[str | None]:
     """The parts of an observation worth standardising: a non-image Box (``[None]``), or the
     non-image Box entries of a Dict (their keys). Images are scaled by SB3 and discrete parts are
@@ -119,11 +133,22 @@ class DemoStandardizer(BaseFeaturesExtractor):
             obs_mean.copy_(th.as_tensor(mean))
             obs_std.copy_(th.as_tensor(std))
 
-    def fit(self, observations: np.ndarray | dict[str, np.ndarray]) -> None:
-        """Set every part's statistics from demonstration observations (an array, or a dict)."""
+    def fit(self, observations: np.ndarray | dict[str, np.ndarray], by_bounds: bool = False) -> tuple[int, int]:
+        """Set every part's statistics from demonstration observations (an array, or a dict).
+        ``by_bounds``: an entry the observation space bounds on both sides is scaled by its bounds to
+        [-1, 1] instead (:func:`bounded_statistics`). Returns (entries scaled by their bounds, entries)."""
+        bounded = total = 0
         for key in self.keys:
             part = observations[key] if isinstance(observations, dict) and key is not None else observations
-            self.set_statistics(*observation_statistics(np.asarray(part)), key=key)
+            mean, std = observation_statistics(np.asarray(part))
+            if by_bounds:
+                space = self._observation_space if key is None else self._observation_space[key]  # type: ignore[index]
+                assert isinstance(space, spaces.Box)  # standardized_keys keeps Box parts only
+                mean, std, n = bounded_statistics(space, mean, std)
+                bounded += n
+            total += len(mean)
+            self.set_statistics(mean, std, key=key)
+        return bounded, total
 
     def forward(self, observations: Any) -> th.Tensor:
         if self.keys == [None]:

@@ -92,8 +92,10 @@ class CMZDRIL(ImitationLearner, PPO):
     :param standardize_observations: the policy sees observations standardised with fixed statistics
         of the demonstrations (the ensemble's; :mod:`sb3_cmzdril.policies`). False gives SB3's raw
         inputs (the paper-faithful setting); prefer it where the observations are already scaled to
-        about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). Ignored,
-        with a warning, when a VecNormalize already normalises the observations.
+        about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). ``"auto"``:
+        each entry the observation space bounds on both sides is scaled by its bounds to [-1, 1], every
+        other one by the demonstrations (the decision goes to :attr:`rules`). Ignored, with a warning,
+        when a VecNormalize already normalises the observations.
     :param bc_pretrain_epochs: most NLL epochs before RL.
     :param bc_validation_fraction: share of the demo steps held out to stop pretraining when their
         NLL has not improved for ``bc_patience`` epochs (the best epoch's weights are kept); 0
@@ -184,7 +186,7 @@ class CMZDRIL(ImitationLearner, PPO):
         ensemble_epochs: int = 200,
         ensemble_batch_size: int = 64,
         ensemble_learning_rate: float = 1e-3,
-        standardize_observations: bool = True,
+        standardize_observations: bool | str = True,
         bc_pretrain_epochs: int = 1000,
         bc_validation_fraction: float = 0.2,
         bc_patience: int = 20,

@@ -187,7 +187,7 @@ class ImitationLearner(_Algorithm):
         ensemble_epochs: int,
         ensemble_batch_size: int,
         ensemble_learning_rate: float,
-        standardize_observations: bool,
+        standardize_observations: bool | str,
         bc_pretrain_epochs: int,
         bc_validation_fraction: float,
         bc_patience: int,
@@ -224,7 +224,11 @@ class ImitationLearner(_Algorithm):
         self.ensemble_epochs = int(ensemble_epochs)
         self.ensemble_batch_size = int(ensemble_batch_size)
         self.ensemble_learning_rate = float(ensemble_learning_rate)
-        self.standardize_observations = bool(standardize_observations)
+        if standardize_observations not in (True, False, "auto"):
+            raise UserError(f"standardize_observations must be True, False or 'auto', got {standardize_observations!r}")
+        self.standardize_observations: bool | str = (
+            "auto" if standardize_observations == "auto" else bool(standardize_observations)
+        )
         self.bc_pretrain_epochs = int(bc_pretrain_epochs)
         self.bc_validation_fraction = float(bc_validation_fraction)
         self.bc_patience = int(bc_patience)
@@ -367,8 +371,14 @@ class ImitationLearner(_Algorithm):
                 stacklevel=4,
             )
             return
-        for standardizer in standardizers:
-            standardizer.fit(self.demonstrations.observations)
+        by_bounds = self.standardize_observations == "auto"
+        scaled = [standardizer.fit(self.demonstrations.observations, by_bounds) for standardizer in standardizers]
+        if by_bounds and scaled:
+            bounded, total = scaled[0]
+            value = "bounds" if bounded == total else "demonstrations" if bounded == 0 else "both"
+            self._record_rule("standardize_observations", value,
+                              f"{bounded} of {total} observation entries have finite bounds in the observation space: "
+                              "each is scaled by them to [-1, 1], every other one by the demonstrations' mean and std")
 
     def _prepare_reward(self, progress_bar: bool = False, remake_rule: bool = False) -> dict[str, float]:
         """Fit the ensemble (unless fitted or loaded) and make the reward rule (and its bounds): what
