@@ -46,14 +46,12 @@ def observation_statistics(observations: np.ndarray, min_std: float = MIN_OBS_ST
 def bounded_statistics(
     space: spaces.Box, mean: np.ndarray, std: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """``mean`` and ``std`` with every entry that ``space`` bounds on both sides replaced by its bounds'
-    centre and half-width (such an entry is mapped onto [-1, 1]), and how many entries that is."""
+    """``mean`` and ``std`` with every entry that ``space`` bounds on both sides left as the env gives it
+    (mean 0, std 1: the env has scaled it already), and how many entries that is."""
     low = np.asarray(space.low, np.float64).reshape(-1)
     high = np.asarray(space.high, np.float64).reshape(-1)
-    bounded = np.isfinite(low) & np.isfinite(high) & (high > low)
-    with np.errstate(invalid="ignore", over="ignore"):  # inf - inf where unbounded: not taken
-        centre, half_width = (high + low) / 2, (high - low) / 2
-    return (np.where(bounded, centre, mean).astype(np.float32), np.where(bounded, half_width, std).astype(np.float32),
+    bounded = np.isfinite(low) & np.isfinite(high)
+    return (np.where(bounded, 0.0, mean).astype(np.float32), np.where(bounded, 1.0, std).astype(np.float32),
             int(bounded.sum()))
 
 
@@ -135,8 +133,8 @@ class DemoStandardizer(BaseFeaturesExtractor):
 
     def fit(self, observations: np.ndarray | dict[str, np.ndarray], by_bounds: bool = False) -> tuple[int, int]:
         """Set every part's statistics from demonstration observations (an array, or a dict).
-        ``by_bounds``: an entry the observation space bounds on both sides is scaled by its bounds to
-        [-1, 1] instead (:func:`bounded_statistics`). Returns (entries scaled by their bounds, entries)."""
+        ``by_bounds``: an entry the observation space bounds on both sides is left as the env gives it
+        instead (:func:`bounded_statistics`). Returns (entries left so, entries)."""
         bounded = total = 0
         for key in self.keys:
             part = observations[key] if isinstance(observations, dict) and key is not None else observations

@@ -146,7 +146,7 @@ def test_the_nll_epochs_take_a_count_or_auto(pendulum_demos):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)
 
 
-def test_auto_standardisation_scales_bounded_entries_by_their_bounds(pendulum_demos, caplog):
+def test_auto_standardisation_leaves_bounded_entries_as_the_env_gives_them(pendulum_demos, caplog):
     from sb3_cmzdril.policies import DemoStandardizer
 
     # Pendulum-v1 bounds every entry: cos and sin in [-1, 1], the angular velocity in [-8, 8].
@@ -156,16 +156,16 @@ def test_auto_standardisation_scales_bounded_entries_by_their_bounds(pendulum_de
         model.pretrain()
     standardizer = next(m for m in model.policy.modules() if isinstance(m, DemoStandardizer))
     np.testing.assert_array_equal(standardizer.obs_mean.cpu().numpy(), [0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(standardizer.obs_std.cpu().numpy(), [1.0, 1.0, 8.0])
+    np.testing.assert_array_equal(standardizer.obs_std.cpu().numpy(), [1.0, 1.0, 1.0])
     assert model.rules["standardize_observations"] == {
-        "value": "bounds",
-        "reason": "3 of 3 observation entries have finite bounds in the observation space: each is scaled by them "
-                  "to [-1, 1], every other one by the demonstrations' mean and std",
+        "value": False,
+        "reason": "3 of 3 observation entries have finite bounds in the observation space: the env scales those, "
+                  "every other one is standardised by the demonstrations",
     }
-    assert "standardize_observations 'bounds': 3 of 3 observation entries" in caplog.text
+    assert "standardize_observations off: 3 of 3 observation entries" in caplog.text
 
 
-def test_auto_standardisation_keeps_the_demonstrations_statistics_where_unbounded(pendulum_demos):
+def test_auto_standardisation_standardises_the_unbounded_entries(pendulum_demos):
     from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
 
     unbounded = gym.spaces.Box(np.array([-1.0, -np.inf, -8.0], np.float32), np.array([1.0, np.inf, 8.0], np.float32))
@@ -175,8 +175,8 @@ def test_auto_standardisation_keeps_the_demonstrations_statistics_where_unbounde
     standardizer = next(m for m in model.policy.modules() if isinstance(m, DemoStandardizer))
     mean, std = observation_statistics(pendulum_demos.observations)
     np.testing.assert_allclose(standardizer.obs_mean.cpu().numpy(), [0.0, mean[1], 0.0])
-    np.testing.assert_allclose(standardizer.obs_std.cpu().numpy(), [1.0, std[1], 8.0])
-    assert model.rules["standardize_observations"]["value"] == "both"
+    np.testing.assert_allclose(standardizer.obs_std.cpu().numpy(), [1.0, std[1], 1.0])
+    assert model.rules["standardize_observations"]["value"] == "unbounded entries"
     assert model.rules["standardize_observations"]["reason"].startswith("2 of 3 observation entries")
 
 

@@ -93,8 +93,8 @@ class CMZDRIL(ImitationLearner, PPO):
         of the demonstrations (the ensemble's; :mod:`sb3_cmzdril.policies`). False gives SB3's raw
         inputs (the paper-faithful setting); prefer it where the observations are already scaled to
         about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). ``"auto"``:
-        each entry the observation space bounds on both sides is scaled by its bounds to [-1, 1], every
-        other one by the demonstrations (the decision goes to :attr:`rules`). Ignored, with a warning,
+        only the entries the observation space leaves unbounded are standardised; a bounded one is
+        scaled by the env already and is left as it is (the decision goes to :attr:`rules`). Ignored, with a warning,
         when a VecNormalize already normalises the observations.
     :param bc_pretrain_epochs: most NLL epochs before RL.
     :param bc_validation_fraction: share of the demo steps held out to stop pretraining when their

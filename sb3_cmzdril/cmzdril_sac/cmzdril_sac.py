@@ -163,8 +163,8 @@ class CMZDRILSAC(ImitationLearner, SAC):
     :param ensemble_batch_size: minibatch size of ensemble fitting.
     :param ensemble_learning_rate: Adam step size of ensemble fitting.
     :param standardize_observations: actor and critics see observations standardised with fixed
-        statistics of the demonstrations; ``"auto"``: by the observation space's bounds where it has
-        them (as :class:`~sb3_cmzdril.CMZDRIL`'s).
+        statistics of the demonstrations; ``"auto"``: only the entries the observation space leaves
+        unbounded (as :class:`~sb3_cmzdril.CMZDRIL`'s).
     :param demo_fraction: share of every SAC batch drawn from the demonstrations (in [0, 1)).
     :param bc_pretrain_epochs: most BC epochs before RL (early-stopped as CMZDRIL's).
     :param bc_validation_fraction: share of demo steps held out to stop pretraining.

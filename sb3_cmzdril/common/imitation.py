@@ -375,10 +375,10 @@ class ImitationLearner(_Algorithm):
         scaled = [standardizer.fit(self.demonstrations.observations, by_bounds) for standardizer in standardizers]
         if by_bounds and scaled:
             bounded, total = scaled[0]
-            value = "bounds" if bounded == total else "demonstrations" if bounded == 0 else "both"
+            value = False if bounded == total else True if bounded == 0 else "unbounded entries"
             self._record_rule("standardize_observations", value,
                               f"{bounded} of {total} observation entries have finite bounds in the observation space: "
-                              "each is scaled by them to [-1, 1], every other one by the demonstrations' mean and std")
+                              "the env scales those, every other one is standardised by the demonstrations")
 
     def _prepare_reward(self, progress_bar: bool = False, remake_rule: bool = False) -> dict[str, float]:
         """Fit the ensemble (unless fitted or loaded) and make the reward rule (and its bounds): what
