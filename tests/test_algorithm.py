@@ -550,7 +550,7 @@ def test_a_termination_can_be_scored_at_the_u_of_the_observation_it_ended_in(pen
 
 
 def test_cmz_clip_quantile_clips_u_at_the_demos_quantile_and_survives_save_load(pendulum_demos, tmp_path):
-    with pytest.raises(ValueError, match=r"cmz_clip_quantile must lie in \(0, 1\] or be None"):
+    with pytest.raises(ValueError, match=r"cmz_clip_quantile must lie in \(0, 1\], be None or 'auto'"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile=1.5)
     plain = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
     plain.pretrain()

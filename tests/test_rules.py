@@ -185,3 +185,52 @@ def test_standardisation_takes_true_false_or_auto(pendulum_demos):
 
     with pytest.raises(UserError, match="standardize_observations must be True, False or 'auto', got 'bounds'"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, standardize_observations="bounds")
+
+
+@pytest.mark.parametrize("falls", [True, False])
+def test_the_clip_rule_clips_u_where_the_clone_falls(pendulum_demos, falls):
+    from sb3_cmzdril.ensemble import quantile_of_disagreement
+
+    # Pendulum-v1 never terminates; wrapped, it ends an episode once the pole hangs below the horizontal.
+    env = _Falls(_pendulum(40)) if falls else _pendulum(40)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=pendulum_demos, absorbing=True, cmz_clip_quantile="auto", **TINY)
+    model.learn(64)
+    decided = model.rules["cmz_clip_quantile"]
+    if falls:
+        assert decided["value"] == 0.98 and model.clip_quantile == 0.98
+        assert decided["reason"].startswith("the env terminated ")
+        assert decided["reason"].endswith("where no demonstration ends early: u is clipped, so a fall costs at most "
+                                          "the clip's reward")
+        assert model.cmz_u_max == pytest.approx(quantile_of_disagreement(model.ensemble, pendulum_demos, 0.98))
+        assert model.reward_rule.u_max == pytest.approx(model.cmz_u_max)
+    else:
+        assert decided == {"value": None, "reason": "the env terminated 0 of the clone's 5 episodes: the clone "
+                                                    "does not fall, u is left unclipped"}
+        assert model.cmz_u_max is None and model.clip_quantile is None
+
+
+class _Falls(gym.Wrapper):
+    """Pendulum-v1 whose episode terminates once the pole hangs below the horizontal."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated or bool(obs[0] < 0.0), truncated, info
+
+
+def test_no_absorbing_state_leaves_u_unclipped_without_a_probe(pendulum_demos, monkeypatch):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
+    model = CMZDRIL("MlpPolicy", _pendulum(40), demonstrations=pendulum_demos, cmz_clip_quantile="auto", **TINY)
+    model.learn(64)
+    assert model.rules["cmz_clip_quantile"] == {
+        "value": None, "reason": "no absorbing state: an episode's end costs nothing to clip"}
+
+
+def test_the_clip_takes_a_quantile_none_or_auto(pendulum_demos):
+    from sb3_cmzdril.errors import UserError
+
+    with pytest.raises(UserError, match=r"cmz_clip_quantile must lie in \(0, 1\], be None or 'auto', got 'yes'"):
+        CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile="yes")
+    with pytest.raises(UserError, match="CMZDRILSAC's cmz_clip_quantile is a quantile in"):
+        CMZDRILSAC("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, cmz_clip_quantile="auto")

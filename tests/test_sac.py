@@ -453,7 +453,7 @@ def test_cmz_clip_bounds_replayed_rewards_at_the_demos_quantile_and_survives_sav
         (dict(bc_pretrain_epochs=-1), "bc_pretrain_epochs must be >= 0"),
         (dict(replay_buffer_class=ReplayBuffer), "must be a DemoReplayBuffer"),
         (dict(alpha=0.0), "alpha must be > 0"),
-        (dict(cmz_clip_quantile=1.5), r"cmz_clip_quantile must lie in \(0, 1\] or be None"),
+        (dict(cmz_clip_quantile=1.5), r"cmz_clip_quantile must lie in \(0, 1\], be None or 'auto'"),
         (dict(optimize_memory_usage=True), "optimize_memory_usage=True is not supported"),
         (dict(n_steps=3), "n_steps must be 1, got 3"),
         (dict(critic_warmup_steps=-1), "critic_warmup_steps must be a whole number >= 0, got -1"),

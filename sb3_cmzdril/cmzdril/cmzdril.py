@@ -46,13 +46,14 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril.cmzdril.scoring import ReturnScale, RolloutRecord, score_rollout
 from sb3_cmzdril.common.bc import BehaviourCloner
-from sb3_cmzdril.common.drift import DRIFT_LIMIT, clone_drift
+from sb3_cmzdril.common.drift import AUTO_CLIP_QUANTILE, DRIFT_LIMIT, clone_drift
 from sb3_cmzdril.common.imitation import (
     DemosLike,
     ImitationLearner,
     arguments_for,
     disagreement_where_ended,
     made_env,
+    rule_bounds,
 )
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
 from sb3_cmzdril.ensemble import disagreement_on_demos
@@ -81,7 +82,9 @@ class CMZDRIL(ImitationLearner, PPO):
     :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (the
         statistic of DRIL's threshold), so that every state beyond it costs the same and a few
         far-off states cannot dominate the reward (``CMZReward(u_max=...)``); None (the paper) does
-        not clip.
+        not clip. ``"auto"``: at :data:`~sb3_cmzdril.common.drift.AUTO_CLIP_QUANTILE` where the absorbing
+        state is on and the pretrained clone falls (the env terminates one of the episodes it plays
+        at the first ``learn()``), so that a fall costs at most the clip's reward; unclipped otherwise.
     :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"``
         (unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members (paper/DRIL: 5).
@@ -179,7 +182,7 @@ class CMZDRIL(ImitationLearner, PPO):
         ema: float = 0.99,
         u0: float = 0.0,
         dril_quantile: float = 0.98,
-        cmz_clip_quantile: float | None = None,
+        cmz_clip_quantile: float | str | None = None,
         disagreement: str = "std",
         ensemble_size: int = 5,
         ensemble_hidden: Sequence[int] = (64, 64),
@@ -402,15 +405,22 @@ class CMZDRIL(ImitationLearner, PPO):
         if getattr(self, "normalize_reward", False) and vec_normalize is not None and vec_normalize.norm_reward:
             raise UserError("normalize_reward=True and a VecNormalize that normalises rewards would divide the reward "
                             "twice: set norm_reward=False on the VecNormalize, or normalize_reward=False")
-        self._decide_bc_epochs()
+        self._decide_from_the_clone()
         self._wrap_training_env()
         self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
 
-    def _decide_bc_epochs(self) -> None:
-        """``bc_epochs_per_update="auto"`` resolved, once per model (a loaded one keeps its decision):
-        the pretrained clone's drift (:func:`~sb3_cmzdril.common.drift.clone_drift`) against
-        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`."""
-        if self.bc_epochs_per_update != "auto" or "bc_epochs_per_update" in self.rules:
+    def _decide_from_the_clone(self) -> None:
+        """The ``"auto"`` settings read from the pretrained clone's own episodes, each decided once per
+        model (a loaded one keeps its decisions; :func:`~sb3_cmzdril.common.drift.clone_drift` plays
+        them): ``bc_epochs_per_update`` by the clone's drift against
+        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`, ``cmz_clip_quantile`` by whether it falls."""
+        bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
+        clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
+        absorbing = clip and self._absorbing_applies()
+        if clip and not absorbing:
+            self._record_rule("cmz_clip_quantile", None, "no absorbing state: an episode's end costs nothing to clip")
+            clip = False
+        if not (bc or clip):
             return
         if self.env is None:
             raise UserError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
@@ -425,16 +435,29 @@ class CMZDRIL(ImitationLearner, PPO):
         if self.seed is not None:
             self.env.seed(self.seed)  # the first rollout starts where it would have without the probe
         self._last_obs = None  # learn() resets the env after the probe
-        keep = drift.ratio < DRIFT_LIMIT
-        where = (f"the clone's own path scores u {drift.ratio:.2f} times its mean on the demonstrations "
-                 f"({drift.episodes} episodes, {drift.steps} steps)")
-        if keep:
-            reason = (f"{where}, under {DRIFT_LIMIT}: the clone stays on them, one NLL epoch after each update "
-                      "holds the policy there")
-        else:
-            reason = (f"{where}, at least {DRIFT_LIMIT}: the clone leaves them, so no NLL epoch pulls the policy "
-                      "back to it")
-        self._record_rule("bc_epochs_per_update", 1 if keep else 0, reason)
+        if bc:
+            keep = drift.ratio < DRIFT_LIMIT
+            where = (f"the clone's own path scores u {drift.ratio:.2f} times its mean on the demonstrations "
+                     f"({drift.episodes} episodes, {drift.steps} steps)")
+            if keep:
+                reason = (f"{where}, under {DRIFT_LIMIT}: the clone stays on them, one NLL epoch after each update "
+                          "holds the policy there")
+            else:
+                reason = (f"{where}, at least {DRIFT_LIMIT}: the clone leaves them, so no NLL epoch pulls the policy "
+                          "back to it")
+            self._record_rule("bc_epochs_per_update", 1 if keep else 0, reason)
+        if clip:
+            falls = drift.terminated > 0
+            ended = f"the env terminated {drift.terminated} of the clone's {drift.episodes} episodes"
+            self._record_rule(
+                "cmz_clip_quantile", AUTO_CLIP_QUANTILE if falls else None,
+                f"{ended}, where no demonstration ends early: u is clipped, so a fall costs at most the clip's reward"
+                if falls else f"{ended}: the clone does not fall, u is left unclipped",
+            )
+            if falls:
+                self.dril_threshold, self.cmz_u_max = rule_bounds(
+                    self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.clip_quantile)
+                self.reward_rule = self._make_rule()
 
     @property
     def bc_epochs_active(self) -> int:

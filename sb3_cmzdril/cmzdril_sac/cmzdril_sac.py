@@ -262,6 +262,10 @@ class CMZDRILSAC(ImitationLearner, SAC):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        if isinstance(cmz_clip_quantile, str):
+            raise UserError(f"CMZDRILSAC's cmz_clip_quantile is a quantile in (0, 1] or None, got "
+                            f"{cmz_clip_quantile!r} ('auto' reads the clone's episodes before PPO's first rollout: "
+                            "CMZDRIL's rule)")
         self._init_imitation(**arguments_for(self._init_imitation, locals()))
         check_finite(
             demo_fraction=demo_fraction, bc_learning_rate=bc_learning_rate, bc_weight=bc_weight, q_weight=q_weight,

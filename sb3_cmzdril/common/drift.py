@@ -1,10 +1,11 @@
-"""How far the pretrained clone's own path leaves the demonstrations.
+"""How far the pretrained clone's own path leaves the demonstrations, and whether it falls.
 
 The clone plays a few episodes deterministically in the training env; the ensemble's mean disagreement
 u along them, over its mean u on the demonstrations, is the clone's drift. Near 1 the clone stays where
 the demonstrations are (and the NLL epochs that hold the policy to them cost nothing); well above it the
 clone leaves them, and the pull back toward the clone fights the reward that would correct it. The
-``"auto"`` setting of ``bc_epochs_per_update`` reads it (:class:`~sb3_cmzdril.CMZDRIL`).
+``"auto"`` setting of ``bc_epochs_per_update`` reads it; ``cmz_clip_quantile="auto"`` reads how many of
+the clone's episodes the env terminated (:class:`~sb3_cmzdril.CMZDRIL`).
 """
 from __future__ import annotations
 
@@ -15,10 +16,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sb3_cmzdril.rewards import terminations
+
 #: drift at and above which ``bc_epochs_per_update="auto"`` turns the NLL epochs off: the geometric mean
 #: of the drifts measured on Swimmer-v5 (1.2, where the epochs are needed) and WaypointNav-v0 (2.2, the
 #: lowest where dropping them was measured to hold), docs/beyond_home_tasks.md
 DRIFT_LIMIT = 1.6
+#: the quantile of u on the demonstrations ``cmz_clip_quantile="auto"`` clips u at where the clone falls
+AUTO_CLIP_QUANTILE = 0.98
 #: episodes the clone plays to measure its drift
 PROBE_EPISODES = 5
 #: the most steps per env the clone plays (for an env whose episodes do not end)
@@ -27,12 +32,14 @@ PROBE_STEPS = 5_000
 
 @dataclasses.dataclass(frozen=True)
 class Drift:
-    """The clone's mean u along its own episodes (``path_u``) and on the demonstrations (``demo_u``)."""
+    """The clone's mean u along its own episodes (``path_u``) and on the demonstrations (``demo_u``), and
+    how many of its ``episodes`` the env ``terminated`` (not cut by a time limit)."""
 
     path_u: float
     demo_u: float
     episodes: int
     steps: int
+    terminated: int = 0
 
     @property
     def ratio(self) -> float:
@@ -60,15 +67,16 @@ def clone_drift(
     if vec_normalize is not None:
         vec_normalize.training = False
     u: list[np.ndarray] = []
-    ended = steps = 0
+    ended = steps = terminated = 0
     try:
         obs = env.reset()
         while ended < episodes and steps < max_steps:
             u.append(np.asarray(disagreement(obs if raw_from is None else raw_from.get_original_obs()), np.float64))
-            obs, _, dones, _ = env.step(policy.predict(obs, deterministic=True)[0])
+            obs, _, dones, infos = env.step(policy.predict(obs, deterministic=True)[0])
             ended += int(np.sum(dones))
+            terminated += int(np.sum(terminations(dones, infos)))
             steps += 1
     finally:
         if vec_normalize is not None:
             vec_normalize.training = training
-    return Drift(float(np.mean(np.concatenate(u))), float(demo_u), ended, steps)
+    return Drift(float(np.mean(np.concatenate(u))), float(demo_u), ended, steps, terminated)

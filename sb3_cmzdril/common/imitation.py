@@ -180,7 +180,7 @@ class ImitationLearner(_Algorithm):
         ema: float,
         u0: float,
         dril_quantile: float,
-        cmz_clip_quantile: float | None,
+        cmz_clip_quantile: float | str | None,
         disagreement: str,
         ensemble_size: int,
         ensemble_hidden: Sequence[int],
@@ -215,7 +215,9 @@ class ImitationLearner(_Algorithm):
         self.u0 = float(u0)
         self.dril_quantile = float(dril_quantile)
         self.dril_threshold = None
-        self.cmz_clip_quantile = None if cmz_clip_quantile is None else float(cmz_clip_quantile)
+        self.cmz_clip_quantile: float | str | None = (
+            cmz_clip_quantile if cmz_clip_quantile in (None, "auto") else float(cmz_clip_quantile)
+        )
         #: the CMZ reward's clip of u (``cmz_clip_quantile`` of u on the demos), computed with the ensemble
         self.cmz_u_max = None
         self.disagreement = disagreement
@@ -400,15 +402,22 @@ class ImitationLearner(_Algorithm):
             info["ensemble_seconds"] = time.perf_counter() - start
         self._record_disagreement_rule()
         missing = (self.reward == "dril" and self.dril_threshold is None) or (
-            self.reward == "cmz" and self.cmz_clip_quantile is not None and self.cmz_u_max is None
+            self.reward == "cmz" and self.clip_quantile is not None and self.cmz_u_max is None
         )
         if remake_rule or missing:
             self.dril_threshold, self.cmz_u_max = rule_bounds(
-                self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.cmz_clip_quantile
+                self.reward, self.ensemble, self.demonstrations, self.dril_quantile, self.clip_quantile
             )
         if remake_rule or self.reward_rule is None:
             self.reward_rule = self._make_rule()
         return info
+
+    @property
+    def clip_quantile(self) -> float | None:
+        """``cmz_clip_quantile`` resolved: what ``"auto"`` decided (no clip until it has)."""
+        if self.cmz_clip_quantile == "auto":
+            return self.rules.get("cmz_clip_quantile", {}).get("value")
+        return self.cmz_clip_quantile  # type: ignore[return-value]
 
     def _make_rule(self) -> RewardRule:
         return reward_rule(self.reward, self.alpha, self.ema, self.u0, self.dril_threshold, self.cmz_u_max)

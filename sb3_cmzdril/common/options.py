@@ -28,7 +28,7 @@ def check_imitation_options(
     bc_validation_fraction: float,
     bc_patience: int,
     absorbing: bool | str,
-    cmz_clip_quantile: float | None = None,
+    cmz_clip_quantile: float | str | None = None,
     absorbing_score: str = "highest",
     **counts: int,
 ) -> None:
@@ -40,8 +40,11 @@ def check_imitation_options(
         make_rule("cmz", alpha=alpha, ema=ema, u0=u0)  # validates alpha, ema, u0 now, not at learn()
     if not 0.0 < dril_quantile <= 1.0:
         raise UserError(f"dril_quantile must lie in (0, 1], got {dril_quantile}")
-    if cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
-        raise UserError(f"cmz_clip_quantile must lie in (0, 1] or be None, got {cmz_clip_quantile}")
+    if isinstance(cmz_clip_quantile, str):
+        if cmz_clip_quantile != "auto":
+            raise UserError(f"cmz_clip_quantile must lie in (0, 1], be None or 'auto', got {cmz_clip_quantile!r}")
+    elif cmz_clip_quantile is not None and not 0.0 < cmz_clip_quantile <= 1.0:
+        raise UserError(f"cmz_clip_quantile must lie in (0, 1], be None or 'auto', got {cmz_clip_quantile}")
     for name, value in {"bc_pretrain_epochs": bc_pretrain_epochs, **counts}.items():
         if int(value) < 0:
             raise UserError(f"{name} must be >= 0, got {value}")
