@@ -752,6 +752,8 @@ SHARED_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(Variant(env, "cmz", f"{SHARED_DEFAULT_LABEL}: trials 0-4", "results/tuning/D1-shared",
               SHARED_DEFAULT_MUJOCO + " --no-progress", trials=(0, 1, 2, 3, 4))
       for env in ("Hopper-v5", "HalfCheetah-v5", "Swimmer-v5")),
+    Variant("Hopper-v5", "cmz", f"{SHARED_DEFAULT_LABEL}: trials 5-9", "results/tuning/D1-shared",
+            tune_command("D1-shared", SHARED_DEFAULT, "Hopper-v5", "5-9") + " --no-progress", trials=(5, 6, 7, 8, 9)),
     Variant("WaypointNav-v0", "cmz", f"{SHARED_DEFAULT_LABEL}: trials 0-4", "results/tuning/D1-shared-wn",
             tune_command("D1-shared-wn", SHARED_DEFAULT, "sb3_cmzdril:WaypointNav-v0", "0-4") + " --no-progress",
             trials=(0, 1, 2, 3, 4)),
@@ -760,6 +762,87 @@ SHARED_DEFAULT_ROWS: tuple[Variant, ...] = (
             tune_command("D1-epochs-swimmer", SHARED_DEFAULT.replace(BCUPD0, "--set bc_epochs_per_update=1"),
                          "Swimmer-v5", "0-4") + " --no-progress",
             trials=(0, 1, 2, 3, 4)),
+)
+
+#: The second candidate: the same, each task cut to its default and task keys (`tune.py --as-untuned`), with
+#: the NLL epochs decided by how far the clone leaves the demonstrations (`bc_epochs_per_update: auto`).
+DRIFT_DEFAULT = SHARED_DEFAULT.replace(BCUPD0, "--set bc_epochs_per_update=auto")
+DRIFT_DEFAULT_LABEL = ("one shared default, the NLL epochs decided by the clone's drift (`bc_epochs_per_update: "
+                       "auto`; `absorbing: auto`, `disagreement: auto`, reward normalisation, u clipped at its "
+                       "0.98-quantile; every entry cut to its task keys)")
+
+
+def drift_default_command(envs: str, trials: str) -> str:
+    """The command that made the second candidate's runs of ``envs`` on ``trials``."""
+    return tune_command("D2-default", f"--as-untuned {DRIFT_DEFAULT}", envs, trials) + " --no-progress"
+
+
+DRIFT_DEFAULT_ROWS: tuple[Variant, ...] = tuple(
+    Variant(env, "cmz", f"{DRIFT_DEFAULT_LABEL}: trials 0-4", "results/tuning/D2-default",
+            drift_default_command("sb3_cmzdril:WaypointNav-v0,Swimmer-v5", "0-4"), trials=(0, 1, 2, 3, 4))
+    for env in ("Swimmer-v5", "WaypointNav-v0")
+)
+
+#: The third candidate: no NLL epochs and no clip of u, each input scaled by the observation space's bounds
+#: where it has them (what `standardize_observations: auto` did first), the rest as the first candidate.
+NOCLIP = "--set cmz_clip_quantile=null"
+BOUNDS_DEFAULT = (f"--as-untuned --set absorbing=auto --set disagreement=auto {BCUPD0} {NORMREW} {NOCLIP} "
+                  "--set standardize_observations=auto")
+BOUNDS_DEFAULT_LABEL = ("one shared default without the clip of u (`absorbing: auto`, `disagreement: auto`, no NLL "
+                        "epochs, reward normalisation; bounded inputs scaled to [-1, 1] by their bounds, the first "
+                        "`standardize_observations: auto`; every entry cut to its task keys)")
+
+
+def bounds_default_command(envs: str, trials: str) -> str:
+    """The command that made the third candidate's runs of ``envs`` on ``trials``."""
+    return tune_command("D3-default", BOUNDS_DEFAULT, envs, trials) + " --no-progress"
+
+
+BOUNDS_DEFAULT_ROWS: tuple[Variant, ...] = (
+    Variant("Swimmer-v5", "cmz", f"{SHARED_DEFAULT_LABEL} without the clip of u: trials 0-4",
+            "results/tuning/D3-noclip",
+            tune_command("D3-noclip", f"--as-untuned --set absorbing=auto --set disagreement=auto {BCUPD0} {NORMREW} "
+                         f"{NOCLIP}", "Swimmer-v5", "0-4") + " --no-progress", trials=(0, 1, 2, 3, 4)),
+    *(Variant(env, "cmz", f"{BOUNDS_DEFAULT_LABEL}: trials 0-4", "results/tuning/D3-default",
+              bounds_default_command("sb3_cmzdril:WaypointNav-v0,Hopper-v5", "0-4"), trials=(0, 1, 2, 3, 4))
+      for env in ("WaypointNav-v0", "Hopper-v5")),
+    *(Variant(env, "cmz", f"{BOUNDS_DEFAULT_LABEL}: trials 5-9", "results/tuning/D3-default",
+              tune_command("D3-default", BOUNDS_DEFAULT, "Hopper-v5,Swimmer-v5", "5-9") + " --no-progress",
+              trials=(5, 6, 7, 8, 9))
+      for env in ("Hopper-v5", "Swimmer-v5")),
+)
+
+#: The fourth candidate on tasks whose observation space bounds every entry: those inputs as the env gives
+#: them (`standardize_observations: false`), the rest as the third.
+RAW_DEFAULT = (f"--set absorbing=auto --set disagreement=auto {BCUPD0} {NORMREW} {NOCLIP} "
+               "--set standardize_observations=false")
+RAW_DEFAULT_LABEL = ("one shared default, inputs as the env gives them where its observation space bounds them "
+                     "(`standardize_observations: false`; no NLL epochs, no clip of u, reward normalisation, "
+                     "`absorbing: auto`, `disagreement: auto`)")
+
+
+def raw_default_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",)) -> tuple[Variant, ...]:
+    """CMZ-DRIL's and BC's rows of the fourth candidate on ``env`` (runs in results/tuning/NAME)."""
+    return tuple(
+        Variant(env, method, f"{METHOD_LABELS[method]}, {RAW_DEFAULT_LABEL}: trials {label}",
+                f"results/tuning/{name}", command.replace("TRIALS", label),
+                trials=tuple(range(int(label[0]), int(label[-1]) + 1)))
+        for method in ("cmz", "bc") for label in trial_sets
+    )
+
+
+RAW_DEFAULT_ROWS: tuple[Variant, ...] = (
+    *raw_default_rows("WaypointNav-v0", "D4-raw", tune_command(
+        "D4-raw", f"--as-untuned {RAW_DEFAULT}", "sb3_cmzdril:WaypointNav-v0", "TRIALS", methods="cmz,bc")
+        + " --no-progress", ("0-4", "5-9")),
+    *raw_default_rows("LunarLander-v3", "D4-lunar", f"python benchmarks/studies/tune.py D4-lunar --base "
+                      f"benchmarks/studies/outside_env.yml {RAW_DEFAULT} -- --env LunarLander-v3 --methods cmz,bc "
+                      "--trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 --no-progress "
+                      f"--demos-dir {OUTSIDE}"),
+    *(row for env, steps in ((MOUNTAIN, 300000), (PENDULUM, 100000)) for row in raw_default_rows(
+        env, "D4-untuned", f"python benchmarks/studies/tune.py D4-untuned --as-untuned {RAW_DEFAULT} -- --env {env} "
+        f"--methods cmz,bc --trials 0-4 --timesteps {steps} --eval-every 5 --workers 2 --no-progress "
+        f"--demos-dir {UNTUNED}")),
 )
 
 ABLATIONS: tuple[Variant, ...] = (
@@ -995,6 +1078,9 @@ ABLATIONS: tuple[Variant, ...] = (
     *PENDULUM_ROWS,
     *MOUNTAIN_ROWS,
     *SHARED_DEFAULT_ROWS,
+    *DRIFT_DEFAULT_ROWS,
+    *BOUNDS_DEFAULT_ROWS,
+    *RAW_DEFAULT_ROWS,
 )
 
 
