@@ -325,7 +325,12 @@ def test_return_scale_against_hand_computed_values():
 
 def test_normalize_reward_refuses_what_would_divide_twice_or_step_by_step(pendulum_demos):
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=True)
-    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, normalize_reward=True, **TINY)
+    # At construction, before a run writes anything; set_env then learn() meets the same check.
+    with pytest.raises(UserError, match="normalize_reward=True and a VecNormalize that normalises rewards would "
+                                        "divide the reward twice"):
+        CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, normalize_reward=True, **TINY)
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, normalize_reward=True, **TINY)
+    model.set_env(venv)
     with pytest.raises(UserError, match="normalize_reward=True and a VecNormalize that normalises rewards would "
                                         "divide the reward twice"):
         model.learn(64)

@@ -271,6 +271,7 @@ class CMZDRIL(ImitationLearner, PPO):
         self.vecnormalize_obs = False
         env = made_env(env, verbose)
         super().__init__(**arguments_for(PPO.__init__, locals(), _init_setup_model=False))
+        self._check_reward_normalisation()
         if _init_setup_model:
             self._setup_model()
 
@@ -401,13 +402,19 @@ class CMZDRIL(ImitationLearner, PPO):
             self.demonstrations = self.demonstrations.check_spaces(self.observation_space, self.action_space)
             self.bc.set_demonstrations(self.demonstrations)
             self._prepare_reward(progress_bar)
+        self._check_reward_normalisation()
+        vec_normalize = self.get_vec_normalize_env()
+        self._decide_from_the_clone()
+        self._wrap_training_env()
+        self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
+
+    def _check_reward_normalisation(self) -> None:
+        """UserError where ``normalize_reward`` and a reward-normalising VecNormalize would both divide
+        the reward: at construction (before a run writes anything) and again at ``learn()`` (``set_env``)."""
         vec_normalize = self.get_vec_normalize_env()
         if getattr(self, "normalize_reward", False) and vec_normalize is not None and vec_normalize.norm_reward:
             raise UserError("normalize_reward=True and a VecNormalize that normalises rewards would divide the reward "
                             "twice: set norm_reward=False on the VecNormalize, or normalize_reward=False")
-        self._decide_from_the_clone()
-        self._wrap_training_env()
-        self.vecnormalize_obs = self.vecnormalize_obs or bool(vec_normalize is not None and vec_normalize.norm_obs)
 
     def _decide_from_the_clone(self) -> None:
         """The ``"auto"`` settings read from the pretrained clone's own episodes, each decided once per
@@ -416,8 +423,7 @@ class CMZDRIL(ImitationLearner, PPO):
         :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`, ``cmz_clip_quantile`` by whether it falls."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
         clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
-        absorbing = clip and self._absorbing_applies()
-        if clip and not absorbing:
+        if clip and not self._absorbing_applies():
             self._record_rule("cmz_clip_quantile", None, "no absorbing state: an episode's end costs nothing to clip")
             clip = False
         if not (bc or clip):

@@ -20,7 +20,7 @@ from sb3_cmzdril.rewards import terminations
 
 #: drift at and above which ``bc_epochs_per_update="auto"`` turns the NLL epochs off: the geometric mean
 #: of the drifts measured on Swimmer-v5 (1.2, where the epochs are needed) and WaypointNav-v0 (2.2, the
-#: lowest where dropping them was measured to hold), docs/beyond_home_tasks.md
+#: lowest where dropping them was measured to hold); measured per trial, not adopted: docs/one_default.md
 DRIFT_LIMIT = 1.6
 #: the quantile of u on the demonstrations ``cmz_clip_quantile="auto"`` clips u at where the clone falls
 AUTO_CLIP_QUANTILE = 0.98
@@ -39,7 +39,7 @@ class Drift:
     demo_u: float
     episodes: int
     steps: int
-    terminated: int = 0
+    terminated: int
 
     @property
     def ratio(self) -> float:
