@@ -54,6 +54,10 @@ SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "bc_learning_ra
 EXPRESSION_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "env_kwargs", "normalize")
 
 DEFAULT_KEY = "default"
+#: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
+FALLBACK_N_DEMOS = 1
+#: The policy when the YAML names none.
+FALLBACK_POLICY = "MlpPolicy"
 #: An env entry's key for settings that only some methods take: ``{method: {key: value}}``, laid over
 #: the entry for a run of that method (a grid can run each method at the setting it was measured best at).
 PER_METHOD_KEY = "per_method"

@@ -7,7 +7,8 @@ registration: ``rl_zoo3.ALGOS["cmzdril"]``.
 
 The class the zoo builds is :class:`ZooCMZDRIL`, a :class:`~sb3_cmzdril.CMZDRIL` that also takes
 what a zoo YAML holds besides constructor arguments: ``n_demos`` (train on the first ``n_demos``
-episodes of the demonstrations), no ``demonstrations`` at all (the shipped pool
+episodes of the demonstrations; one when it is left out, as for ``sb3-cmzdril train``), no
+``demonstrations`` at all (the shipped pool
 ``experts/<EnvId>/demos.npz``, looked up in the working directory, then among the shipped pools) and an
 entry's ``per_method`` block, whose ``cmz`` settings it takes (the zoo trains CMZ-DRIL).
 Its saved models load with ``CMZDRIL.load`` as well. Needs the ``zoo`` extra.
@@ -27,7 +28,14 @@ from sb3_cmzdril.common.imitation import DemosLike
 from sb3_cmzdril.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.extras import require_extra
-from sb3_cmzdril.hyperparams import PER_METHOD_KEY, SPECIAL_KEYS, resolve_per_method, split_hyperparams
+from sb3_cmzdril.hyperparams import (
+    FALLBACK_N_DEMOS,
+    FALLBACK_POLICY,
+    PER_METHOD_KEY,
+    SPECIAL_KEYS,
+    resolve_per_method,
+    split_hyperparams,
+)
 
 ALGO = "cmzdril"
 #: The method of a grid the zoo's CMZDRIL is: whose settings it takes from an entry's ``per_method`` block.
@@ -92,24 +100,29 @@ def first_episodes(demos: Demonstrations, n_demos: int | None) -> Demonstrations
 class ZooCMZDRIL(CMZDRIL):
     """:class:`~sb3_cmzdril.CMZDRIL` as rl-zoo3 constructs it from a hyperparameter YAML.
 
+    :param policy: as for CMZDRIL; a YAML that names none gets what ``sb3-cmzdril train`` gets.
+    :param env: as for CMZDRIL (a keyword here, as the zoo passes it).
     :param demonstrations: as for CMZDRIL; None means the env's shipped pool
         (:func:`default_demos_path`).
-    :param n_demos: train on the first ``n_demos`` episodes (None: all).
+    :param n_demos: train on the first ``n_demos`` episodes (None: all); a YAML without it gets what
+        ``sb3-cmzdril train`` gets.
     :param kwargs: CMZDRIL's (and PPO's) arguments.
     """
 
     def __init__(
         self,
-        policy: Any,
-        env: Any,
+        policy: Any = FALLBACK_POLICY,
+        env: Any = None,
         demonstrations: DemosLike = None,
-        n_demos: int | None = None,
+        n_demos: int | None = FALLBACK_N_DEMOS,
         per_method: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
         kwargs.update(method_settings(per_method))
         # load() builds the object with _init_setup_model=False and then restores the saved demos.
         if kwargs.get("_init_setup_model", True):
+            if env is None:
+                raise TypeError("ZooCMZDRIL needs an env")
             if demonstrations is None:
                 demonstrations = default_demos_path(env)
             demonstrations = first_episodes(as_demonstrations(demonstrations), n_demos)
@@ -126,7 +139,7 @@ class ZooCMZDRIL(CMZDRIL):
         print_system_info: bool = False,
         force_reset: bool = True,
         demonstrations: DemosLike = None,
-        n_demos: int | None = None,
+        n_demos: int | None = FALLBACK_N_DEMOS,
         per_method: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> ZooCMZDRIL:

@@ -256,6 +256,7 @@ def test_benchmark_runs_the_trials_it_names(setup, tmp_path):
 
 def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun(setup, tmp_path):
     from sb3_cmzdril.training import runs
+    from sb3_cmzdril.training.run_folder import run_config
 
     out = tmp_path / "run"
     spec = runs.plan_run(ENV, "bc", 0, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out)
@@ -263,9 +264,7 @@ def test_failed_attempt_before_any_checkpoint_does_not_block_the_corrected_rerun
     stale = runs.plan_run(
         ENV, "bc", 1, demos=setup["pool"], n_eval_episodes=1, hyperparams=setup["ppo"], output_dir=out
     )
-    train_idx, eval_idx = runs.split_episodes(POOL_EPISODES, 1, 1, 1)
-    hp, _ = runs.load_run_hyperparams(setup["ppo"], ENV)
-    write_json(out / "config.json", runs._config(stale, hp, train_idx, eval_idx, Demonstrations.load(setup["pool"])))
+    write_json(out / "config.json", run_config(runs.resolve_run(stale, check=False)))
     assert runs.run_experiment(spec)["status"] == "done"
     assert json.loads((out / "config.json").read_text())["seed"] == 0
 

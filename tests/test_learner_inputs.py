@@ -228,6 +228,7 @@ def test_the_shipped_default_entry_runs_the_constructors_defaults(learner, file)
     defaults = {name: p.default for name, p in inspect.signature(cls.__init__).parameters.items()}
     if learner == "CMZDRILSAC":
         defaults["policy_kwargs"] = DEFAULT_POLICY_KWARGS
+        assert cls.default_policy_kwargs == DEFAULT_POLICY_KWARGS
     entry = yaml.safe_load(shipped_file("hyperparams", file).read_text())["default"]
     differ = {}
     for key, value in entry.items():
@@ -238,3 +239,5 @@ def test_the_shipped_default_entry_runs_the_constructors_defaults(learner, file)
         if value != default:
             differ[key] = (value, default)
     assert differ == {}
+    # and states none of them again: the constructor is the one place of each default
+    assert [key for key in entry if key in defaults or key in ("policy", "n_demos")] == []

@@ -79,6 +79,13 @@ def test_a_runs_record_keeps_what_its_rules_decided(tiny_experiment, tmp_path):
     rules = json.loads((tmp_path / "run" / "done.json").read_text())["rules"]
     assert set(rules) == {"absorbing", "disagreement"} and rules["absorbing"]["value"] is True
     assert rules["absorbing"]["reason"].startswith("every demonstration lasts the env's time limit (50 steps)")
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["rules"] == rules
+    # every constructor argument as the run gave it: the YAML's, the run's own, the constructor's defaults
+    constructor = config["constructor"]
+    assert constructor["absorbing"] == "auto" and constructor["reward"] == "cmz" and constructor["seed"] == 0
+    assert constructor["alpha"] == 10.0 and constructor["gae_lambda"] == 0.95 and constructor["device"] == "cpu"
+    assert not {"env", "demonstrations", "verbose", "self"} & set(constructor)
 
 
 def _auto_epochs(env, demos, **kwargs):

@@ -13,7 +13,8 @@ from helpers import TINY, zoo_hyperparams
 from sb3_cmzdril import CMZDRIL
 from sb3_cmzdril.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.hyperparams import default_hyperparams_path, load_hyperparams
+from sb3_cmzdril.hyperparams import FALLBACK_N_DEMOS, default_hyperparams_path, load_hyperparams
+from sb3_cmzdril.training.spec import learner_defaults
 
 rl_zoo3 = pytest.importorskip("rl_zoo3", reason="rl-zoo3 is in the 'zoo' and 'test' extras")
 from rl_zoo3.exp_manager import ExperimentManager  # noqa: E402  (needs the importorskip above)
@@ -59,15 +60,17 @@ def test_the_shipped_yaml_builds_the_model_in_the_zoo(env_id):
         pytest.importorskip("mujoco", reason="MuJoCo envs are in the 'mujoco' extra")
     zoo.register()
     manager, kwargs = zoo_kwargs(default_hyperparams_path("cmzdril"), env_id)
-    assert "n_demos" in kwargs and "demonstrations" not in kwargs  # as the YAML ships
+    assert "demonstrations" not in kwargs  # as the YAML ships
     env = manager.create_envs(1, no_log=True)
     model = zoo.ZooCMZDRIL(env=env, seed=0, device="cpu", **kwargs)
     pool = Demonstrations.load(REPO / "experts" / env_id / "demos.npz")
-    assert model.demonstrations.n_episodes == kwargs["n_demos"] < pool.n_episodes
-    assert np.array_equal(model.demonstrations.observations, pool.select(range(kwargs["n_demos"])).observations)
+    n_demos = kwargs.get("n_demos", FALLBACK_N_DEMOS)  # what `sb3-cmzdril train` takes when the entry is silent
+    assert model.demonstrations.n_episodes == n_demos < pool.n_episodes
+    assert np.array_equal(model.demonstrations.observations, pool.select(range(n_demos)).observations)
     # the entry's per_method block gives CMZ-DRIL its own settings (the grid's "cmz" method), and no other's
     method = load_hyperparams(default_hyperparams_path("cmzdril"), env_id, "cmz").algo_kwargs
-    assert model.bc_epochs_per_update == method["bc_epochs_per_update"]
+    expected = method.get("bc_epochs_per_update", learner_defaults("cmz")["bc_epochs_per_update"])
+    assert model.bc_epochs_per_update == expected
     env.close()
 
 

@@ -204,6 +204,7 @@ class CMZDRILSAC(ImitationLearner, SAC):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = SAC.policy_aliases
     learner_name = "CMZDRILSAC"
     off_policy = True
+    default_policy_kwargs = DEFAULT_POLICY_KWARGS
 
     def __init__(
         self,
@@ -308,7 +309,7 @@ class CMZDRILSAC(ImitationLearner, SAC):
         self._u_sum, self._u_count = 0.0, 0
         env = made_env(env, verbose)
         if policy_kwargs is None:
-            policy_kwargs = dict(DEFAULT_POLICY_KWARGS)
+            policy_kwargs = dict(self.default_policy_kwargs)
         super().__init__(**arguments_for(SAC.__init__, locals(), _init_setup_model=False))
         if _init_setup_model:
             self._setup_model()

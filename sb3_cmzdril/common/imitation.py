@@ -159,6 +159,8 @@ class ImitationLearner(_Algorithm):
     loads_plain_sb3: ClassVar[bool] = False
     #: whether ``learn()`` logs what pretraining measured (``pretrain/*``) at its first dump
     logs_pretraining: ClassVar[bool] = False
+    #: the policy's ``policy_kwargs`` when none are given: SB3's (nothing) unless the learner says
+    default_policy_kwargs: ClassVar[dict[str, Any]] = {}
 
     demonstrations: Demonstrations | None
     ensemble: BCEnsemble

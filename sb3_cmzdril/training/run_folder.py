@@ -77,8 +77,8 @@ from sb3_cmzdril.io import (
     versions,
     write_json,
 )
-from sb3_cmzdril.training.methods import Method
-from sb3_cmzdril.training.spec import ResolvedRun, RunSpec, resolve_run, train_command
+from sb3_cmzdril.training.methods import METHOD_REGISTRY, Method
+from sb3_cmzdril.training.spec import ResolvedRun, RunSpec, effective_values, resolve_run, train_command
 
 #: Table I averages each run over its last this-many epochs (paper, Table I caption).
 TABLE_WINDOW = 100
@@ -284,11 +284,14 @@ class RunState:
         write_json(self.path, self.data)
 
 
-def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], pool,
-               device: str | None = None) -> dict[str, Any]:
-    """config.json's content for ``spec`` with its hyperparameters ``hp``, split and demo ``pool``;
-    ``device``: the one the model runs on (:meth:`~sb3_cmzdril.training.spec.ResolvedRun.device`),
-    which ``model_kwargs`` (as the YAML asks) need not say."""
+def run_config(run: ResolvedRun) -> dict[str, Any]:
+    """config.json's content for ``run``: what it is (env, method, seeds, split, demo pool), the
+    hyperparameters as written and every constructor argument as the run gives it
+    (:meth:`~sb3_cmzdril.training.spec.ResolvedRun.constructor_arguments`), the device the model runs
+    on (which ``model_kwargs``, as the YAML asks, need not say) and how to run it again. The learner's
+    ``"auto"`` rules join it as ``rules`` once they are decided (:meth:`RunFolder.checkpoint`)."""
+    spec, hp, pool = run.spec, run.hp, run.pool
+    train_idx, eval_idx = list(run.train_idx), list(run.eval_idx)
     return {
         "env_id": spec.env_id,
         "env_name": env_name(spec.env_id),
@@ -315,7 +318,8 @@ def run_config(spec: RunSpec, hp, train_idx: list[int], eval_idx: list[int], poo
         "hyperparams_key": hp.key,
         "hyperparams_values": hp.raw,
         "model_kwargs": hp.model_kwargs(),
-        **({"device": device} if device is not None else {}),
+        "constructor": run.constructor_arguments(),
+        "device": run.device,
         "env_kwargs": hp.env_kwargs,
         "versions": versions(),
         "command": spec.command,
@@ -332,8 +336,14 @@ def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(jsonable(dict(config))))
 
 
-def _identity_value(key: str, value: Any) -> Any:
-    return env_name(value) if key == "env_id" and isinstance(value, str) else value
+def _identity_value(key: str, value: Any, method: Any) -> Any:
+    """``value`` of config.json's ``key`` as two runs compare it: an env id by its name, hyperparameters
+    by what they change (:func:`~sb3_cmzdril.training.spec.effective_values`)."""
+    if key == "env_id" and isinstance(value, str):
+        return env_name(value)
+    if key == "hyperparams_values" and isinstance(value, dict) and method in METHOD_REGISTRY:
+        return effective_values(value, method)
+    return value
 
 
 def check_same_run(
@@ -342,10 +352,12 @@ def check_same_run(
     """ValueError naming each identity entry in which the folder's run and the asked one differ.
 
     An env id is compared without its ``module:`` prefix: gymnasium's ``module:Env-v0`` imports the module
-    and makes ``Env-v0``, the same env as ``Env-v0`` made after that import.
+    and makes ``Env-v0``, the same env as ``Env-v0`` made after that import. Hyperparameters are compared
+    without the values that restate a default: a run made when the YAML stated them is the same run.
     """
-    differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved.get(k))
-                 != _identity_value(k, fresh.get(k))]
+    method = fresh.get("method")
+    differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved.get(k), method)
+                 != _identity_value(k, fresh.get(k), method)]
     if differing:
         diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
         raise UserError(
@@ -484,8 +496,7 @@ class RunFolder:
     @functools.cached_property
     def fresh_config(self) -> dict[str, Any]:
         """config.json's content for this run (:func:`run_config`), made once."""
-        run = self.run
-        return run_config(run.spec, run.hp, list(run.train_idx), list(run.eval_idx), run.pool, run.device)
+        return run_config(self.run)
 
     def finished(self) -> dict[str, Any] | None:
         """done.json's summary of this very run, or None (:func:`check_finished`)."""
@@ -661,6 +672,14 @@ class RunFolder:
                     selector.save(self.kept_file(name))
                     written.append(self.kept_file(name))
             state.write(model.num_timesteps, {path.name: file_sha256(path) for path in written})
+        self.record_rules(model.rules)
+
+    def record_rules(self, rules: Mapping[str, Any]) -> None:
+        """config.json's ``rules``: what each of the learner's ``"auto"`` settings was decided to be, and
+        why, written when they are first decided (or change)."""
+        if rules and self.config.get("rules") != rules:
+            self.config = {**self.config, "rules": dict(rules)}
+            write_json(self.path / CONFIG_FILE, self.config)
 
     def has_pretrain(self) -> bool:
         """Whether pretrain.csv is there."""

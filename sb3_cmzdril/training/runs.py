@@ -65,7 +65,6 @@ from sb3_cmzdril.training.run_folder import (
     discard_rows_after,
     latest_epoch,
     read_eval_csv,
-    run_config,
     run_status,
     window_means,
 )
@@ -159,6 +158,7 @@ def _execute(run: ResolvedRun, *, progress_bar: bool, callbacks: list[Any], verb
         try:
             _train(run, folder, model, state, eval_cb, kept, callbacks, start=start, resume=resume,
                    progress_bar=progress_bar)
+            folder.record_rules(model.rules)  # a run that ends before its first checkpoint has them too
             finished = model.num_timesteps >= run.spec.timesteps
             final = _final_evaluation(run, folder, model, kept) if finished else None
         finally:
@@ -526,7 +526,6 @@ def _checkpoint_callback_class():
 
 
 # The names under which the tests reach these helpers, from before they moved to run_folder.
-_config = run_config
 _discard_rows_after = discard_rows_after
 
 __all__ = [

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import math
 import shlex
 from collections.abc import Callable, Mapping
@@ -25,6 +26,7 @@ import numpy as np
 
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import check_env_id, check_seed, env_name, load_demonstrations, pool_provenance
+from sb3_cmzdril.hyperparams import FALLBACK_N_DEMOS, FALLBACK_POLICY
 from sb3_cmzdril.io import PathLike, jsonable, portable_path
 from sb3_cmzdril.training.methods import (
     HYPERPARAMS_NAME,
@@ -64,8 +66,6 @@ RUN_SET_KEYS: dict[str, str] = {
     "demonstrations": "--demos and --n-demos",
     "verbose": "--verbose (-v)",
 }
-#: Training episodes per trial when neither --n-demos nor the YAML says: the paper's MuJoCo setting.
-FALLBACK_N_DEMOS = 1
 DEFAULT_EVAL_EPISODES = 5  # paper, Sec. IV-A.3: "We used 5 evaluation episodes for each experiment"
 DEFAULT_CHECKPOINT_EVERY = 10  # PPO updates between checkpoints (~5% of an update's time each)
 
@@ -374,6 +374,19 @@ class ResolvedRun:
         """The model's constructor kwargs: the YAML's, on the CPU unless it says otherwise."""
         return _model_kwargs(self.hp, self.method)
 
+    def constructor_arguments(self) -> dict[str, Any]:
+        """Every argument the learner's constructor takes, as this run gives it: the constructor's
+        default where neither the YAML nor the run sets one (all but the env, the demonstrations and
+        the console's verbosity). config.json records it, so that a run says every value it used."""
+        import inspect
+
+        skipped = {"self", "env", "demonstrations", "verbose", "_init_setup_model"}
+        values = {name: p.default for name, p in inspect.signature(self.learner).parameters.items()
+                  if name not in skipped}
+        values.update(policy=self.hp.policy or FALLBACK_POLICY, reward=self.reward, seed=self.spec.seed,
+                      **self.model_kwargs())
+        return values
+
 
 def _model_kwargs(hp: Hyperparams, method: Method) -> dict[str, Any]:
     kwargs = hp.model_kwargs()
@@ -383,6 +396,32 @@ def _model_kwargs(hp: Hyperparams, method: Method) -> dict[str, Any]:
         # after the policy's NLL pretraining, so the BC policy equals the other methods' epoch 0.
         kwargs["ensemble_epochs"] = 1
     return kwargs
+
+
+def learner_defaults(method: str) -> dict[str, Any]:
+    """What a run of ``method`` gets for a hyperparameter its entry leaves out, as config.json stores
+    values: the learner's constructor defaults, the fallback policy and number of demos, one env."""
+    import inspect
+
+    learner = Method.of(method).learner.classes()[0]
+    defaults = {name: p.default for name, p in inspect.signature(learner).parameters.items()
+                if p.default is not inspect.Parameter.empty}
+    defaults.update(policy=FALLBACK_POLICY, n_demos=FALLBACK_N_DEMOS, n_envs=1,
+                    policy_kwargs=learner.default_policy_kwargs)
+    return json.loads(json.dumps(jsonable(defaults)))
+
+
+def effective_values(values: Mapping[str, Any], method: str) -> dict[str, Any]:
+    """A hyperparameter entry's ``values`` (as config.json stores them) without those that say what the
+    run does anyway (:func:`learner_defaults`). Two entries that differ only there make the same run
+    (the shipped YAML states no default, the records of older runs state every one)."""
+    from sb3_cmzdril.hyperparams import safe_eval
+
+    stored = learner_defaults(method)
+    given = dict(values)
+    if isinstance(given.get("policy_kwargs"), str):  # the YAML's expression: compared as what it makes
+        given["policy_kwargs"] = jsonable(safe_eval(given["policy_kwargs"]))
+    return {k: values[k] for k, v in given.items() if k not in stored or stored[k] != v}
 
 
 def _device(asked: Any) -> str:
@@ -561,7 +600,7 @@ def _model(run: ResolvedRun, venv: Any, verbose: int) -> Any:
     spec = run.spec
     try:
         return run.learner(
-            run.hp.policy or "MlpPolicy", venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
+            run.hp.policy or FALLBACK_POLICY, venv, demonstrations=run.pool.select(run.train_idx), reward=run.reward,
             seed=spec.seed, verbose=verbose, **run.model_kwargs(),
         )
     except Exception as e:  # SB3 reports bad values with asserts and TypeErrors as well as ValueErrors
@@ -761,6 +800,9 @@ __all__ = [
     "DEFAULT_EVAL_EPISODES",
     "EXPERIMENT_KEYS",
     "FALLBACK_N_DEMOS",
+    "FALLBACK_POLICY",
+    "effective_values",
+    "learner_defaults",
     "HYPERPARAMS_NAME",
     "METHODS",
     "METHOD_REGISTRY",

@@ -35,7 +35,7 @@ from sb3_cmzdril.training.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.training.spec import METHODS, result_policy
+from sb3_cmzdril.training.spec import METHODS, effective_values, learner_defaults, result_policy
 
 logger = logging.getLogger(__name__)
 
@@ -363,12 +363,25 @@ COMPARED_SETTINGS: tuple[str, ...] = ("timesteps", "n_demos", "n_eval_episodes",
 NOT_SET = "not set"
 
 
-def _settings(records: Sequence[RunRecord], env: str) -> dict[str, set]:
-    """key -> the set of values (as JSON text) the env's runs recorded; NOT_SET where a run lacks it."""
+def _hyperparams(config: dict[str, Any]) -> dict[str, Any]:
+    """config.json's hyperparameters without those at a default (a record that states one and one that
+    does not are the same run)."""
+    values = config.get("hyperparams_values", {})
+    return effective_values(values, config["method"]) if config.get("method") in METHODS else values
+
+
+def _run_settings(records: Sequence[RunRecord], env: str) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+    """Per run of ``env``: (the settings its config.json states, its learner's defaults)."""
     configs = [r.config for r in records if r.env == env and r.config]
-    merged = [{**{k: c[k] for k in COMPARED_SETTINGS if k in c}, **c.get("hyperparams_values", {})} for c in configs]
-    keys = dict.fromkeys(k for m in merged for k in m)
-    return {k: {json.dumps(m[k], sort_keys=True) if k in m else NOT_SET for m in merged} for k in keys}
+    return [({**{k: c[k] for k in COMPARED_SETTINGS if k in c}, **_hyperparams(c)},
+             learner_defaults(c["method"]) if c.get("method") in METHODS else {}) for c in configs]
+
+
+def _values(runs: list[tuple[dict[str, Any], dict[str, Any]]], key: str) -> set[str]:
+    """The values (as JSON text) ``runs`` have for ``key``: a run that leaves it out counts at its
+    learner's default, or NOT_SET where there is none."""
+    return {json.dumps(s[key] if key in s else d[key], sort_keys=True) if key in s or key in d else NOT_SET
+            for s, d in runs}
 
 
 def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> dict[str, list[tuple[str, str, str]]]:
@@ -380,11 +393,11 @@ def setting_differences(a: Sequence[RunRecord], b: Sequence[RunRecord]) -> dict[
     envs_b = {r.env for r in b}
     for env in sorted({r.env for r in a} & envs_b, key=env_key):
         shared = {r.method for r in a if r.env == env} & {r.method for r in b if r.env == env}
-        sa = _settings([r for r in a if r.method in shared], env)
-        sb = _settings([r for r in b if r.method in shared], env)
+        ra = _run_settings([r for r in a if r.method in shared], env)
+        rb = _run_settings([r for r in b if r.method in shared], env)
         diffs = []
-        for key in dict.fromkeys([*sa, *sb]):
-            va, vb = sa.get(key, {NOT_SET}), sb.get(key, {NOT_SET})
+        for key in dict.fromkeys(k for s, _ in [*ra, *rb] for k in s):
+            va, vb = _values(ra, key), _values(rb, key)
             if va != vb:
                 diffs.append((key, " or ".join(sorted(va)), " or ".join(sorted(vb))))
         if diffs:
