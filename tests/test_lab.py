@@ -239,6 +239,12 @@ def test_the_new_tasks_page_regenerates_from_the_compact_records_unchanged(tmp_p
     assert len(published) > 100 and rows(tmp_path / "new_tasks.md") == published
 
 
+def test_the_one_default_page_table_is_what_the_records_give():
+    script = REPO / "benchmarks" / "studies" / "one_default.py"
+    result = subprocess.run([sys.executable, str(script), "--check"], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
 def test_an_archive_keeps_the_records_and_leaves_the_models_out(tmp_path):
     from cmzdril_lab.records_store import pack
 

@@ -315,7 +315,8 @@ class BatchNormExtractor(BaseFeaturesExtractor):
 
 def test_batch_norm_is_in_eval_mode_except_while_training(pendulum_demos):
     kwargs = {**TINY, "policy_kwargs": dict(net_arch=[8], features_extractor_class=BatchNormExtractor)}
-    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **kwargs)
+    # without NLL epochs too: the last update, not the last epoch, leaves the policy in eval mode
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=0, **kwargs)
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer) and isinstance(ext.extractor, BatchNormExtractor)  # composed
     model.learn(64)

@@ -821,14 +821,21 @@ RAW_DEFAULT_LABEL = ("one shared default, inputs as the env gives them where its
                      "`absorbing: auto`, `disagreement: auto`)")
 
 
-def raw_default_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",)) -> tuple[Variant, ...]:
-    """CMZ-DRIL's and BC's rows of the fourth candidate on ``env`` (runs in results/tuning/NAME)."""
+def candidate_rows(env: str, name: str, command: str, candidate: str, trial_sets: tuple[str, ...] = ("0-4",),
+                   methods: tuple[str, ...] = ("cmz", "bc")) -> tuple[Variant, ...]:
+    """The rows of one candidate default (``candidate``: its label) on ``env``, a row per method and trial
+    set (runs in results/tuning/NAME; ``command`` with TRIALS for the trial set)."""
     return tuple(
-        Variant(env, method, f"{METHOD_LABELS[method]}, {RAW_DEFAULT_LABEL}: trials {label}",
+        Variant(env, method, f"{METHOD_LABELS[method]}, {candidate}: trials {label}",
                 f"results/tuning/{name}", command.replace("TRIALS", label),
                 trials=tuple(range(int(label[0]), int(label[-1]) + 1)))
-        for method in ("cmz", "bc") for label in trial_sets
+        for method in methods for label in trial_sets
     )
+
+
+def raw_default_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",)) -> tuple[Variant, ...]:
+    """CMZ-DRIL's and BC's rows of the fourth candidate on ``env`` (runs in results/tuning/NAME)."""
+    return candidate_rows(env, name, command, RAW_DEFAULT_LABEL, trial_sets)
 
 
 RAW_DEFAULT_ROWS: tuple[Variant, ...] = (
@@ -843,6 +850,57 @@ RAW_DEFAULT_ROWS: tuple[Variant, ...] = (
         env, "D4-untuned", f"python benchmarks/studies/tune.py D4-untuned --as-untuned {RAW_DEFAULT} -- --env {env} "
         f"--methods cmz,bc --trials 0-4 --timesteps {steps} --eval-every 5 --workers 2 --no-progress "
         f"--demos-dir {UNTUNED}")),
+)
+
+#: The sixth candidate (the fifth was not run as one setting): the fourth without reward normalisation, u
+#: clipped where the clone falls (`cmz_clip_quantile: auto`), inputs by `standardize_observations: auto`.
+NOREW_SETS = (f"--set absorbing=auto --set disagreement=auto {BCUPD0} --set cmz_clip_quantile=auto "
+              "--set standardize_observations=auto")
+NOREW_DEFAULT = f"--as-untuned {NOREW_SETS}"
+NOREW_DEFAULT_LABEL = ("one shared default without reward normalisation (`absorbing: auto`, `disagreement: auto`, "
+                       "no NLL epochs, `cmz_clip_quantile: auto`, `standardize_observations: auto`; every entry cut "
+                       "to its task keys)")
+
+
+#: The seventh: the sixth with an absorbing state scored at the u where an episode ended, on the tasks
+#: whose expert ends its own episodes (where the sixth has none).
+TERMINAL = "--set absorbing=true --set absorbing_score=terminal"
+TERMINAL_LABEL = (", with an absorbing state at the u where an episode ended (`absorbing: true`, "
+                  "`absorbing_score: terminal`)")
+
+
+def norew_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",),
+               methods: tuple[str, ...] = ("cmz",), what: str = "") -> tuple[Variant, ...]:
+    """The sixth candidate's rows on ``env`` (``what``: how the runs differ from its other rows)."""
+    return candidate_rows(env, name, command, NOREW_DEFAULT_LABEL + what, trial_sets, methods)
+
+
+NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
+    *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
+                              ("HalfCheetah-v5", "HalfCheetah-v5"), ("Swimmer-v5", "Swimmer-v5"),
+                              ("WaypointNav-v0", "sb3_cmzdril:WaypointNav-v0"))
+      for row in norew_rows(env, "D6-norew", tune_command("D6-norew", NOREW_DEFAULT, env_id, "TRIALS")
+                            + " --no-progress", ("0-4", "5-9"))),
+    *(row for env, steps in ((MOUNTAIN, 300000), (PENDULUM, 100000), ("Ant-v5", 300000)) for row in norew_rows(
+        env, "D6-untuned", f"python benchmarks/studies/tune.py D6-untuned {NOREW_DEFAULT} -- --env {env} "
+        f"--methods cmz --trials 0-4 --timesteps {steps} --eval-every 5 --workers 2 --no-progress "
+        f"--demos-dir {UNTUNED}")),
+    *norew_rows("LunarLander-v3", "D6-lunar", f"python benchmarks/studies/tune.py D6-lunar --base "
+                f"benchmarks/studies/outside_env.yml {NOREW_SETS} -- --env LunarLander-v3 --methods cmz "
+                f"--trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 --no-progress --demos-dir {OUTSIDE}"),
+    *norew_rows(MOUNTAIN, "D7-terminal", f"python benchmarks/studies/tune.py D7-terminal {NOREW_DEFAULT} {TERMINAL} -- "
+                f"--env {MOUNTAIN} --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 --workers 2 "
+                f"--no-progress --demos-dir {UNTUNED}", what=TERMINAL_LABEL),
+    *norew_rows("WaypointNav-v0", "D7-terminal", tune_command(
+        "D7-terminal", f"{NOREW_DEFAULT} {TERMINAL}", "sb3_cmzdril:WaypointNav-v0", "0-4") + " --no-progress",
+        what=TERMINAL_LABEL),
+    *norew_rows("LunarLander-v3", "D7-lunar", f"python benchmarks/studies/tune.py D7-lunar --base "
+                f"benchmarks/studies/outside_env.yml {NOREW_SETS} {TERMINAL} -- --env LunarLander-v3 --methods cmz "
+                f"--trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 --no-progress --demos-dir {OUTSIDE}",
+                what=TERMINAL_LABEL),
+    *norew_rows("Walker2d-v5", "D6-tqc", tune_command("D6-tqc", NOREW_DEFAULT, "Walker2d-v5", "0-4", methods="cmz,bc")
+                + " --no-progress --demos-dir results/pools/tqc", methods=("cmz", "bc"),
+                what=", another expert's demonstrations (the RL Zoo's TQC agent, results/pools/tqc)"),
 )
 
 ABLATIONS: tuple[Variant, ...] = (
@@ -1081,6 +1139,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *DRIFT_DEFAULT_ROWS,
     *BOUNDS_DEFAULT_ROWS,
     *RAW_DEFAULT_ROWS,
+    *NOREW_DEFAULT_ROWS,
 )
 
 

@@ -532,6 +532,11 @@ class CMZDRIL(ImitationLearner, PPO):
         return float(rate(progress_remaining)) if callable(rate) else float(rate)
 
     def train(self) -> None:
+        self._update()
+        self.policy.set_training_mode(False)  # between updates the policy acts: batch norm, dropout in eval mode
+
+    def _update(self) -> None:
+        """One PPO update (of the critic alone while it warms up), then the NLL epochs."""
         if self.critic_warmup_done < self.critic_warmup_updates:
             with _critic_only(self.policy):
                 super().train()
