@@ -869,6 +869,11 @@ TERMINAL_LABEL = (", with an absorbing state at the u where an episode ended (`a
                   "`absorbing_score: terminal`)")
 
 
+#: The eighth: the sixth with the NLL epochs decided by the clone's drift (`bc_epochs_per_update: auto`).
+DRIFT_NOREW = NOREW_DEFAULT.replace(BCUPD0, "--set bc_epochs_per_update=auto")
+DRIFT_NOREW_LABEL = ", the NLL epochs decided by the clone's drift (`bc_epochs_per_update: auto`)"
+
+
 def norew_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",),
                methods: tuple[str, ...] = ("cmz",), what: str = "") -> tuple[Variant, ...]:
     """The sixth candidate's rows on ``env`` (``what``: how the runs differ from its other rows)."""
@@ -898,6 +903,11 @@ NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
                 f"benchmarks/studies/outside_env.yml {NOREW_SETS} {TERMINAL} -- --env LunarLander-v3 --methods cmz "
                 f"--trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 --no-progress --demos-dir {OUTSIDE}",
                 what=TERMINAL_LABEL),
+    *(row for env, env_id, demos in (("Ant-v5", "Ant-v5", f" --demos-dir {UNTUNED}"),
+                                     (MOUNTAIN, MOUNTAIN, f" --demos-dir {UNTUNED}"),
+                                     ("WaypointNav-v0", "sb3_cmzdril:WaypointNav-v0", ""))
+      for row in norew_rows(env, "D9-drift", tune_command("D9-drift", DRIFT_NOREW, env_id, "0-4") + " --no-progress"
+                            + demos, what=DRIFT_NOREW_LABEL)),
     *norew_rows("Walker2d-v5", "D6-tqc", tune_command("D6-tqc", NOREW_DEFAULT, "Walker2d-v5", "0-4", methods="cmz,bc")
                 + " --no-progress --demos-dir results/pools/tqc", methods=("cmz", "bc"),
                 what=", another expert's demonstrations (the RL Zoo's TQC agent, results/pools/tqc)"),
