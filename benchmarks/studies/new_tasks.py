@@ -903,11 +903,15 @@ NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
                 f"benchmarks/studies/outside_env.yml {NOREW_SETS} {TERMINAL} -- --env LunarLander-v3 --methods cmz "
                 f"--trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 --no-progress --demos-dir {OUTSIDE}",
                 what=TERMINAL_LABEL),
-    *(row for env, env_id, demos in (("Ant-v5", "Ant-v5", f" --demos-dir {UNTUNED}"),
+    *(row for env, env_id, demos in (("Ant-v5", "Ant-v5", f" --demos-dir {UNTUNED}"), ("Swimmer-v5", "Swimmer-v5", ""),
                                      (MOUNTAIN, MOUNTAIN, f" --demos-dir {UNTUNED}"),
                                      ("WaypointNav-v0", "sb3_cmzdril:WaypointNav-v0", ""))
       for row in norew_rows(env, "D9-drift", tune_command("D9-drift", DRIFT_NOREW, env_id, "0-4") + " --no-progress"
                             + demos, what=DRIFT_NOREW_LABEL)),
+    *norew_rows("LunarLander-v3", "D9-lunar", f"python benchmarks/studies/tune.py D9-lunar --base "
+                f"benchmarks/studies/outside_env.yml {NOREW_SETS.replace(BCUPD0, '--set bc_epochs_per_update=auto')} "
+                "-- --env LunarLander-v3 --methods cmz --trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 "
+                f"--no-progress --demos-dir {OUTSIDE}", what=DRIFT_NOREW_LABEL),
     *norew_rows("Walker2d-v5", "D6-tqc", tune_command("D6-tqc", NOREW_DEFAULT, "Walker2d-v5", "0-4", methods="cmz,bc")
                 + " --no-progress --demos-dir results/pools/tqc", methods=("cmz", "bc"),
                 what=", another expert's demonstrations (the RL Zoo's TQC agent, results/pools/tqc)"),
