@@ -7,7 +7,7 @@ from sb3_cmzdril import envs  # noqa: F401  (registers WaypointNav-v0 with gymna
 from sb3_cmzdril._version import __version__ as __version__
 from sb3_cmzdril.cmzdril import CMZDRIL
 from sb3_cmzdril.cmzdril_sac import CMZDRILSAC
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.rewards import CMZReward, DisagreementReward, DRILReward

@@ -5,7 +5,7 @@ forward pass for all members is one ``baddbmm`` per layer. Each member is fitted
 resample of the demonstration steps (drawn once, as DRIL does), from its own random initialisation;
 the spread of the members' predictions is the disagreement ``u``.
 
-Inputs are built as SB3 builds a policy's (:mod:`sb3_cmzdril.spaces`): Box parts as floats
+Inputs are built as SB3 builds a policy's (:mod:`sb3_cmzdril.data.spaces`): Box parts as floats
 (standardised with the demos' mean and std), Discrete / MultiDiscrete parts one-hot, MultiBinary as
 0/1, a Dict key by key, concatenated into one flat vector. Image parts (uint8 Boxes, scaled by 1/255)
 go through a CNN trunk shared by all members (as DRIL's ``PolicyEnsembleCNN``: one trunk, batched
@@ -58,11 +58,8 @@ import torch as th
 from gymnasium import spaces
 from torch import nn
 
-from sb3_cmzdril.demos import Demonstrations
-from sb3_cmzdril.errors import MissingFileError, UserError
-from sb3_cmzdril.io import PathLike, atomic_path
-from sb3_cmzdril.policies import observation_statistics
-from sb3_cmzdril.spaces import (
+from sb3_cmzdril.data.demos import Demonstrations
+from sb3_cmzdril.data.spaces import (
     ObsEncoder,
     Observations,
     actions_as_indices,
@@ -74,6 +71,9 @@ from sb3_cmzdril.spaces import (
     space_to_config,
     take,
 )
+from sb3_cmzdril.errors import MissingFileError, UserError
+from sb3_cmzdril.io import PathLike, atomic_path
+from sb3_cmzdril.policies import observation_statistics
 
 DISAGREEMENT_FORMS = ("std", "quadratic", "std_unclipped", "auto")
 #: ``disagreement="auto"`` takes the unclipped form from this share of action entries on a bound up: enough

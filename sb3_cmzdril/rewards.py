@@ -23,7 +23,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_cmzdril.demos import Demonstrations, expert_never_terminates
+from sb3_cmzdril.data.demos import Demonstrations, expert_never_terminates
 from sb3_cmzdril.errors import UserError
 
 

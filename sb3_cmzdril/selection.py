@@ -41,7 +41,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_cmzdril.demos import expert_never_terminates
+from sb3_cmzdril.data.demos import expert_never_terminates
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.io import PathLike, atomic_path
 

@@ -71,6 +71,12 @@ def version_differences(used: dict[str, str]) -> list[str]:
     return differ
 
 
+def published_differences(demos_sha256: str | None, used: dict[str, str]) -> list[str]:
+    """:func:`version_differences` of a run on a published demo pool (its sha256), whose numbers are then
+    compared with the published records'; ``[]`` for any other pool, which has none to compare with."""
+    return version_differences(used) if demos_sha256 in published_pool_digests() else []
+
+
 def constraints_advice() -> str:
     """How to install what the published records were made with, naming the shipped constraints file."""
     path = shipped_file(*PUBLISHED_CONSTRAINTS)
@@ -175,6 +181,7 @@ __all__ = [
     "PUBLISHED_CONSTRAINTS",
     "constraints_advice",
     "local_or_shipped_demos",
+    "published_differences",
     "published_pool_digests",
     "published_versions",
     "shipped_demos",

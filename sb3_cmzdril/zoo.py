@@ -25,7 +25,7 @@ from typing import Any
 
 from sb3_cmzdril.cmzdril import CMZDRIL
 from sb3_cmzdril.common.imitation import DemosLike
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.data.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.extras import require_extra
 from sb3_cmzdril.hyperparams import (

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from helpers import ENV, POOL_EPISODES, SHORT_OFFPOLICY_EPOCH, TINY_PPO_YAML, cartpole_expert, pendulum_expert, record
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 
 torch.set_num_threads(1)
 # Ray renices its workers to 15: beside a test of another pytest-xdist worker they got almost no CPU,

@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 
 #: The one tiny setting: a CMZDRIL (PPO) model whose learn() calls take a fraction of a second.
 #: Everything that trains a model in the tests starts from it, in Python or as a YAML file.

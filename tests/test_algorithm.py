@@ -13,7 +13,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from helpers import TINY
 from sb3_cmzdril import CMZDRIL, CMZReward, DisagreementReward, DRILReward
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.hyperparams import LinearSchedule
 

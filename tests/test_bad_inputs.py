@@ -24,7 +24,7 @@ from helpers import TINY_PPO_YAML as TINY_PPO
 from helpers import TINY_SAC_YAML as TINY_SAC
 from sb3_cmzdril import CMZDRIL, CMZReward, UserError
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
+from sb3_cmzdril.data.demos import FORMAT_VERSION, Demonstrations
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from helpers import TINY_PPO_YAML as TINY_PPO
 from helpers import TINY_SAC_YAML as TINY_SAC
 from helpers import write_run as _fake_run
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.io import write_json
 
 REPO = Path(__file__).resolve().parent.parent

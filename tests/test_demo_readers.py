@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import cartpole_expert, pendulum_expert
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.extras import MissingExtraError
 
 FIELDS = ("observations", "actions", "rewards", "episode_lengths", "seeds")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations, as_demonstrations
+from sb3_cmzdril.data.demos import FORMAT_VERSION, Demonstrations, as_demonstrations
 
 OBS_SPACE = spaces.Box(-np.inf, np.inf, (3,), np.float32)
 ACT_SPACE = spaces.Box(-1.0, 1.0, (2,), np.float32)

@@ -6,7 +6,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.ensemble import BCEnsemble, quantile_of_disagreement, share_on_bound
 
 OBS = spaces.Box(-np.inf, np.inf, (3,), np.float32)

@@ -24,7 +24,7 @@ from cmzdril_lab.run.grid import plan_grid, run_grid
 from helpers import ENV, POOL_EPISODES, Interrupt, with_entry
 from helpers import TINY_PPO_YAML as TINY_YAML
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.io import cpu_model
 from sb3_cmzdril.training import runs
 from sb3_cmzdril.training.run_folder import RunState, check_finished

@@ -12,7 +12,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from helpers import SHORT_EPISODES, TINY_SAC, zoo_yaml
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.experts import (
     SCRIPTED_EXPERTS,
     collect_demos,

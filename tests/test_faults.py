@@ -377,7 +377,7 @@ def test_two_collect_demos_to_one_pool_cannot_both_succeed(tmp_path):
     """Issue 30, cause 2: two collect-demos started together to the same -o both printed "saved" and
     the file held only the second pool. The one that saves second must fail, and leave the first's
     pool and its record in place."""
-    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.data.demos import Demonstrations
     from sb3_cmzdril.errors import OutputExistsError
 
     pool = tmp_path / "race" / "pool.npz"

@@ -23,8 +23,9 @@ LAB_ROOT = REPO / "lab" / LAB
 #: The package itself (``sb3_cmzdril/__init__.py``, the public face) is its own layer.
 LAYERS: list[tuple[str, set[str]]] = [
     ("foundations: version, the error class, files, printing, spaces, optional extras",
-     {"_version", "errors", "io", "console", "spaces", "extras", "_mujoco_log", "policies"}),
-    ("records and configuration", {"shipped", "selection", "demo_readers", "demos", "hyperparams"}),
+     {"_version", "errors", "io", "console", "data.spaces", "spaces", "extras", "_mujoco_log", "policies"}),
+    ("records and configuration: the data types, and the deprecated paths of what moved to them",
+     {"shipped", "selection", "data", "demo_readers", "demos", "hyperparams"}),
     ("the imitation parts: ensemble, reward rules, and what the learners share (common: the imitation part, "
      "its save format, behaviour cloning)", {"ensemble", "rewards", "common"}),
     ("the learners, one package each (and the deprecated paths of what moved to them and to common)",

@@ -197,22 +197,28 @@ def test_a_grid_refuses_a_hyperparameter_file_that_none_of_its_methods_reads(tin
                   hyperparams=tiny_experiment["hp"], timesteps=256, n_eval_episodes=2)
 
 
-def test_train_says_when_its_versions_differ_from_the_published_records(monkeypatch):
+def test_a_run_says_when_its_versions_differ_from_the_published_records(monkeypatch):
     import sb3_cmzdril.io
-    from sb3_cmzdril.cli.train import published_versions_note
+    from sb3_cmzdril.cli.train import published_versions_note as old_note
+    from sb3_cmzdril.io import file_sha256
     from sb3_cmzdril.shipped import published_versions, shipped_demos
+    from sb3_cmzdril.training.runs import published_versions_note
 
     pins = published_versions()
     same = {"gymnasium": pins["gymnasium"], "mujoco": pins["mujoco"], "numpy": pins["numpy"],
             "stable_baselines3": pins["stable-baselines3"], "torch": pins["torch"] + "+cpu", "python": "3.12.1"}
-    monkeypatch.setattr(sb3_cmzdril.io, "versions", lambda: same)
-    assert published_versions_note(shipped_demos("HalfCheetah-v5")) is None
-    monkeypatch.setattr(sb3_cmzdril.io, "versions", lambda: {**same, "mujoco": "9.9.9"})
-    note = published_versions_note(shipped_demos("HalfCheetah-v5"))
+    published = {"demos_sha256": file_sha256(shipped_demos("HalfCheetah-v5"))}
+    assert published_versions_note({**published, "versions": same}) is None
+    note = published_versions_note({**published, "versions": {**same, "mujoco": "9.9.9"}})
     assert note is not None and f"mujoco 9.9.9 (published: {pins['mujoco']})" in note
     assert "pip install -c constraints/published.txt" in note
     # A user's own pool has no published records to differ from.
-    assert published_versions_note(REPO / "results" / "pools" / "tqc" / "Walker2d-v5" / "demos.npz") is None
+    own = REPO / "results" / "pools" / "tqc" / "Walker2d-v5" / "demos.npz"
+    assert published_versions_note({"demos_sha256": file_sha256(own), "versions": {**same, "mujoco": "9.9.9"}}) is None
+    # The name the command line had, deprecated: the same note of a pool and this machine's versions.
+    monkeypatch.setattr(sb3_cmzdril.io, "versions", lambda: {**same, "mujoco": "9.9.9"})
+    with pytest.warns(FutureWarning, match="published_versions_note moved to sb3_cmzdril.training.runs"):
+        assert old_note(shipped_demos("HalfCheetah-v5")) == note
 
 
 def test_a_report_says_which_runs_on_a_published_pool_were_made_with_other_versions(caplog):

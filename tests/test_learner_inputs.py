@@ -15,7 +15,7 @@ from stable_baselines3 import PPO, SAC
 
 from helpers import ENV, TINY, TINY_SAC
 from sb3_cmzdril import CMZDRIL, CMZDRILSAC
-from sb3_cmzdril.demos import FORMAT_VERSION, Demonstrations
+from sb3_cmzdril.data.demos import FORMAT_VERSION, Demonstrations
 from sb3_cmzdril.ensemble import quantile_of_disagreement
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.hyperparams import load_hyperparams

@@ -14,7 +14,7 @@ from scipy.spatial.distance import cdist
 from stable_baselines3 import PPO
 from stable_baselines3.common.logger import KVWriter, Logger
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.metrics import (
     TRAJECTORY_FEATURES,
     ExpertEvalCallback,

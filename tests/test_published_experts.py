@@ -267,7 +267,7 @@ def test_hub_expert_from_the_local_cache_through_the_cli(sac, tmp_path):
     )
     assert run.returncode == 0, run.stderr[-2000:]
     assert "trained on Pendulum-v0 and is used on Pendulum-v1" in run.stderr
-    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.data.demos import Demonstrations
     from sb3_cmzdril.experts import pool_provenance
 
     demos = Demonstrations.load(pool)

@@ -154,7 +154,7 @@ def _pendulum_rollout(venv_cls, n_envs: int, steps: int = 30):
     venv.seed(3)
     ens = BCEnsemble(venv.observation_space, venv.action_space, 3, (8,), seed=0)
     rng = np.random.default_rng(0)
-    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.data.demos import Demonstrations
 
     ens.fit(Demonstrations(rng.normal(size=(50, 3)), rng.uniform(-2, 2, size=(50, 1)), [50]), n_epochs=2)
     env = DisagreementReward(venv, ens, CMZReward())

@@ -29,7 +29,7 @@ from helpers import (
     zoo_yaml,
 )
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.metrics import evaluate_against_expert
 from sb3_cmzdril.training import spec as spec_module

@@ -24,8 +24,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNorm
 from helpers import TINY
 from sb3_cmzdril import CMZDRIL, BCEnsemble, Demonstrations
 from sb3_cmzdril.common.imitation import buffer_actions
+from sb3_cmzdril.data.spaces import ObsEncoder, reshape_rows
 from sb3_cmzdril.policies import DemoStandardizer, observation_statistics
-from sb3_cmzdril.spaces import ObsEncoder, reshape_rows
 
 VEC = spaces.Box(-1.0, 1.0, (4,), np.float32)
 

@@ -16,7 +16,7 @@ import pytest
 from stable_baselines3 import PPO
 
 from sb3_cmzdril.cli import main
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.experts import collect_demos, loading
 from sb3_cmzdril.experts.loading import inference_custom_objects, read_model_data
 

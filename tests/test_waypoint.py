@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import sb3_cmzdril  # noqa: F401  (registers the env)
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.envs.waypoint import POSITION_SLICE, WaypointField, WaypointNavEnv, obs_dim, obs_index
 from sb3_cmzdril.envs.waypoint_expert import WaypointReactiveExpert
 

@@ -11,7 +11,7 @@ import yaml
 
 from helpers import TINY, zoo_hyperparams
 from sb3_cmzdril import CMZDRIL
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.hyperparams import FALLBACK_N_DEMOS, default_hyperparams_path, load_hyperparams
 from sb3_cmzdril.training.spec import learner_defaults

@@ -30,7 +30,7 @@ def _record_demos(venv: Any, n_steps: int = DEMO_STEPS) -> Any:
     """Random-action demonstrations from ``venv`` (raw observations, one episode per env)."""
     from stable_baselines3.common.vec_env import VecNormalize, unwrap_vec_wrapper
 
-    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.data.demos import Demonstrations
 
     vec_normalize = unwrap_vec_wrapper(venv, VecNormalize)
     was_training = vec_normalize.training if vec_normalize is not None else False

@@ -23,7 +23,7 @@ import argparse
 import gymnasium as gym
 
 from cmzdril_lab.cli import trial_indices
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, auto_disagreement_form, share_on_bound
 from sb3_cmzdril.training.runs import check_env_id, default_demos_path, load_run_hyperparams, split_episodes
 

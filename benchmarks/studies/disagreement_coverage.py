@@ -42,10 +42,10 @@ import numpy as np
 import torch
 
 from sb3_cmzdril import CMZDRIL
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
+from sb3_cmzdril.data.spaces import Observations
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.experts.envs import env_name
-from sb3_cmzdril.spaces import Observations
 from sb3_cmzdril.training.runs import (
     check_env_id,
     default_demos_path,

@@ -113,9 +113,6 @@ def _run_train(args) -> int:
         verbose=args.verbose,
     )
     spec = run.spec
-    note = published_versions_note(spec.demos)
-    if note:
-        print(note)
     result = execute_run(run, progress_bar=not args.no_progress, verbose=args.verbose)
     if result["status"] == "skipped":
         print(f"{spec.output_dir} is already finished (done.json, {result.get('num_timesteps')} steps); nothing to do")
@@ -134,19 +131,16 @@ def _run_train(args) -> int:
 
 
 def published_versions_note(demos: PathLike) -> str | None:
-    """A line saying that this run's packages differ from those the published records were made with,
-    where the run is one of theirs (its demo pool a shipped one): its numbers then need not repeat
-    theirs; None where nothing differs or there is nothing published to compare with."""
-    from sb3_cmzdril.io import file_sha256, versions
-    from sb3_cmzdril.shipped import constraints_advice, published_pool_digests, version_differences
+    """Deprecated after 0.2.0, goes in 0.4.0: a run logs this note itself
+    (:func:`sb3_cmzdril.training.runs.published_versions_note` of its config.json)."""
+    import warnings
 
-    if file_sha256(demos) not in published_pool_digests():
-        return None
-    differ = version_differences(versions())
-    if not differ:
-        return None
-    return (f"note: {', '.join(differ)}: the published records were made with other versions, so this run's "
-            f"numbers may differ from theirs; {constraints_advice()}")
+    from sb3_cmzdril.io import file_sha256, versions
+    from sb3_cmzdril.training.runs import published_versions_note as note
+
+    warnings.warn("sb3_cmzdril.cli.train.published_versions_note moved to sb3_cmzdril.training.runs after 0.2.0 "
+                  "(it takes a run's config.json); the old name goes in 0.4.0", FutureWarning, stacklevel=2)
+    return note({"demos_sha256": file_sha256(demos), "versions": versions()})
 
 
 def final_evaluation_lines(final: dict[str, Any] | None, output_dir: PathLike, method: str) -> list[str]:

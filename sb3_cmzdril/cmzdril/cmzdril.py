@@ -56,12 +56,12 @@ from sb3_cmzdril.common.imitation import (
     rule_bounds,
 )
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
+from sb3_cmzdril.data.spaces import check_action_space
 from sb3_cmzdril.ensemble import disagreement_on_demos
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.policies import floor_log_std, mean_log_std
 from sb3_cmzdril.rewards import DisagreementReward
-from sb3_cmzdril.spaces import check_action_space
 
 SelfCMZDRIL = TypeVar("SelfCMZDRIL", bound="CMZDRIL")
 
@@ -72,7 +72,7 @@ class CMZDRIL(ImitationLearner, PPO):
     PPO's arguments (``learning_rate`` ... ``device``) mean what they mean for
     :class:`stable_baselines3.PPO`; the defaults are PPO's. CMZ-DRIL's:
 
-    :param demonstrations: a :class:`~sb3_cmzdril.demos.Demonstrations`, a path to a saved one, or a
+    :param demonstrations: a :class:`~sb3_cmzdril.data.demos.Demonstrations`, a path to a saved one, or a
         list of episode dicts. Required before the first ``learn()``.
     :param reward: ``"cmz"``, ``"dril"``, ``"zero"`` or ``"env"``.
     :param alpha: CMZ reward scale (paper: 10).

@@ -32,9 +32,9 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_cmzdril.common.imitation import buffer_actions
+from sb3_cmzdril.data.spaces import concatenate, reshape_rows
 from sb3_cmzdril.ensemble import BCEnsemble
 from sb3_cmzdril.rewards import RewardRule, terminations, with_absorbing_state
-from sb3_cmzdril.spaces import concatenate, reshape_rows
 
 
 class RolloutRecord:

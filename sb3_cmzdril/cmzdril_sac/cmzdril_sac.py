@@ -57,7 +57,7 @@ from sb3_cmzdril.common.imitation import (
     made_env,
 )
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.rewards import with_absorbing_state
 
@@ -144,7 +144,7 @@ class CMZDRILSAC(ImitationLearner, SAC):
     demonstrations keeps next observations apart and samples one-step transitions.
     The imitation arguments mean what they mean for :class:`~sb3_cmzdril.cmzdril.CMZDRIL`:
 
-    :param demonstrations: a :class:`~sb3_cmzdril.demos.Demonstrations`, a path to a saved one, or a
+    :param demonstrations: a :class:`~sb3_cmzdril.data.demos.Demonstrations`, a path to a saved one, or a
         list of episode dicts. Required before the first ``learn()``.
     :param reward: ``"cmz"``, ``"dril"``, ``"zero"`` or ``"env"`` (the true reward; the demos must have
         recorded it when ``demo_fraction`` > 0).

@@ -29,7 +29,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 
 #: (raw observations, buffer actions (scaled to [-1, 1]), env rewards, terminated, raw next observations,

@@ -16,9 +16,9 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
+from sb3_cmzdril.data.spaces import actions_as_indices
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.spaces import actions_as_indices
 
 ObsTransform = Callable[[Any], Any]
 TensorObs = th.Tensor | dict[str, th.Tensor]

@@ -1,7 +1,7 @@
 """The imitation part both learners compose: :class:`ImitationLearner`, the mixin that CMZDRIL (PPO) and
 CMZDRILSAC (SAC) put in front of their RL algorithm, and the pieces it is made of.
 
-It holds, once for both: the demonstrations (taken as a :class:`~sb3_cmzdril.demos.Demonstrations`, a
+It holds, once for both: the demonstrations (taken as a :class:`~sb3_cmzdril.data.demos.Demonstrations`, a
 path or a list of episode dicts, checked against the spaces), the bootstrap ensemble (built in
 ``_setup_model``, fitted by :meth:`~ImitationLearner.pretrain`), the reward rule the options name
 (with the bounds it takes from the fitted ensemble: DRIL's threshold, the CMZ clip), pretraining (the
@@ -51,13 +51,13 @@ from sb3_cmzdril.common.saving import (
     unpack_observations,
     weights_brought_by_user,
 )
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations, expert_never_terminates, time_limit
+from sb3_cmzdril.data.demos import Demonstrations, as_demonstrations, expert_never_terminates, time_limit
+from sb3_cmzdril.data.spaces import indices_as_actions
 from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, BCEnsemble, quantile_of_disagreement, share_on_bound
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.policies import DemoStandardizer, standardizing_policy_kwargs
 from sb3_cmzdril.rewards import RewardRule, make_rule
-from sb3_cmzdril.spaces import indices_as_actions
 
 logger = logging.getLogger(__name__)
 

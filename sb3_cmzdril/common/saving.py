@@ -26,7 +26,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.save_util import load_from_zip_file, open_path
 
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
 
 logger = logging.getLogger(__name__)

@@ -18,7 +18,7 @@ import numpy as np
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.console import RENDERABLE
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import OutputExistsError, UserError
 from sb3_cmzdril.experts.envs import check_env_id, check_seed
 from sb3_cmzdril.experts.loading import expert_files, resolve_expert

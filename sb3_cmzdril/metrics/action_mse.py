@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.data.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.data.spaces import Observations, n_steps, take
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.spaces import Observations, n_steps, take
 
 #: What VecNormalize.normalize_obs is: an array or a dict of arrays in, the same kind out.
 ObsTransform = Callable[[Observations], Observations]

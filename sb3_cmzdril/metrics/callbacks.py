@@ -13,7 +13,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
 
-from sb3_cmzdril.demos import Demonstrations, as_demonstrations
+from sb3_cmzdril.data.demos import Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.metrics.evaluation import (
     ExpertEvaluation,

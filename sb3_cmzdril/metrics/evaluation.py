@@ -12,7 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
-from sb3_cmzdril.demos import UNKNOWN_SEED, Demonstrations, as_demonstrations
+from sb3_cmzdril.data.demos import UNKNOWN_SEED, Demonstrations, as_demonstrations
 from sb3_cmzdril.errors import UserError
 from sb3_cmzdril.metrics.action_mse import (
     ObsTransform,
@@ -134,13 +134,13 @@ def _make_env(env: str | gym.Env, env_kwargs: Mapping[str, Any] | None) -> tuple
     return env, False, getattr(spec, "id", None)
 
 
-def _checked(demos: Demonstrations, env: gym.Env) -> Demonstrations:
-    """Demos validated against the env's spaces (ValueError naming a mismatch)."""
+def _checked(demos: Demonstrations | str | Path, env: gym.Env) -> Demonstrations:
+    """Demos (or their file) validated against the env's spaces (ValueError naming a mismatch)."""
     with warnings.catch_warnings():
         # The metrics clip expert actions to the bounds by definition: check_spaces' warning about
         # out-of-bounds expert actions would only be noise, repeated at every evaluation.
         warnings.filterwarnings("ignore", message=".*outside the action bounds", category=UserWarning)
-        return demos.check_spaces(env.observation_space, env.action_space)
+        return as_demonstrations(demos).check_spaces(env.observation_space, env.action_space)
 
 
 def _rollout(
@@ -218,12 +218,11 @@ def evaluate_against_expert(
         raise UserError(f"start_mismatch must be 'warn', 'raise' or 'ignore', got {start_mismatch!r}")
     if max_steps is not None and max_steps < 1:
         raise UserError(f"max_steps must be positive, got {max_steps}")
-    demos = as_demonstrations(demos)
-    _require_seeds(demos)
     env_obj, owned, env_id = _make_env(env, env_kwargs)
     try:
         demos = _checked(demos, env_obj)
         experts = [demos.episode(i) for i in range(demos.n_episodes)]
+        _require_seeds(demos)
         features = trajectory_fn if trajectory_fn is not None else trajectory_features(env_id)
         transform = _observation_transform(model, obs_transform)
         space = _model_action_space(model)

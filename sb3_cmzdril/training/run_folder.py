@@ -37,7 +37,7 @@ Here: :class:`RunFolder`, through which a run writes every one of those files; t
 eval.csv as columns and its Table I window (:func:`read_eval_csv`, :func:`window_means`), moving
 evaluation rows written after a checkpoint aside (:func:`discard_rows_after`), config.json and the
 checks that keep a run out of a folder that is not its own: someone else's files
-(:func:`check_run_folder`) or a different run (:func:`check_or_write_config`,
+(:func:`check_run_folder`) or a different run (:meth:`RunFolder.open`,
 :func:`check_finished`); state.json (:class:`RunState`), the folder's lock, and what a folder holds
 (:func:`run_status`, :func:`latest_epoch`).
 """
@@ -51,7 +51,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +63,7 @@ from sb3_cmzdril.io import (
     LOCK_FILE,
     PathLike,
     atomic_path,
+    atomic_write_text,
     deferred_signals,
     file_sha256,
     is_temporary,
@@ -226,8 +227,8 @@ def discard_rows_after(csv_path: Path, timesteps: int) -> int:
 
 
 
-def write_pretrain_csv(path: Path, history: Mapping[str, Sequence[float]]) -> None:
-    """pretrain.csv: epoch, training NLL, held-out NLL (epoch 0: before training, held-out only)."""
+def pretrain_csv_text(history: Mapping[str, Sequence[float]]) -> str:
+    """pretrain.csv's text: epoch, training NLL, held-out NLL (epoch 0: before training, held-out only)."""
     train, validation = list(history.get("train_nll", [])), list(history.get("validation_nll", []))
     n = max(len(train) + (1 if validation else 0), len(validation))
     lines = ["epoch,train_nll,validation_nll"]
@@ -236,8 +237,7 @@ def write_pretrain_csv(path: Path, history: Mapping[str, Sequence[float]]) -> No
         t = train[epoch - offset] if 0 <= epoch - offset < len(train) else float("nan")
         v = validation[epoch] if epoch < len(validation) else float("nan")
         lines.append(f"{epoch + 1 - offset},{t:.6g},{v:.6g}")
-    with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
 
 # -- config.json, state.json, the lock -----------------------------------------------------------
@@ -254,7 +254,7 @@ class RunState:
         self.path = out / STATE_FILE
         self.data: dict[str, Any] = {"num_timesteps": 0, "wall_time_s": 0.0, "cpu_time_s": 0.0, "segments": []}
         if self.path.is_file() and start_steps > 0:
-            self.data.update(read_json(self.path))
+            self.data.update(_read_record(self.path))
         self._base_wall = float(self.data.get("wall_time_s", 0.0))
         self._base_cpu = float(self.data.get("cpu_time_s", 0.0))
         self._t0 = time.time()
@@ -366,29 +366,6 @@ def check_same_run(
         )
 
 
-def check_or_write_config(out: Path, config: dict[str, Any]) -> dict[str, Any]:
-    """Write config.json for a new run; for an existing one, refuse to mix two different runs.
-
-    A config.json with nothing trained beside it (an attempt that failed or was stopped before its
-    first checkpoint) is replaced: it must not block the corrected command.
-    """
-    path = out / CONFIG_FILE
-    fresh = as_stored(config)
-    trained = (out / MODEL_FILE).is_file() or (out / DONE_FILE).is_file()
-    if not path.is_file() or not trained:
-        write_json(path, config)
-        return config
-    saved = read_json(path)
-    check_same_run(out, saved, fresh)
-    # A resume may ask for more steps or another cadence: config.json follows, so that its
-    # train_command reproduces what the run became (state.json keeps each segment's command).
-    changed = {k: fresh[k] for k in _SETTING_KEYS if saved.get(k) != fresh.get(k)}
-    if changed:
-        saved.update(changed)
-        write_json(path, saved)
-    return saved
-
-
 @contextlib.contextmanager
 def locked(out: Path) -> Iterator[None]:
     """One process per run folder: a second one fails at once instead of corrupting the first."""
@@ -408,16 +385,22 @@ def check_run_folder(out: Path) -> None:
         return
     if not out.is_dir():
         raise UserError(f"{out} is a file, not a run folder; use another output folder")
+    config, done = (_read_record(out / name, strict=False) for name in (CONFIG_FILE, DONE_FILE))
+    # What a run of ours leaves before config.json: the lock, an atomic write's temporary, or an
+    # error.txt / log.txt as the grid writes them (those by their first line, :func:`_written_by_the_grid`).
+    found = sorted(out.iterdir())
+    ours = {p.name for p in found
+            if p.is_file() and (p.name == LOCK_FILE or is_temporary(p.name)) or _written_by_the_grid(p)}
     if (out / CONFIG_FILE).is_file():
-        if all(k in read_json_or_empty(out / CONFIG_FILE) for k in _IDENTITY_KEYS):
+        if all(k in config for k in _IDENTITY_KEYS):
             return
         raise UserError(
             f"{out / CONFIG_FILE} is not the config.json of an sb3-cmzdril run, and it is not ours to replace; "
             "use another output folder"
         )
-    if (out / DONE_FILE).is_file() and all(k in read_json_or_empty(out / DONE_FILE) for k in _DONE_IDENTITY_KEYS):
+    if all(k in done for k in _DONE_IDENTITY_KEYS):
         return
-    foreign = sorted(p.name for p in out.iterdir() if not _is_ours_before_config(p))
+    foreign = [p.name for p in found if p.name not in ours]
     if foreign:
         shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
         raise UserError(
@@ -431,6 +414,12 @@ _ERROR_HEADER = re.compile(r"^\d{4}-\d{2}-\d{2}T\S+ \S+ failed$")
 _LOG_HEADER = "=== "
 
 
+def _read_record(path: Path, strict: bool = True) -> dict[str, Any]:
+    """A run folder's JSON record (config.json, done.json, state.json). ``strict``: a UserError naming one
+    that is damaged or not an object; else ``{}`` for one missing or damaged (to tell whose folder it is)."""
+    return read_json(path) if strict else read_json_or_empty(path)
+
+
 def _first_line(path: Path) -> str | None:
     """The file's first line (at most 1 KiB of it), None when it cannot be read as text."""
     try:
@@ -440,15 +429,12 @@ def _first_line(path: Path) -> str | None:
         return None
 
 
-def _is_ours_before_config(path: Path) -> bool:
-    """Whether a file found in a folder without config.json is one a run of ours leaves there first:
-    the lock, an atomic write's temporary, or an error.txt / log.txt as the grid writes them.
+def _written_by_the_grid(path: Path) -> bool:
+    """Whether ``path`` is an error.txt or log.txt as the grid writes them into a run's folder.
 
-    By name alone, a user's own error.txt, log.txt or ``.draft.tmp.md`` would pass for the run's, and
-    the run would delete or append to it; the content tells them apart.
+    By name alone, a user's own error.txt or log.txt would pass for the run's, and the run would delete
+    or append to it; the first line tells them apart.
     """
-    if path.name == LOCK_FILE or is_temporary(path.name):
-        return path.is_file()
     if path.name == ERROR_FILE:
         first = _first_line(path)
         return first is not None and _ERROR_HEADER.match(first) is not None
@@ -506,9 +492,9 @@ class RunFolder:
     def finished_at(self, done_path: Path) -> dict[str, Any]:
         """done.json's summary (at ``done_path``), once it is this very run's (:func:`check_finished`)."""
         spec = self.run.spec
-        done = read_json(done_path)
+        done = _read_record(done_path)
         # done.json repeats the first identity entries, for a folder whose config.json went missing.
-        saved = read_json(self.path / CONFIG_FILE) if (self.path / CONFIG_FILE).is_file() else done
+        saved = _read_record(self.path / CONFIG_FILE) if (self.path / CONFIG_FILE).is_file() else done
         check_same_run(self.path, saved, as_stored(self.fresh_config), "a different, finished run")
         steps = done.get("num_timesteps", 0)
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
@@ -538,8 +524,43 @@ class RunFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         with locked(self.path):
             remove_stale_temporaries(self.path)
-            self.config = check_or_write_config(self.path, self.fresh_config)
+            self.config = self._check_or_write_config()
             yield self
+
+    def _check_or_write_config(self) -> dict[str, Any]:
+        """Write config.json for a new run; for an existing one, refuse to mix two different runs.
+
+        A config.json with nothing trained beside it (an attempt that failed or was stopped before its
+        first checkpoint) is replaced: it must not block the corrected command.
+        """
+        path = self.path / CONFIG_FILE
+        trained = self.model.is_file() or (self.path / DONE_FILE).is_file()
+        if not path.is_file() or not trained:
+            self._write(path, self.fresh_config)
+            return self.fresh_config
+        saved = _read_record(path)
+        fresh = as_stored(self.fresh_config)
+        check_same_run(self.path, saved, fresh)
+        # A resume may ask for more steps or another cadence: config.json follows, so that its
+        # train_command reproduces what the run became (state.json keeps each segment's command).
+        changed = {k: fresh[k] for k in _SETTING_KEYS if saved.get(k) != fresh.get(k)}
+        if changed:
+            saved.update(changed)
+            self._write(path, saved)
+        return saved
+
+    def _write(self, path: Path, content: Mapping[str, Any] | str | Callable[[Path], Any], suffix: str = "") -> Path:
+        """Write one file of the folder whole or not at all, and return its path: a JSON record (config.json,
+        done.json), a text (a CSV), or what ``content(tmp)`` saves into a temporary beside ``path`` (a model,
+        statistics, a replay buffer) with the file's ``suffix``, which SB3's savers append when it is missing."""
+        if isinstance(content, Mapping):
+            write_json(path, dict(content))
+        elif isinstance(content, str):
+            atomic_write_text(path, content)
+        else:
+            with atomic_path(path, suffix=suffix) as tmp:
+                content(tmp)
+        return path
 
     @property
     def resumable(self) -> bool:
@@ -563,7 +584,7 @@ class RunFolder:
         if not state_path.is_file():
             raise UserError(f"{self.path} holds {MODEL_FILE} but not {STATE_FILE}, which records its checkpoint; "
                             f"{restart}")
-        state = read_json(state_path)
+        state = _read_record(state_path)
         record = state.get(CHECKPOINT_KEY)
         if record is None:
             self._check_unrecorded_checkpoint(state, restart)
@@ -657,16 +678,10 @@ class RunFolder:
         with deferred_signals():
             vec_normalize = model.get_vec_normalize_env()
             if vec_normalize is not None:
-                with atomic_path(self.vecnormalize, suffix=".pkl") as tmp:
-                    vec_normalize.save(str(tmp))
-                written.append(self.vecnormalize)
-            with atomic_path(self.model, suffix=".zip") as tmp:
-                model.save(tmp)
-            written.append(self.model)
+                written.append(self._write(self.vecnormalize, lambda tmp: vec_normalize.save(str(tmp)), ".pkl"))
+            written.append(self._write(self.model, model.save, ".zip"))
             if self.run.method.off_policy:
-                with atomic_path(self.replay_buffer, suffix=".pkl") as tmp:
-                    model.save_replay_buffer(tmp)
-                written.append(self.replay_buffer)
+                written.append(self._write(self.replay_buffer, model.save_replay_buffer, ".pkl"))
             for name, selector in kept.items():  # with the checkpoint, so a resume continues the same search
                 if selector.best_state is not None:  # nothing is written before a choice exists
                     selector.save(self.kept_file(name))
@@ -679,31 +694,29 @@ class RunFolder:
         why, written when they are first decided (or change)."""
         if rules and self.config.get("rules") != rules:
             self.config = {**self.config, "rules": dict(rules)}
-            write_json(self.path / CONFIG_FILE, self.config)
+            self._write(self.path / CONFIG_FILE, self.config)
 
     def has_pretrain(self) -> bool:
         """Whether pretrain.csv is there."""
         return (self.path / PRETRAIN_CSV).is_file()
 
     def write_pretrain(self, history: Mapping[str, Sequence[float]]) -> None:
-        write_pretrain_csv(self.path / PRETRAIN_CSV, history)
+        self._write(self.path / PRETRAIN_CSV, pretrain_csv_text(history))
 
     def write_final_evaluation(self, rows: Sequence[str]) -> None:
-        with atomic_path(self.path / FINAL_EVAL_CSV) as tmp:
-            tmp.write_text("\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
+        self._write(self.path / FINAL_EVAL_CSV, "\n".join([",".join(FINAL_EVAL_COLUMNS), *rows]) + "\n")
 
     def save_kept_model(self, model: Any, name: str) -> None:
         """The model holding the kept policy ``name``, beside model.zip."""
-        with atomic_path(self.path / SELECTIONS[name][1], suffix=".zip") as tmp:
-            model.save(tmp)
+        self._write(self.path / SELECTIONS[name][1], model.save, ".zip")
 
     def finish(self, summary: dict[str, Any]) -> dict[str, Any]:
         """done.json, written last: from now on the folder holds a finished run (whose replay buffer,
         hundreds of MB and of no use once nothing resumes, is removed)."""
-        write_json(self.path / DONE_FILE, summary)
+        self._write(self.path / DONE_FILE, summary)
         self.replay_buffer.unlink(missing_ok=True)
         error = self.path / ERROR_FILE
-        if _is_ours_before_config(error):  # an earlier attempt's failure is history once the run is done
+        if _written_by_the_grid(error):  # an earlier attempt's failure is history once the run is done
             with contextlib.suppress(FileNotFoundError):
                 error.unlink()
         return summary
@@ -780,7 +793,6 @@ __all__ = [
     "RunState",
     "as_stored",
     "check_finished",
-    "check_or_write_config",
     "check_run_folder",
     "check_same_run",
     "discard_rows_after",
@@ -791,5 +803,5 @@ __all__ = [
     "run_config",
     "run_status",
     "window_means",
-    "write_pretrain_csv",
+    "pretrain_csv_text",
 ]

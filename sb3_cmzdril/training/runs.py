@@ -139,6 +139,9 @@ def _execute(run: ResolvedRun, *, progress_bar: bool, callbacks: list[Any], verb
     done = folder.finished()  # refuses a folder that holds someone's files or another run
     if done is not None:
         return {**done, "status": "skipped"}
+    note = published_versions_note(folder.fresh_config)
+    if note:
+        logger.warning("%s", note)
     folder.check_resumable()
     # Read before folder.open() writes config.json: a damaged lowest_u.pt refuses with the folder untouched.
     kept = _kept_policies(run, folder, folder.resumable)
@@ -172,6 +175,19 @@ def _execute(run: ResolvedRun, *, progress_bar: bool, callbacks: list[Any], verb
             return {"status": "stopped", "num_timesteps": int(model.num_timesteps), "run_dir": str(folder.path)}
         state.write(model.num_timesteps)
         return folder.finish({**_summary(run, model, folder, state), "final_evaluation": final})
+
+
+def published_versions_note(config: Mapping[str, Any]) -> str | None:
+    """A line saying that a run's packages differ from those the published records were made with, where
+    it trains on a published demo pool (``config``: its config.json's content): its numbers then need not
+    repeat theirs; None where nothing differs or there is nothing published to compare with."""
+    from sb3_cmzdril.shipped import constraints_advice, published_differences
+
+    differ = published_differences(config["demos_sha256"], config["versions"])
+    if not differ:
+        return None
+    return (f"note: {', '.join(differ)}: the published records were made with other versions, so this run's "
+            f"numbers may differ from theirs; {constraints_advice()}")
 
 
 def _warn_of_device(run: ResolvedRun) -> None:

@@ -44,7 +44,7 @@ from sb3_cmzdril.training.methods import (
 )
 
 if TYPE_CHECKING:  # heavy (torch, SB3): imported when a run is planned, not when this module is
-    from sb3_cmzdril.demos import Demonstrations
+    from sb3_cmzdril.data.demos import Demonstrations
     from sb3_cmzdril.hyperparams import Hyperparams
 
 #: An off-policy run's epoch, in env steps: what ``eval_every``, ``checkpoint_every`` and Table I's
@@ -514,7 +514,7 @@ def _check_pool_env_kwargs(run: ResolvedRun) -> None:
 
 def _check_reset_seeds(run: ResolvedRun) -> None:
     """Evaluation replays each held-out episode from its recorded reset seed: one without cannot be."""
-    from sb3_cmzdril.demos import UNKNOWN_SEED
+    from sb3_cmzdril.data.demos import UNKNOWN_SEED
 
     unknown = [i for i in run.held_out if int(run.pool.seeds[i]) == UNKNOWN_SEED]
     if unknown:
@@ -654,7 +654,7 @@ def _check_starts(run: ResolvedRun) -> None:
     or whose seeds do not reproduce its starts, would compare the agent with an expert that started
     elsewhere. One reset per episode tells, before any file is written; the message names each one.
     """
-    from sb3_cmzdril.demos import UNKNOWN_SEED
+    from sb3_cmzdril.data.demos import UNKNOWN_SEED
     from sb3_cmzdril.metrics.evaluation import make_env, same_observation
 
     spec = run.spec

@@ -25,7 +25,7 @@ from cmzdril_lab.records_store import materialize
 from sb3_cmzdril.errors import MissingFileError, UserError
 from sb3_cmzdril.experts import env_name
 from sb3_cmzdril.io import PathLike, read_json, read_json_or_empty
-from sb3_cmzdril.shipped import constraints_advice, published_pool_digests, version_differences
+from sb3_cmzdril.shipped import constraints_advice, published_differences
 from sb3_cmzdril.training.run_folder import (
     CONFIG_FILE,
     DONE_FILE,
@@ -255,10 +255,10 @@ def note_versions(records: Sequence[RunRecord], root: Path) -> list[str]:
     repeat the published ones."""
     by_difference: dict[str, int] = {}
     for record in records:
-        if record.config.get("demos_sha256") in published_pool_digests():
-            differ = ", ".join(version_differences(record.config.get("versions") or {}))
-            if differ:
-                by_difference[differ] = by_difference.get(differ, 0) + 1
+        config = record.config
+        differ = ", ".join(published_differences(config.get("demos_sha256"), config.get("versions") or {}))
+        if differ:
+            by_difference[differ] = by_difference.get(differ, 0) + 1
     lines = [f"{root}: {n} of {len(records)} runs were made with {differ}; their numbers may differ from the "
              f"published records' ({constraints_advice()})" for differ, n in by_difference.items()]
     for line in lines:

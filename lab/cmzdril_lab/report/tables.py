@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from cmzdril_lab.report.records import POLICIES, RunRecord, group, progress_rows
-from sb3_cmzdril.demos import Demonstrations
+from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.io import PathLike
 from sb3_cmzdril.training.run_folder import TABLE_WINDOW, window_means
 
