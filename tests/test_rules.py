@@ -224,6 +224,35 @@ class _Falls(gym.Wrapper):
         return obs, reward, terminated or bool(obs[0] < 0.0), truncated, info
 
 
+@pytest.mark.parametrize("falls", [True, False])
+def test_where_the_expert_ends_its_episodes_the_absorbing_rule_asks_whether_the_clone_falls(
+        pendulum_demos, falls, tmp_path, monkeypatch):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    # The fixture's episodes last 100 steps and the env's limit is 150: the expert ends its own episodes.
+    env = _Falls(_pendulum(150)) if falls else _pendulum(150)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=pendulum_demos, absorbing="auto", **TINY)
+    model.learn(64)
+    decided = model.rules["absorbing"]
+    assert decided["value"] is falls and model.absorbing_active is falls
+    assert decided["reason"].startswith("2 of 2 demonstrations end before the env's time limit (150 steps): the "
+                                        "expert ends its own episodes; the env ends ")
+    if falls:
+        clone = model.clone_ends[0]
+        assert model.clone_ends == [clone, 100] and clone < 50
+        assert decided["reason"].endswith(f"the clone's after {clone:.0f} steps on average, under 0.5 times the "
+                                          "shortest demonstration's 100: the clone falls")
+    else:
+        assert model.clone_ends == [float("inf"), 100]
+        assert decided["reason"].endswith("none of the clone's episodes, so none of them is a fall")
+    # Decided once: a loaded model keeps it without playing the clone again.
+    model.save(tmp_path / "m.zip")
+    monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
+    loaded = CMZDRIL.load(tmp_path / "m.zip", env=env)
+    loaded.learn(64)
+    assert loaded.clone_ends == model.clone_ends and loaded.rules["absorbing"] == decided
+
+
 def test_no_absorbing_state_leaves_u_unclipped_without_a_probe(pendulum_demos, monkeypatch):
     import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
 

@@ -56,6 +56,7 @@ from sb3_cmzdril.common.imitation import (
     rule_bounds,
 )
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
+from sb3_cmzdril.data.demos import expert_never_terminates, time_limit
 from sb3_cmzdril.data.spaces import check_action_space
 from sb3_cmzdril.ensemble import disagreement_on_demos
 from sb3_cmzdril.errors import UserError, check_finite
@@ -137,8 +138,12 @@ class CMZDRIL(ImitationLearner, PPO):
         the reward there (:func:`~sb3_cmzdril.rewards.with_absorbing_state`); without it a mean-zero
         reward makes falling over about as good as walking on. ``True`` for any reward; ``"auto"``:
         for the ``"cmz"`` reward only, when every demonstration lasts the env's time limit (the
-        expert never terminates). Off by default: on Walker2d-v5 ``"auto"`` doubled CMZ-DRIL's final
-        return, on Hopper-v5 it lowered it in 4 of 5 trials (docs/new_tasks.md).
+        expert never terminates) or, where the expert ends its own episodes, when the env ends the
+        pretrained clone's (played at the first ``learn()``) before
+        :data:`~sb3_cmzdril.common.drift.EARLY_END_FRACTION` of the shortest demonstration's length on
+        average (the expert's one episode ended in a fall, the clone falls at once). Off by default:
+        on Walker2d-v5 ``"auto"`` doubled CMZ-DRIL's final return, on Hopper-v5 it lowered it in 4 of 5
+        trials (docs/new_tasks.md).
     :param absorbing_score: the absorbing state's disagreement: ``"highest"``, the highest u seen so
         far (every termination as bad as the worst state met); ``"terminal"``, the ensemble's u at the
         observation the episode ended in (``infos["terminal_observation"]``, at the policy's
@@ -420,13 +425,17 @@ class CMZDRIL(ImitationLearner, PPO):
         """The ``"auto"`` settings read from the pretrained clone's own episodes, each decided once per
         model (a loaded one keeps its decisions; :func:`~sb3_cmzdril.common.drift.clone_drift` plays
         them): ``bc_epochs_per_update`` by the clone's drift against
-        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`, ``cmz_clip_quantile`` by whether it falls."""
+        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`, ``cmz_clip_quantile`` by whether it falls, and
+        ``absorbing`` where the expert ends its own episodes by how soon the env ends the clone's."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
         clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
-        if clip and not self._absorbing_applies():
-            self._record_rule("cmz_clip_quantile", None, "no absorbing state: an episode's end costs nothing to clip")
-            clip = False
-        if not (bc or clip):
+        # where the expert ends its own episodes, absorbing="auto" asks how soon the env ends the clone's
+        ends = (self.absorbing == "auto" and self.reward == "cmz" and self.clone_ends is None
+                and self.demonstrations is not None and self.env is not None and time_limit(self.env) is not None
+                and not expert_never_terminates(self.demonstrations, self.env))
+        if not (bc or clip or ends) or not (bc or ends or self._absorbing_applies()):
+            if clip:  # without an absorbing state there is no fall to clip, and nothing else to probe
+                self._record_rule("cmz_clip_quantile", None, _NO_ABSORBING)
             return
         if self.env is None:
             raise UserError("CMZDRIL.learn() needs an environment: pass env= to the constructor or to load()")
@@ -441,6 +450,9 @@ class CMZDRIL(ImitationLearner, PPO):
         if self.seed is not None:
             self.env.seed(self.seed)  # the first rollout starts where it would have without the probe
         self._last_obs = None  # learn() resets the env after the probe
+        if ends:
+            self.clone_ends = [float(np.mean(drift.terminated_lengths)) if drift.terminated_lengths else float("inf"),
+                               int(np.min(self.demonstrations.episode_lengths))]
         if bc:
             keep = drift.ratio < DRIFT_LIMIT
             where = (f"the clone's own path scores u {drift.ratio:.2f} times its mean on the demonstrations "
@@ -452,12 +464,15 @@ class CMZDRIL(ImitationLearner, PPO):
                 reason = (f"{where}, at least {DRIFT_LIMIT}: the clone leaves them, so no NLL epoch pulls the policy "
                           "back to it")
             self._record_rule("bc_epochs_per_update", 1 if keep else 0, reason)
-        if clip:
+        if clip and not self._absorbing_applies():
+            self._record_rule("cmz_clip_quantile", None, _NO_ABSORBING)
+        elif clip:
             falls = drift.terminated > 0
             ended = f"the env terminated {drift.terminated} of the clone's {drift.episodes} episodes"
+            early = "" if ends else ", where no demonstration ends early"
             self._record_rule(
                 "cmz_clip_quantile", AUTO_CLIP_QUANTILE if falls else None,
-                f"{ended}, where no demonstration ends early: u is clipped, so a fall costs at most the clip's reward"
+                f"{ended}{early}: u is clipped, so a fall costs at most the clip's reward"
                 if falls else f"{ended}: the clone does not fall, u is left unclipped",
             )
             if falls:
@@ -554,6 +569,10 @@ class CMZDRIL(ImitationLearner, PPO):
                 for _ in range(self.bc_epochs_active):
                     nll = self.bc.epoch(transform)
             self.logger.record("train/bc_nll", nll)
+
+
+#: cmz_clip_quantile="auto"'s reason where terminations score nothing
+_NO_ABSORBING = "no absorbing state: an episode's end costs nothing to clip"
 
 
 def _check_ppo_options(

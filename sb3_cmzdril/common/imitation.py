@@ -36,6 +36,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.common.bc import BehaviourCloner, ObsTransform
+from sb3_cmzdril.common.drift import EARLY_END_FRACTION
 from sb3_cmzdril.common.options import check_imitation_options, check_interval, check_whole_numbers
 from sb3_cmzdril.common.saving import (
     SAVED_TENSORS,
@@ -255,6 +256,9 @@ class ImitationLearner(_Algorithm):
         self._demo_obs_layout: list | None = None
         #: what each ``"auto"`` setting was decided to be, and why: ``{name: {"value": ..., "reason": ...}}``
         self.rules: dict[str, dict[str, Any]] = {}
+        #: where the expert ends its own episodes, the mean length of the clone's episodes the env ended in its
+        #: first ``learn()`` (a learner that plays its clone sets it) and the shortest demonstration's length
+        self.clone_ends: list[float] | None = None
 
     def _setup_model(self) -> None:
         self._check_learner_spaces()
@@ -500,6 +504,16 @@ class ImitationLearner(_Algorithm):
         else:
             reason = (f"{int(np.sum(lengths < limit))} of {len(lengths)} demonstrations end before the env's "
                       f"time limit ({limit} steps): the expert ends its own episodes")
+            if self.clone_ends is not None:
+                clone, shortest = self.clone_ends
+                on = clone < EARLY_END_FRACTION * shortest
+                if not np.isfinite(clone):
+                    reason += "; the env ends none of the clone's episodes, so none of them is a fall"
+                else:
+                    reason += (f"; the env ends the clone's after {clone:.0f} steps on average, "
+                               + (f"under {EARLY_END_FRACTION:g} times the shortest demonstration's {shortest}: the "
+                                  "clone falls" if on else f"at least {EARLY_END_FRACTION:g} times the shortest "
+                                  f"demonstration's {shortest}: as the expert ends them"))
         self._record_rule("absorbing", on, reason)
         return on
 
