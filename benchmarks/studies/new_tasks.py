@@ -880,6 +880,57 @@ def norew_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = 
     return candidate_rows(env, name, command, NOREW_DEFAULT_LABEL + what, trial_sets, methods)
 
 
+#: another published expert's pools (the RL Zoo's TQC agents), one per MuJoCo home task
+TQC_POOLS = "results/pools/tqc"
+TQC_LABEL = f", another expert's demonstrations (the RL Zoo's TQC agent, {TQC_POOLS})"
+
+HARDCORE = "BipedalWalkerHardcore-v3"
+#: the sixth candidate's runs on the two BipedalWalker tasks (trials 3-4 of the hardcore one first, to pair
+#: with the tenth's)
+D6_BIPEDAL = (f"python benchmarks/studies/tune.py D6-untuned {NOREW_DEFAULT} -- --env {HARDCORE},{BIPEDAL} --methods "
+              f"cmz,bc --trials 0-4 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED}")
+#: The tenth: the sixth where `absorbing: auto` also asks the clone (commit b2678698): where the expert ends its own
+#: episodes, the absorbing state is on when the env ends the clone's before half the shortest demonstration's length.
+#: It decides otherwise than the sixth only where the clone falls so (probed on trials 0-4 of every task with such
+#: an expert): trials 0 and 7 of the TQC Hopper pool, 3 and 4 of BipedalWalkerHardcore-v3; those are run.
+CLONE_ENDS_LABEL = (", `absorbing: auto` asking the clone where the expert ends its own episodes (the absorbing state "
+                    "on where the env ends the clone's before half the shortest demonstration)")
+
+
+def clone_ends_rows(env: str, trials: tuple[int, ...], folder: str, d6_made_by: str, d10_made_by: str,
+                    what: str = "") -> tuple[Variant, ...]:
+    """The sixth's and the tenth's runs on ``trials`` of ``env`` (results/tuning/D6-FOLDER and D10-FOLDER)."""
+    shown = ", ".join(map(str, trials))
+    return (
+        Variant(env, "cmz", f"CMZ-DRIL, {NOREW_DEFAULT_LABEL}{what}: trials {shown}", f"results/tuning/D6-{folder}",
+                d6_made_by, trials=trials),
+        Variant(env, "cmz", f"CMZ-DRIL, {NOREW_DEFAULT_LABEL}{CLONE_ENDS_LABEL}{what}: trials {shown}",
+                f"results/tuning/D10-{folder}", d10_made_by + " (at commit b2678698)", trials=trials),
+    )
+
+
+def clone_ends_command(name: str, env: str, trials: str, demos: str) -> str:
+    """The tune.py command of the sixth's or the tenth's CMZ-DRIL runs (results/tuning/NAME) on ``trials``."""
+    return (f"python benchmarks/studies/tune.py {name} {NOREW_DEFAULT} -- --env {env} --methods cmz --trials {trials} "
+            f"--timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir {demos}")
+
+
+HARDCORE_ROWS: tuple[Variant, ...] = (
+    Variant(HARDCORE, "cmz", "package defaults (the `default` entry)", UNTUNED,
+            f"bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env {HARDCORE} --methods cmz --trials "
+            f"0-4 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}"),
+    *norew_rows(HARDCORE, "D6-untuned", D6_BIPEDAL, methods=("cmz", "bc")),
+)
+CLONE_ENDS_ROWS: tuple[Variant, ...] = (
+    *clone_ends_rows(
+        "Hopper-v5", (0, 7), "tqc",
+        tune_command("D6-tqc", NOREW_DEFAULT, HOPPER_CHEETAH, "0-4", methods="cmz,bc") + f" --no-progress --demos-dir "
+        f"{TQC_POOLS}; trial 7: {clone_ends_command('D6-tqc', 'Hopper-v5', '7-7', TQC_POOLS)}",
+        clone_ends_command("D10-tqc", "Hopper-v5", "0,7", TQC_POOLS), TQC_LABEL),
+    *clone_ends_rows(HARDCORE, (3, 4), "untuned", clone_ends_command("D6-untuned", HARDCORE, "3-4", UNTUNED),
+                     clone_ends_command("D10-untuned", HARDCORE, "3-4", UNTUNED)),
+)
+
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
                               ("HalfCheetah-v5", "HalfCheetah-v5"), ("Swimmer-v5", "Swimmer-v5"),
@@ -912,9 +963,16 @@ NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
                 f"benchmarks/studies/outside_env.yml {NOREW_SETS.replace(BCUPD0, '--set bc_epochs_per_update=auto')} "
                 "-- --env LunarLander-v3 --methods cmz --trials 0-4 --timesteps 200000 --eval-every 5 --workers 2 "
                 f"--no-progress --demos-dir {OUTSIDE}", what=DRIFT_NOREW_LABEL),
-    *norew_rows("Walker2d-v5", "D6-tqc", tune_command("D6-tqc", NOREW_DEFAULT, "Walker2d-v5", "0-4", methods="cmz,bc")
-                + " --no-progress --demos-dir results/pools/tqc", methods=("cmz", "bc"),
-                what=", another expert's demonstrations (the RL Zoo's TQC agent, results/pools/tqc)"),
+    *(row for env, envs in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", HOPPER_CHEETAH),
+                            ("HalfCheetah-v5", HOPPER_CHEETAH))
+      for row in norew_rows(env, "D6-tqc", tune_command("D6-tqc", NOREW_DEFAULT, envs, "0-4", methods="cmz,bc")
+                            + f" --no-progress --demos-dir {TQC_POOLS}", methods=("cmz", "bc"), what=TQC_LABEL)),
+    *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5")
+      for row in tuning_rows(env, f"package defaults ({env}'s entry){TQC_LABEL}", "E-tqc", tune_command(
+          "E-tqc", "", "Walker2d-v5,Hopper-v5,HalfCheetah-v5", "0-4").replace("E-tqc  --", "E-tqc --")
+          + f" --no-progress --demos-dir {TQC_POOLS}", firsts=(0,))),
+    *norew_rows(BIPEDAL, "D6-untuned", D6_BIPEDAL, methods=("cmz", "bc")),
+    *CLONE_ENDS_ROWS,
 )
 
 ABLATIONS: tuple[Variant, ...] = (
@@ -1147,6 +1205,7 @@ ABLATIONS: tuple[Variant, ...] = (
             offpolicy_command("LL-sac-64-clip98-abs-terminal-unclipped-warmup10k", "LunarLander-v3",
                               f"{LUNAR_DATA} {CLIP_TERMINAL_UNCLIPPED} {WARMUP}")),
     *BIPEDAL_ROWS,
+    *HARDCORE_ROWS,
     *PENDULUM_ROWS,
     *MOUNTAIN_ROWS,
     *SHARED_DEFAULT_ROWS,
