@@ -396,15 +396,16 @@ def same_file(a: PathLike, b: PathLike) -> bool:
         return False
 
 
-def portable_path(path: PathLike) -> str:
-    """``path`` as a record stores it: relative to the current folder when it lies below it.
+def portable_path(path: PathLike, cwd: PathLike | None = None) -> str:
+    """``path`` as a record stores it: relative to the current folder (or ``cwd``) when it lies below it.
 
     Run records are committed and shared, so they must not carry the absolute paths of the machine
-    that made them; a path outside the current folder has no portable form and stays as it is.
+    that made them; a path outside that folder has no portable form and stays as it is.
     """
-    absolute = Path(os.path.abspath(path))
+    base = Path(os.path.abspath(cwd if cwd is not None else Path.cwd()))
+    absolute = Path(os.path.abspath(base / path))
     try:
-        return absolute.relative_to(Path.cwd()).as_posix() or "."
+        return absolute.relative_to(base).as_posix() or "."
     except ValueError:
         return str(path)
 

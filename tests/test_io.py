@@ -241,6 +241,10 @@ def test_records_carry_no_absolute_paths_of_the_machine(tmp_path, monkeypatch):
     assert io.portable_path(tmp_path / "runs" / "a") == "runs/a"
     assert io.portable_path(tmp_path) == "."
     assert io.portable_path("/elsewhere/pool.npz") == "/elsewhere/pool.npz"  # no portable form
+    # relative to another folder (a Ray worker writes records for a driver whose folder differs)
+    assert io.portable_path(tmp_path / "runs" / "a", cwd=tmp_path / "runs") == "a"
+    assert io.portable_path("runs/a", cwd="/driver") == "runs/a"
+    assert io.portable_path("/driver/runs/a", cwd="/driver") == "runs/a"
     line = io.command_line(["/opt/py/bin/sb3-cmzdril", "train", "-o", str(tmp_path / "out"), "--env", "a b"])
     assert line == "sb3-cmzdril train -o out --env 'a b'"
     assert io.command_line(["/site/sb3_cmzdril/__main__.py", "report"]) == "sb3-cmzdril report"

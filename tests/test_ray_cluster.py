@@ -24,6 +24,7 @@ from cmzdril_lab.run import remote
 from cmzdril_lab.run.grid import held_elsewhere, plan_grid, run_grid
 from helpers import ENV, POOL_EPISODES, Interrupt, pendulum_expert, record
 from helpers import TINY_PPO_YAML as TINY_YAML
+from sb3_cmzdril.io import portable_path
 from sb3_cmzdril.training.runs import run_experiment, train_command
 
 ray = pytest.importorskip("ray")
@@ -132,7 +133,7 @@ def test_ray_grid_equals_the_local_grid(grids):
             assert _read(ray_spec.output_dir, name) == _read(local.output_dir, name), name
         done = {b: json.loads(_read(s.output_dir, "done.json")) for b, s in (("local", local), ("ray", ray_spec))}
         assert done["ray"]["final_evaluation"] == done["local"]["final_evaluation"]
-        assert done["ray"]["run_dir"] == ray_spec.output_dir
+        assert done["ray"]["run_dir"] == portable_path(ray_spec.output_dir)  # as a local run records it
         assert not held_elsewhere(ray_spec.output_dir)  # the driver's lock on the run released
 
 
@@ -191,7 +192,8 @@ def test_lost_worker_leaves_its_last_checkpoint_on_the_driver(cluster, grids, mo
 def test_records_name_the_driver_paths(grids):
     for spec in grids["specs"]["ray"][:2]:
         config = json.loads(_read(spec.output_dir, "config.json"))
-        assert (config["demos"], config["hyperparams_file"]) == (spec.demos, spec.hyperparams)
+        paths = (portable_path(spec.demos), portable_path(spec.hyperparams))  # as a local run records them
+        assert (config["demos"], config["hyperparams_file"]) == paths
         assert config["train_command"] == train_command(spec)
         for name in ("config.json", "done.json", "state.json"):
             assert b"sb3-cmzdril-run-" not in _read(spec.output_dir, name), name

@@ -26,6 +26,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import os
 import shlex
 import tempfile
 import threading
@@ -36,7 +37,15 @@ from typing import Any
 
 from cmzdril_lab.run.worker import RunOutcome, RunStatus, execute_run
 from sb3_cmzdril.errors import UserError
-from sb3_cmzdril.io import LOCK_FILE, OutputLock, PathLike, atomic_path, lock_output, unlock_output
+from sb3_cmzdril.io import (
+    LOCK_FILE,
+    OutputLock,
+    PathLike,
+    atomic_path,
+    lock_output,
+    portable_path,
+    unlock_output,
+)
 from sb3_cmzdril.training.run_folder import CHECKPOINT_KEY, STATE_FILE
 from sb3_cmzdril.training.spec import RunSpec, file_mtime_ns
 
@@ -53,12 +62,14 @@ Listing = dict[str, tuple[int, int]]
 
 @dataclasses.dataclass(frozen=True)
 class RunPackage:
-    """What a worker needs besides the demo pool: the driver's spec, the hyperparameter file's text
-    and the run folder's files (relative POSIX paths; empty for a new run)."""
+    """What a worker needs besides the demo pool: the driver's spec, the hyperparameter file's text,
+    the run folder's files (relative POSIX paths; empty for a new run) and the driver's current folder,
+    which the records' paths are relative to."""
 
     spec: RunSpec
     hyperparams_text: str
     files: Mapping[str, bytes]
+    cwd: str = "."
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,14 +97,17 @@ def relocate(spec: RunSpec, root: Path) -> RunSpec:
     )
 
 
-def _moved_paths(original: RunSpec, relocated: RunSpec) -> list[tuple[str, str]]:
-    """``(worker path, driver path)`` of every field :func:`relocate` changed, longest first."""
-    pairs = [
-        (str(getattr(relocated, f.name)), str(getattr(original, f.name)))
-        for f in dataclasses.fields(original)
-        if getattr(original, f.name) != getattr(relocated, f.name)
-    ]
-    return sorted(pairs, key=lambda pair: len(pair[0]), reverse=True)
+def _moved_paths(original: RunSpec, relocated: RunSpec, driver_cwd: str) -> list[tuple[str, str]]:
+    """``(worker path, driver path)`` of every field :func:`relocate` changed, longest first: each as the
+    spec gives it, and each as the records write it (:func:`~sb3_cmzdril.io.portable_path`, relative to
+    the worker's current folder and to the driver's ``driver_cwd``)."""
+    pairs = {}
+    for f in dataclasses.fields(original):
+        worker, driver = str(getattr(relocated, f.name)), str(getattr(original, f.name))
+        if worker != driver:
+            pairs[portable_path(worker)] = portable_path(driver, driver_cwd)
+            pairs[worker] = driver
+    return sorted(pairs.items(), key=lambda pair: len(pair[0]), reverse=True)
 
 
 def _restore_paths(value: Any, moved: Sequence[tuple[str, str]]) -> Any:
@@ -268,7 +282,7 @@ def run_shipped(package: RunPackage, pool: bytes, sink: Any = None) -> RunResult
         write_files(Path(spec.demos).parent, {Path(spec.demos).name: pool})
         write_files(Path(spec.hyperparams).parent, {Path(spec.hyperparams).name: package.hyperparams_text.encode()})
         write_files(out, package.files)
-        moved = _moved_paths(driver_spec, spec)
+        moved = _moved_paths(driver_spec, spec, package.cwd)
         shipped = _listing(out)
         snapshots: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
         if sink is not None:
@@ -292,6 +306,7 @@ def pack_run(spec: RunSpec) -> RunPackage:
         spec=spec,
         hyperparams_text=Path(spec.hyperparams).read_text(encoding="utf-8"),
         files=read_files(out, list(_listing(out))),
+        cwd=os.getcwd(),
     )
 
 
