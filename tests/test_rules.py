@@ -92,30 +92,67 @@ def _auto_epochs(env, demos, **kwargs):
     return CMZDRIL("MlpPolicy", env, demonstrations=demos, bc_epochs_per_update="auto", **{**TINY, **kwargs})
 
 
-@pytest.mark.parametrize("limit, epochs, words", [
-    (1e9, 1, "under 1000000000.0: the clone stays on them, one NLL epoch after each update holds the policy there"),
-    (0.0, 0, "at least 0.0: the clone leaves them, so no NLL epoch pulls the policy back to it"),
-])
-def test_the_nll_epochs_rule_reads_how_far_the_clone_leaves_the_demonstrations(
-        pendulum_demos, monkeypatch, caplog, limit, epochs, words):
+def _inside(demos: Demonstrations) -> Demonstrations:
+    """The demonstrations with every action moved off Pendulum-v1's bounds (+-2)."""
+    return Demonstrations(demos.observations, np.clip(demos.actions, -1.9, 1.9), demos.episode_lengths)
+
+
+def test_the_nll_epochs_rule_drops_them_where_the_expert_holds_its_actions_on_a_bound(
+        pendulum_demos, monkeypatch, caplog):
     import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
 
-    monkeypatch.setattr(cmzdril_module, "DRIFT_LIMIT", limit)
-    model = _auto_epochs(_pendulum(40), pendulum_demos)
+    # Decided from the demonstrations alone: the clone is not played for it.
+    monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
+    on_bound = Demonstrations(pendulum_demos.observations, np.sign(pendulum_demos.actions) * 2.0,
+                              pendulum_demos.episode_lengths)
+    model = _auto_epochs(_pendulum(40), on_bound)
     with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
         model.learn(64)
+    assert model.rules["bc_epochs_per_update"] == {
+        "value": 0,
+        "reason": "100.0% of the demonstrations' action entries sit on a bound of the action space (at least 1%): "
+                  "they record the bound where the expert's action lay beyond it, and no NLL epoch pulls the "
+                  "policy toward them",
+    }
+    assert model.bc_epochs_active == 0 and "train/bc_nll" not in model.logger.name_to_value
+    assert "bc_epochs_per_update 0: 100.0% of the demonstrations' action entries" in caplog.text
+
+
+@pytest.mark.parametrize("falls", [True, False])
+def test_the_nll_epochs_rule_drops_them_where_the_clone_falls(pendulum_demos, falls):
+    # The demonstrations last the env's time limit (40 of their 100 steps); wrapped, the env ends an episode
+    # once the pole hangs below the horizontal, which the expert never met.
+    env = _Falls(_pendulum(40)) if falls else _pendulum(40)
+    model = _auto_epochs(env, _inside(pendulum_demos))
+    model.learn(64)
     decided = model.rules["bc_epochs_per_update"]
-    assert decided["value"] == epochs and model.bc_epochs_active == epochs
-    # Five episodes of 40 steps: the probe stops when the fifth ends.
-    assert decided["reason"].startswith("the clone's own path scores u ")
-    assert "times its mean on the demonstrations (5 episodes, 200 steps), " + words in decided["reason"]
-    assert "bc_epochs_per_update " + str(epochs) + ": the clone's own path" in caplog.text
+    assert decided["value"] == (0 if falls else 1) and model.bc_epochs_active == decided["value"]
     # The NLL epochs ran after the update only where the rule kept them.
-    assert ("train/bc_nll" in model.logger.name_to_value) == bool(epochs)
+    assert ("train/bc_nll" in model.logger.name_to_value) is not falls
+    assert decided["reason"].startswith("the env terminated ")
+    assert "episodes, where every demonstration lasts the time limit (40 steps) (its path scores u " in \
+        decided["reason"]
+    assert decided["reason"].endswith(
+        "the clone falls, so no NLL epoch pulls the policy back to it" if falls
+        else "the clone does not fall, and one NLL epoch after each update holds the policy on the demonstrations")
+    if not falls:
+        assert decided["reason"].startswith("the env terminated 0 of the clone's 5 episodes")
     assert model.bc_epochs_per_update == "auto"
 
 
+def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_the_clone_ends(pendulum_demos):
+    # The demonstrations end at 100 steps, the env's limit is 150: the clone falls where the env ends its
+    # episodes before 50 steps on average.
+    model = _auto_epochs(_Falls(_pendulum(150)), _inside(pendulum_demos))
+    model.learn(64)
+    decided = model.rules["bc_epochs_per_update"]
+    assert decided["value"] == 0
+    assert "steps on average: under 0.5 times the shortest demonstration's 100 (its path scores u " in \
+        decided["reason"]
+
+
 def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(pendulum_demos):
+    pendulum_demos = _inside(pendulum_demos)  # the rule plays the clone
     auto = _auto_epochs(_pendulum(40), pendulum_demos, seed=3)
     auto.learn(128)
     decided = auto.rules["bc_epochs_per_update"]["value"]

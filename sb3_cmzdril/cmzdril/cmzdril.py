@@ -46,7 +46,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril.cmzdril.scoring import ReturnScale, RolloutRecord, score_rollout
 from sb3_cmzdril.common.bc import BehaviourCloner
-from sb3_cmzdril.common.drift import AUTO_CLIP_QUANTILE, DRIFT_LIMIT, clone_drift
+from sb3_cmzdril.common.drift import AUTO_CLIP_QUANTILE, clone_drift, clone_falls
 from sb3_cmzdril.common.imitation import (
     DemosLike,
     ImitationLearner,
@@ -58,7 +58,7 @@ from sb3_cmzdril.common.imitation import (
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
 from sb3_cmzdril.data.demos import expert_never_terminates, time_limit
 from sb3_cmzdril.data.spaces import check_action_space
-from sb3_cmzdril.ensemble import disagreement_on_demos
+from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, disagreement_on_demos, share_on_bound
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.policies import floor_log_std, mean_log_std
@@ -110,11 +110,13 @@ class CMZDRIL(ImitationLearner, PPO):
         fifth. Off by default: the published grids ran without it (measurements:
         docs/bc_single_episode.md).
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
-        disables). ``"auto"``: the paper's one epoch where the pretrained clone stays on the
-        demonstrations, none where it leaves them: at the first ``learn()`` the clone plays a few
-        episodes deterministically, and the epochs are off when the ensemble's mean u along them is at
-        least :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT` times its mean on the demonstrations (the
-        decision and its reason go to :attr:`rules`; the probe's steps are not counted).
+        disables). ``"auto"``: none where at least
+        :data:`~sb3_cmzdril.ensemble.AUTO_UNCLIPPED_SHARE` of the demonstrations' action entries sit on
+        a bound of the action space (they record the bound where the expert's action lay beyond it) or
+        where the pretrained clone falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the
+        episodes it plays at the first ``learn()``, whose steps are not counted), so that no epoch pulls
+        the policy back to a clone that falls; the paper's one elsewhere, which holds a clone that does
+        not fall on the demonstrations. The decision and its reason go to :attr:`rules`.
     :param bc_update_std: whether the NLL epochs after each PPO update also fit the policy's
         state-independent log-std (``policy.log_std``: a Gaussian's, or gSDE's exploration
         parameters), as the paper's NLL does. They pull it toward the demonstrations' residual
@@ -424,10 +426,19 @@ class CMZDRIL(ImitationLearner, PPO):
     def _decide_from_the_clone(self) -> None:
         """The ``"auto"`` settings read from the pretrained clone's own episodes, each decided once per
         model (a loaded one keeps its decisions; :func:`~sb3_cmzdril.common.drift.clone_drift` plays
-        them): ``bc_epochs_per_update`` by the clone's drift against
-        :data:`~sb3_cmzdril.common.drift.DRIFT_LIMIT`, ``cmz_clip_quantile`` by whether it falls, and
+        them): ``bc_epochs_per_update`` by whether it falls (where the demonstrations' actions stay off
+        the action bounds), ``cmz_clip_quantile`` by whether the env terminates its episodes, and
         ``absorbing`` where the expert ends its own episodes by how soon the env ends the clone's."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
+        if bc and self.demonstrations is not None:
+            share = share_on_bound(self.demonstrations.actions, self.action_space)
+            if share >= AUTO_UNCLIPPED_SHARE:  # decided by the demonstrations alone: no probe for it
+                self._record_rule(
+                    "bc_epochs_per_update", 0,
+                    f"{share:.1%} of the demonstrations' action entries sit on a bound of the action space (at "
+                    f"least {AUTO_UNCLIPPED_SHARE:.0%}): they record the bound where the expert's action lay "
+                    "beyond it, and no NLL epoch pulls the policy toward them")
+                bc = False
         clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
         # where the expert ends its own episodes, absorbing="auto" asks how soon the env ends the clone's
         ends = (self.absorbing == "auto" and self.reward == "cmz" and self.clone_ends is None
@@ -454,16 +465,13 @@ class CMZDRIL(ImitationLearner, PPO):
             self.clone_ends = [float(np.mean(drift.terminated_lengths)) if drift.terminated_lengths else float("inf"),
                                int(np.min(self.demonstrations.episode_lengths))]
         if bc:
-            keep = drift.ratio < DRIFT_LIMIT
-            where = (f"the clone's own path scores u {drift.ratio:.2f} times its mean on the demonstrations "
-                     f"({drift.episodes} episodes, {drift.steps} steps)")
-            if keep:
-                reason = (f"{where}, under {DRIFT_LIMIT}: the clone stays on them, one NLL epoch after each update "
-                          "holds the policy there")
-            else:
-                reason = (f"{where}, at least {DRIFT_LIMIT}: the clone leaves them, so no NLL epoch pulls the policy "
-                          "back to it")
-            self._record_rule("bc_epochs_per_update", 1 if keep else 0, reason)
+            falls, why = clone_falls(drift, self.demonstrations.episode_lengths, time_limit(self.env))
+            why += f" (its path scores u {drift.ratio:.2f} times its mean on the demonstrations)"
+            self._record_rule(
+                "bc_epochs_per_update", 0 if falls else 1,
+                f"{why}: the clone falls, so no NLL epoch pulls the policy back to it" if falls else
+                f"{why}: the clone does not fall, and one NLL epoch after each update holds the policy on the "
+                "demonstrations")
         if clip and not self._absorbing_applies():
             self._record_rule("cmz_clip_quantile", None, _NO_ABSORBING)
         elif clip:

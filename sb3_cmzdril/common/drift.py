@@ -1,12 +1,10 @@
-"""How far the pretrained clone's own path leaves the demonstrations, and whether it falls.
+"""Whether the pretrained clone falls, and how far its own path leaves the demonstrations.
 
-The clone plays a few episodes deterministically in the training env; the ensemble's mean disagreement
-u along them, over its mean u on the demonstrations, is the clone's drift. Near 1 the clone stays where
-the demonstrations are (and the NLL epochs that hold the policy to them cost nothing); well above it the
-clone leaves them, and the pull back toward the clone fights the reward that would correct it. The
-``"auto"`` setting of ``bc_epochs_per_update`` reads it; ``cmz_clip_quantile="auto"`` reads how many of
-the clone's episodes the env terminated, and ``absorbing="auto"``, where the expert ends its own episodes,
-how long the clone's lasted before the env ended them (:class:`~sb3_cmzdril.CMZDRIL`).
+The clone plays a few episodes deterministically in the training env. ``cmz_clip_quantile="auto"`` reads
+how many of them the env terminated; ``absorbing="auto"``, where the expert ends its own episodes, how
+long they lasted before the env ended them; ``bc_epochs_per_update="auto"`` whether the clone falls by
+either test (:func:`clone_falls`; :class:`~sb3_cmzdril.CMZDRIL`). The ensemble's mean disagreement u along
+them, over its mean u on the demonstrations, is the clone's drift (:attr:`Drift.ratio`), logged with them.
 """
 from __future__ import annotations
 
@@ -19,10 +17,6 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_cmzdril.rewards import terminations
 
-#: drift at and above which ``bc_epochs_per_update="auto"`` turns the NLL epochs off: the geometric mean
-#: of the drifts measured on Swimmer-v5 (1.2, where the epochs are needed) and WaypointNav-v0 (2.2, the
-#: lowest where dropping them was measured to hold); measured per trial, not adopted: docs/one_default.md
-DRIFT_LIMIT = 1.6
 #: the quantile of u on the demonstrations ``cmz_clip_quantile="auto"`` clips u at where the clone falls
 AUTO_CLIP_QUANTILE = 0.98
 #: where the expert ends its own episodes, ``absorbing="auto"`` takes the env's ends of the clone's episodes
@@ -91,3 +85,26 @@ def clone_drift(
             vec_normalize.training = training
     return Drift(float(np.mean(np.concatenate(u))), float(demo_u), ended, steps, len(terminated_lengths),
                  tuple(terminated_lengths))
+
+
+def falls_early(mean_end: float, shortest: float) -> bool:
+    """Where the expert ends its own episodes: whether the env ends the clone's, after ``mean_end`` steps on
+    average, before :data:`EARLY_END_FRACTION` of the ``shortest`` demonstration's length."""
+    return mean_end < EARLY_END_FRACTION * shortest
+
+
+def clone_falls(drift: Drift, demo_lengths: np.ndarray, limit: int | None) -> tuple[bool, str]:
+    """Whether the clone whose episodes ``drift`` measured falls, and why: where every demonstration lasts
+    the env's time ``limit``, the env terminated one of its episodes; elsewhere (the expert ends its own
+    episodes, or the env has no time limit) the env ended them, on average, before
+    :data:`EARLY_END_FRACTION` of the shortest demonstration's length."""
+    ended = f"the env terminated {drift.terminated} of the clone's {drift.episodes} episodes"
+    lengths = np.asarray(demo_lengths)
+    if limit is not None and bool(np.all(lengths >= limit)):
+        return drift.terminated > 0, f"{ended}, where every demonstration lasts the time limit ({limit} steps)"
+    if not drift.terminated_lengths:
+        return False, ended
+    mean_end, shortest = float(np.mean(drift.terminated_lengths)), int(np.min(lengths))
+    falls = falls_early(mean_end, shortest)
+    return falls, (f"{ended}, after {mean_end:.0f} steps on average: {'under' if falls else 'at least'} "
+                   f"{EARLY_END_FRACTION:g} times the shortest demonstration's {shortest}")

@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_cmzdril._mujoco_log import mujoco_warnings_routed
 from sb3_cmzdril.common.bc import BehaviourCloner, ObsTransform
-from sb3_cmzdril.common.drift import EARLY_END_FRACTION
+from sb3_cmzdril.common.drift import EARLY_END_FRACTION, falls_early
 from sb3_cmzdril.common.options import check_imitation_options, check_interval, check_whole_numbers
 from sb3_cmzdril.common.saving import (
     SAVED_TENSORS,
@@ -506,7 +506,7 @@ class ImitationLearner(_Algorithm):
                       f"time limit ({limit} steps): the expert ends its own episodes")
             if self.clone_ends is not None:
                 clone, shortest = self.clone_ends
-                on = clone < EARLY_END_FRACTION * shortest
+                on = falls_early(clone, shortest)
                 if not np.isfinite(clone):
                     reason += "; the env ends none of the clone's episodes, so none of them is a fall"
                 else:
