@@ -2,9 +2,13 @@
 
 CMZ-DRIL's final policy per task, % of the expert (the return on Pendulum-v1, whose returns are
 negative), mean over trials 0-4 / 5-9: the published grid's tuned entries (on the untuned tasks, the
-shipped default; on another expert's pools, the task's entry run on them), the candidate's runs
-(``results/tuning/D6-*``), their paired difference over the trials both have, and BC on the candidate's
-inputs. ``--check`` fails (exit 1) when the page's table is not what the records give.
+shipped default; on another expert's pools, the task's entry run on them), the sixth candidate's runs
+(``results/tuning/D6-*``), the eleventh's, its paired difference to the entry over the trials both have,
+and BC on the candidates' inputs. The eleventh's runs are each trial's run of the candidate that decides
+as it does there (a seeded run goes on as the decided value runs it): where its NLL-epochs rule turns them
+off, the sixth's (the tenth's where that one's absorbing rule decides otherwise); where it keeps them, the
+ninth's (which kept them too) or its own (``results/tuning/D11-*``). ``--check`` fails (exit 1) when the
+page's table is not what the records give.
 
     python benchmarks/studies/one_default.py           # rewrite the table in docs/one_default.md
     python benchmarks/studies/one_default.py --check
@@ -18,27 +22,54 @@ from pathlib import Path
 import numpy as np
 
 from cmzdril_lab.records_store import materialize_all
+from cmzdril_lab.report.aggregate import Scores, aggregate
 from cmzdril_lab.report.final_eval import FinalRow, final_table, find
 from cmzdril_lab.report.records import load_runs
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "one_default.md"
 BEGIN, END = "<!-- one default table: written by benchmarks/studies/one_default.py -->", "<!-- end of table -->"
+#: the six tasks of the issue's across-task target (IQM over them, trials 0-4)
+SIX = ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0", "LunarLander-v3")
 
-#: (row label, env, its tuned entry's folders, the candidate's folder, BC's folder on the same inputs)
-TASKS: tuple[tuple[str, str, tuple[str, ...], str, str], ...] = (
-    *((env, env, ("runs", "runs_cmz_trials5-9"), "tuning/D6-norew", "runs")
-      for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0")),
-    ("LunarLander-v3", "LunarLander-v3", ("outside_env",), "tuning/D6-lunar", "tuning/D4-lunar"),
-    *((env, env, ("untuned",), "tuning/D6-untuned", bc)
-      for env, bc in (("MountainCarContinuous-v0", "tuning/D4-untuned"), ("Pendulum-v1", "tuning/D4-untuned"),
-                      ("Ant-v5", "untuned"), ("BipedalWalker-v3", "tuning/D6-untuned"),
-                      ("BipedalWalkerHardcore-v3", "tuning/D6-untuned"))),
-    *((f"{env}, another expert (TQC)", env, ("tuning/E-tqc",), "tuning/D6-tqc", "tuning/D6-tqc")
-      for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5")),
+#: (row label, env, its tuned entry's folders, the sixth candidate's folder, the eleventh's folders (a later one
+#: replaces an earlier one's trials), BC's folder on the same inputs)
+TASKS: tuple[tuple[str, str, tuple[str, ...], str, tuple[str, ...], str], ...] = (
+    *((env, env, ("runs", "runs_cmz_trials5-9"), "tuning/D6-norew", d11, "runs")
+      for env, d11 in (("Walker2d-v5", ("tuning/D6-norew",)), ("Hopper-v5", ("tuning/D6-norew",)),
+                       ("HalfCheetah-v5", ("tuning/D11-epochs",)),
+                       ("Swimmer-v5", ("tuning/D9-drift", "tuning/D11-epochs")),
+                       ("WaypointNav-v0", ("tuning/D6-norew",)))),
+    ("LunarLander-v3", "LunarLander-v3", ("outside_env",), "tuning/D6-lunar", ("tuning/D6-lunar",), "tuning/D4-lunar"),
+    *((env, env, ("untuned",), "tuning/D6-untuned", d11, bc)
+      for env, d11, bc in (("MountainCarContinuous-v0", ("tuning/D11-epochs",), "tuning/D4-untuned"),
+                           ("Pendulum-v1", ("tuning/D6-untuned",), "tuning/D4-untuned"),
+                           ("Ant-v5", ("tuning/D9-drift",), "untuned"),
+                           ("BipedalWalker-v3", ("tuning/D6-untuned",), "tuning/D6-untuned"),
+                           ("BipedalWalkerHardcore-v3", ("tuning/D6-untuned", "tuning/D10-untuned"),
+                            "tuning/D6-untuned"))),
+    *((f"{env}, another expert (TQC)", env, ("tuning/E-tqc",), "tuning/D6-tqc", d11, "tuning/D6-tqc")
+      for env, d11 in (("Walker2d-v5", ("tuning/D6-tqc",)), ("Hopper-v5", ("tuning/D6-tqc", "tuning/D10-tqc")),
+                       ("HalfCheetah-v5", ("tuning/D11-tqc",)))),
 )
-#: the candidate's folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
-TRIALS_0_4_ONLY = ("tuning/D6-tqc",)
+#: (row label, env, the runs with one NLL epoch after each update (D6's other settings; a later folder replaces an
+#: earlier one's trials), the runs without (D6), what D11's rule decides there and why)
+EPOCHS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...], str], ...] = (
+    ("HalfCheetah-v5", "HalfCheetah-v5", ("tuning/D11-epochs",), ("tuning/D6-norew",), "on"),
+    ("Swimmer-v5", "Swimmer-v5", ("tuning/D9-drift", "tuning/D11-epochs"), ("tuning/D6-norew",), "on"),
+    ("Ant-v5", "Ant-v5", ("tuning/D9-drift",), ("tuning/D6-untuned",), "on"),
+    ("MountainCarContinuous-v0", "MountainCarContinuous-v0", ("tuning/D11-epochs",), ("tuning/D6-untuned",), "on"),
+    ("HalfCheetah-v5, another expert (TQC)", "HalfCheetah-v5", ("tuning/D11-tqc",), ("tuning/D6-tqc",), "on"),
+    ("WaypointNav-v0", "WaypointNav-v0", ("tuning/D11-epochs",), ("tuning/D6-norew",), "off: actions on a bound"),
+    ("LunarLander-v3", "LunarLander-v3", ("tuning/D11-lunar",), ("tuning/D6-lunar",), "off: actions on a bound"),
+    ("BipedalWalker-v3", "BipedalWalker-v3", ("tuning/D11-epochs",), ("tuning/D6-untuned",),
+     "off: actions on a bound"),
+    ("BipedalWalkerHardcore-v3", "BipedalWalkerHardcore-v3", ("tuning/D11-epochs",),
+     ("tuning/D6-untuned", "tuning/D10-untuned"), "off: actions on a bound"),
+    ("Pendulum-v1", "Pendulum-v1", ("tuning/D11-epochs",), ("tuning/D6-untuned",), "off: actions on a bound"),
+)
+#: the candidates' folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
+TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
 BY_RETURN = ("Pendulum-v1",)
 
@@ -64,24 +95,72 @@ def _means(values: dict[int, float]) -> str:
     return " / ".join(f"{p:.1f}" if abs(p) < 1000 else f"{p:.0f}" for p in parts if p is not None)
 
 
+def _candidate(folders: tuple[str, ...], env: str, column: str) -> dict[int, float]:
+    """Trial -> CMZ-DRIL's final policy over a candidate's ``folders`` (a few-runs folder: trials 0-4 only)."""
+    values: dict[int, float] = {}
+    for folder in folders:
+        values.update({t: v for t, v in _per_trial((folder,), env, "cmz", column).items()
+                       if t < 5 or folder not in TRIALS_0_4_ONLY})
+    return values
+
+
 def table() -> str:
-    """The page's table, from the records."""
+    """The page's table and the six tasks' aggregate under it, from the records."""
     materialize_all(ROOT / "results")
-    lines = ["| Task | tuned entry | **D6** | paired, D6 - entry | BC |", "|---|---|---|---|---|"]
-    for label, env, entry_folders, default_folder, bc_folder in TASKS:
+    lines = ["| Task | tuned entry | D6 | **D11** | paired, D11 - entry | BC |", "|---|---|---|---|---|---|"]
+    six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D11": [], "BC": []}
+    for label, env, entry_folders, d6_folder, d11_folders, bc_folder in TASKS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
         entry = _per_trial(entry_folders, env, "cmz", column)
-        default = {t: v for t, v in _per_trial((default_folder,), env, "cmz", column).items()
-                   if t < 5 or default_folder not in TRIALS_0_4_ONLY}
+        d6, d11 = _candidate((d6_folder,), env, column), _candidate(d11_folders, env, column)
         bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", column).items() if t < 5}
-        shared = sorted(set(entry) & set(default))
-        diffs = np.array([default[t] - entry[t] for t in shared])
+        shared = sorted(set(entry) & set(d11))
+        diffs = np.array([d11[t] - entry[t] for t in shared])
         se = diffs.std(ddof=1) / np.sqrt(len(diffs)) if len(diffs) > 1 else float("nan")
         paired = (f"{diffs.mean():+.1f} (se {se:.1f}), higher in {int((diffs > 0).sum())} of {len(diffs)}"
                   if len(diffs) else "")
         name = f"{label} (return)" if env in BY_RETURN else label
-        lines.append(f"| {name} | {_means(entry) or '—'} | **{_means(default)}** | {paired} | {_means(bc)} |")
-    return "\n".join(lines)
+        lines.append(f"| {name} | {_means(entry) or '—'} | {_means(d6)} | **{_means(d11) or '—'}** | {paired} | "
+                     f"{_means(bc)} |")
+        if label in SIX:
+            for key, values in (("entry", entry), ("D6", d6), ("D11", d11), ("BC", bc)):
+                six[key].append([values.get(t, float("nan")) / 100 for t in range(5)])
+    return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _epochs()
+
+
+def _epochs() -> str:
+    """One NLL epoch after each PPO update against none, D6's other settings alike, trials 0-4."""
+    rows = ["| NLL epochs, trials 0-4 | none (D6) | one after each update | paired, one - none | D11 decides |",
+            "|---|---|---|---|---|"]
+    for label, env, on_folders, off_folders, decides in EPOCHS:
+        column = "return" if env in BY_RETURN else "pct_of_expert"
+        on, off = (_candidate(folders, env, column) for folders in (on_folders, off_folders))
+        shared = [t for t in range(5) if t in on and t in off]
+        diffs = np.array([on[t] - off[t] for t in shared])
+        se = diffs.std(ddof=1) / np.sqrt(len(diffs))
+        name = f"{label} (return)" if env in BY_RETURN else label
+        rows.append(f"| {name} | {_means({t: off[t] for t in shared})} | {_means({t: on[t] for t in shared})} | "
+                    f"{diffs.mean():+.1f} (se {se:.1f}) | {decides} |")
+    return "\n".join(rows)
+
+
+def _six_tasks(six: dict[str, list[list[float]]]) -> str:
+    """IQM over :data:`SIX` (trials 0-4) of each column, and D11's probability of improvement over it."""
+    matrices = {key: np.array(rows).T for key, rows in six.items()}  # (trials, tasks)
+    if any(np.isnan(m).any() for m in matrices.values()):
+        return "Across the six tasks: not every run is in yet."
+    scores = Scores(trials={k: tuple(range(5)) for k in matrices}, tasks={k: SIX for k in matrices},
+                    by_method=matrices, labels={k: k for k in matrices})
+    agg = aggregate(scores, pairs=[("D11", k) for k in matrices if k != "D11"])
+    rows = ["| Across the six tasks (trials 0-4) | tuned entry | D6 | **D11** | BC |", "|---|---|---|---|---|"]
+    iqm = {k: agg.summary[k]["IQM"] for k in matrices}
+    rows.append("| IQM, % of the expert [95% CI] | " + " | ".join(
+        f"{'**' if k == 'D11' else ''}{100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]{'**' if k == 'D11' else ''}"
+        for k, (p, lo, hi) in ((k, iqm[k]) for k in ("entry", "D6", "D11", "BC"))) + " |")
+    rows.append("| P(D11 > it) [95% CI] | " + " | ".join(
+        "—" if k == "D11" else "{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("D11", k)].probability)
+        for k in ("entry", "D6", "D11", "BC")) + " |")
+    return "\n".join(rows)
 
 
 def main(argv: list[str] | None = None) -> int:
