@@ -233,6 +233,21 @@ def test_demonstrations_from_a_path(pendulum_demos, tmp_path):
     assert isinstance(model.demonstrations, Demonstrations) and len(model.demonstrations) == len(pendulum_demos)
 
 
+def test_a_fraction_of_an_nll_epoch_after_each_update(pendulum_demos):
+    # 0.25: a quarter of the demo steps, each drawn once, after each of the 2 updates
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=0.25, **TINY)
+    model.pretrain()
+    steps: list[np.ndarray] = []
+    original = model.bc._update
+    model.bc._update = lambda obs, idx: steps.append(idx.cpu().numpy()) or original(obs, idx)
+    model.learn(128)
+    per_update = np.concatenate(steps).reshape(2, -1)
+    assert per_update.shape[1] == 50  # 200 demo steps
+    assert all(len(set(rows)) == 50 for rows in per_update)
+    assert model.bc_epochs_per_update == 0.25
+    assert CMZDRIL("MlpPolicy", "Pendulum-v1", bc_epochs_per_update=2.0).bc_epochs_per_update == 2
+
+
 def test_errors(pendulum_demos, cartpole_demos, tmp_path):
     with pytest.raises(ValueError, match="reward must be one of"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, reward="gail")
@@ -240,7 +255,7 @@ def test_errors(pendulum_demos, cartpole_demos, tmp_path):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, alpha=-1.0)
     with pytest.raises(ValueError, match="dril_quantile"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, dril_quantile=0.0)
-    with pytest.raises(ValueError, match="bc_epochs_per_update must be >= 0"):
+    with pytest.raises(ValueError, match="bc_epochs_per_update must be finite and >= 0"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)
     with pytest.raises(ValueError, match="critic_warmup_updates must be >= 0"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, critic_warmup_updates=-1)

@@ -97,29 +97,63 @@ def _inside(demos: Demonstrations) -> Demonstrations:
     return Demonstrations(demos.observations, np.clip(demos.actions, -1.9, 1.9), demos.episode_lengths)
 
 
-def test_the_nll_epochs_rule_drops_them_where_the_expert_holds_its_actions_on_a_bound(
-        pendulum_demos, monkeypatch, caplog):
+@pytest.fixture
+def close_clones(monkeypatch):
+    """Every clone reads as close by its held-out NLL, so that the NLL epochs rule asks whether it falls."""
     import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
 
-    # Decided from the demonstrations alone: the clone is not played for it.
+    monkeypatch.setattr(cmzdril_module, "AUTO_EPOCHS_NLL", float("inf"))
+
+
+def test_the_held_out_nll_per_action_entry_is_in_units_of_half_the_bounds_range():
+    from gymnasium import spaces
+
+    from sb3_cmzdril.common.bc import nll_per_action_entry
+
+    # Pendulum-v1's torque in [-2, 2]: half its range is 2, so the NLL per entry falls by log 2.
+    assert nll_per_action_entry(1.0, spaces.Box(-2, 2, (1,))) == pytest.approx(1.0 - np.log(2.0))
+    assert nll_per_action_entry(-3.0, spaces.Box(-1, 1, (3,))) == pytest.approx(-1.0)
+    # each entry by its own bounds; an unbounded entry as it is
+    box = spaces.Box(np.array([-1, -4, -np.inf], np.float32), np.array([1, 4, np.inf], np.float32))
+    assert nll_per_action_entry(3.0, box) == pytest.approx(1.0 - np.log(4.0) / 3)
+    assert nll_per_action_entry(float("nan"), spaces.Box(-1, 1, (2,))) is None
+    assert nll_per_action_entry(1.0, spaces.Discrete(3)) is None
+
+
+@pytest.mark.parametrize("per_entry", [0.5, -1.0])
+def test_the_nll_epochs_rule_drops_them_where_the_clone_predicts_the_held_out_steps_loosely(
+        pendulum_demos, monkeypatch, caplog, per_entry):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    # Decided from the pretraining alone: the clone is not played for it.
     monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
-    on_bound = Demonstrations(pendulum_demos.observations, np.sign(pendulum_demos.actions) * 2.0,
-                              pendulum_demos.episode_lengths)
-    model = _auto_epochs(_pendulum(40), on_bound)
+    model = _auto_epochs(_pendulum(40), pendulum_demos)
+    model.pretrain()
+    model.pretrain_info["bc_validation_nll"] = per_entry + np.log(2.0)  # one entry, bounds +-2
     with caplog.at_level(logging.INFO, logger="sb3_cmzdril"):
         model.learn(64)
     assert model.rules["bc_epochs_per_update"] == {
         "value": 0,
-        "reason": "100.0% of the demonstrations' action entries sit on a bound of the action space (at least 1%): "
-                  "they record the bound where the expert's action lay beyond it, and no NLL epoch pulls the "
-                  "policy toward them",
+        "reason": f"the clone's NLL on the held-out demo steps is {per_entry:.2f} per action entry (in units of "
+                  "half its bounds' range), at least -1: it predicts the expert's actions loosely, and no NLL epoch "
+                  "pulls the policy toward it",
     }
     assert model.bc_epochs_active == 0 and "train/bc_nll" not in model.logger.name_to_value
-    assert "bc_epochs_per_update 0: 100.0% of the demonstrations' action entries" in caplog.text
+    assert f"bc_epochs_per_update 0: the clone's NLL on the held-out demo steps is {per_entry:.2f}" in caplog.text
+
+
+def test_a_close_clone_that_does_not_fall_keeps_the_nll_epochs(pendulum_demos):
+    model = _auto_epochs(_pendulum(40), _inside(pendulum_demos))
+    model.pretrain()
+    model.pretrain_info["bc_validation_nll"] = -2.5 + np.log(2.0)
+    model.learn(64)
+    decided = model.rules["bc_epochs_per_update"]
+    assert decided["value"] == 1 and "train/bc_nll" in model.logger.name_to_value
+    assert "and its held-out NLL is -2.50 per action entry, under -1: the clone does not fall" in decided["reason"]
 
 
 @pytest.mark.parametrize("falls", [True, False])
-def test_the_nll_epochs_rule_drops_them_where_the_clone_falls(pendulum_demos, falls):
+def test_the_nll_epochs_rule_drops_them_where_the_clone_falls(pendulum_demos, close_clones, falls):
     # The demonstrations last the env's time limit (40 of their 100 steps); wrapped, the env ends an episode
     # once the pole hangs below the horizontal, which the expert never met.
     env = _Falls(_pendulum(40)) if falls else _pendulum(40)
@@ -140,7 +174,8 @@ def test_the_nll_epochs_rule_drops_them_where_the_clone_falls(pendulum_demos, fa
     assert model.bc_epochs_per_update == "auto"
 
 
-def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_the_clone_ends(pendulum_demos):
+def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_the_clone_ends(
+        pendulum_demos, close_clones):
     # The demonstrations end at 100 steps, the env's limit is 150: the clone falls where the env ends its
     # episodes before 50 steps on average.
     model = _auto_epochs(_Falls(_pendulum(150)), _inside(pendulum_demos))
@@ -151,8 +186,8 @@ def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_th
         decided["reason"]
 
 
-def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(pendulum_demos):
-    pendulum_demos = _inside(pendulum_demos)  # the rule plays the clone
+def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(pendulum_demos, close_clones):
+    pendulum_demos = _inside(pendulum_demos)
     auto = _auto_epochs(_pendulum(40), pendulum_demos, seed=3)
     auto.learn(128)
     decided = auto.rules["bc_epochs_per_update"]["value"]
@@ -164,7 +199,7 @@ def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(
     assert auto.num_timesteps == given.num_timesteps == 128
 
 
-def test_a_loaded_model_keeps_its_decision_without_a_new_probe(pendulum_demos, tmp_path, monkeypatch):
+def test_a_loaded_model_keeps_its_decision_without_a_new_probe(pendulum_demos, tmp_path, monkeypatch, close_clones):
     import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
 
     model = _auto_epochs(_pendulum(40), pendulum_demos)
@@ -181,12 +216,12 @@ def test_a_loaded_model_keeps_its_decision_without_a_new_probe(pendulum_demos, t
     assert loaded.bc_epochs_active == model.bc_epochs_active
 
 
-def test_the_nll_epochs_take_a_count_or_auto(pendulum_demos):
+def test_the_nll_epochs_take_a_number_or_auto(pendulum_demos):
     from sb3_cmzdril.errors import UserError
 
-    with pytest.raises(UserError, match=r"bc_epochs_per_update must be a whole number >= 0 or 'auto', got 'yes'"):
+    with pytest.raises(UserError, match=r"bc_epochs_per_update must be a number >= 0 or 'auto', got 'yes'"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update="yes")
-    with pytest.raises(UserError, match="bc_epochs_per_update must be >= 0, got -1"):
+    with pytest.raises(UserError, match="bc_epochs_per_update must be finite and >= 0, got -1"):
         CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, bc_epochs_per_update=-1)
 
 

@@ -976,6 +976,19 @@ EPOCHS_ROWS: tuple[Variant, ...] = (
                     EPOCHS_LABEL + TQC_LABEL, methods=("cmz",)),
 )
 
+QUARTER_SETS = NOREW_SETS.replace(BCUPD0, "--set bc_epochs_per_update=0.25")
+QUARTER_LABEL = NOREW_DEFAULT_LABEL.replace("no NLL epochs", "a quarter NLL epoch after each PPO update")
+#: the twelfth candidate's (D12's) runs: Ant-v5, where the clone reaches the expert and the epochs hold it there,
+#: and WaypointNav-v0, where they hold the policy at a poor clone (docs/one_default.md)
+QUARTER_ROWS: tuple[Variant, ...] = (
+    *candidate_rows("Ant-v5", "D12-quarter", epochs_command("D12-quarter", "Ant-v5", "0-4", demos=UNTUNED,
+                                                             sets=f"--as-untuned {QUARTER_SETS}"),
+                    QUARTER_LABEL, methods=("cmz",)),
+    *candidate_rows("WaypointNav-v0", "D12-quarter", epochs_command("D12-quarter", "WaypointNav-v0", "0-4",
+                                                                     sets=f"--as-untuned {QUARTER_SETS}"),
+                    QUARTER_LABEL, methods=("cmz",)),
+)
+
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
                               ("HalfCheetah-v5", "HalfCheetah-v5"), ("Swimmer-v5", "Swimmer-v5"),
@@ -1259,6 +1272,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *RAW_DEFAULT_ROWS,
     *NOREW_DEFAULT_ROWS,
     *EPOCHS_ROWS,
+    *QUARTER_ROWS,
 )
 
 

@@ -16,15 +16,20 @@ page's table is not what the records give.
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
+import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0)
 from cmzdril_lab.records_store import materialize_all
 from cmzdril_lab.report.aggregate import Scores, aggregate
 from cmzdril_lab.report.final_eval import FinalRow, final_table, find
 from cmzdril_lab.report.records import load_runs
+from sb3_cmzdril.common.bc import AUTO_EPOCHS_NLL, nll_per_action_entry
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "one_default.md"
@@ -33,7 +38,7 @@ BEGIN, END = "<!-- one default table: written by benchmarks/studies/one_default.
 SIX = ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0", "LunarLander-v3")
 
 #: (row label, env, its tuned entry's folders, the sixth candidate's folder, the eleventh's folders (a later one
-#: replaces an earlier one's trials), BC's folder on the same inputs)
+#: replaces an earlier one's trials), BC's folder on the same inputs); the twelfth's folder: :data:`QUARTER`
 TASKS: tuple[tuple[str, str, tuple[str, ...], str, tuple[str, ...], str], ...] = (
     *((env, env, ("runs", "runs_cmz_trials5-9"), "tuning/D6-norew", d11, "runs")
       for env, d11 in (("Walker2d-v5", ("tuning/D6-norew",)), ("Hopper-v5", ("tuning/D6-norew",)),
@@ -68,6 +73,11 @@ EPOCHS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...], str], ...] = (
      ("tuning/D6-untuned", "tuning/D10-untuned"), "off: actions on a bound"),
     ("Pendulum-v1", "Pendulum-v1", ("tuning/D11-epochs",), ("tuning/D6-untuned",), "off: actions on a bound"),
 )
+#: the twelfth candidate's runs (D6 with a quarter NLL epoch after each update), by EPOCHS row label
+QUARTER = {"Ant-v5": "tuning/D12-quarter", "WaypointNav-v0": "tuning/D12-quarter"}
+#: the thirteenth candidate's own runs (``bc_epochs_per_update: auto`` by the clone's held-out NLL), by row label:
+#: the trials no earlier candidate's runs stand for
+D13_RUNS: dict[str, tuple[str, ...]] = {}
 #: the candidates' folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
 TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
@@ -107,59 +117,112 @@ def _candidate(folders: tuple[str, ...], env: str, column: str) -> dict[int, flo
 def table() -> str:
     """The page's table and the six tasks' aggregate under it, from the records."""
     materialize_all(ROOT / "results")
-    lines = ["| Task | tuned entry | D6 | **D11** | paired, D11 - entry | BC |", "|---|---|---|---|---|---|"]
-    six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D11": [], "BC": []}
+    lines = ["| Task | tuned entry | D6 | D11 | **D13** | paired, D13 - entry | BC |", "|---|---|---|---|---|---|---|"]
+    six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D11": [], "D13": [], "BC": []}
     for label, env, entry_folders, d6_folder, d11_folders, bc_folder in TASKS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
         entry = _per_trial(entry_folders, env, "cmz", column)
         d6, d11 = _candidate((d6_folder,), env, column), _candidate(d11_folders, env, column)
+        d13 = _d13(label, env, column, d11_folders)
         bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", column).items() if t < 5}
-        shared = sorted(set(entry) & set(d11))
-        diffs = np.array([d11[t] - entry[t] for t in shared])
+        shared = sorted(set(entry) & set(d13))
+        diffs = np.array([d13[t] - entry[t] for t in shared])
         se = diffs.std(ddof=1) / np.sqrt(len(diffs)) if len(diffs) > 1 else float("nan")
         paired = (f"{diffs.mean():+.1f} (se {se:.1f}), higher in {int((diffs > 0).sum())} of {len(diffs)}"
                   if len(diffs) else "")
         name = f"{label} (return)" if env in BY_RETURN else label
-        lines.append(f"| {name} | {_means(entry) or '—'} | {_means(d6)} | **{_means(d11) or '—'}** | {paired} | "
-                     f"{_means(bc)} |")
+        lines.append(f"| {name} | {_means(entry) or '—'} | {_means(d6)} | {_means(d11) or '—'} | "
+                     f"**{_means(d13) or '—'}** | {paired} | {_means(bc)} |")
         if label in SIX:
-            for key, values in (("entry", entry), ("D6", d6), ("D11", d11), ("BC", bc)):
+            for key, values in (("entry", entry), ("D6", d6), ("D11", d11), ("D13", d13), ("BC", bc)):
                 six[key].append([values.get(t, float("nan")) / 100 for t in range(5)])
     return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _epochs()
 
 
+def _held_out(folders: tuple[str, ...], env: str) -> dict[int, float]:
+    """Trial -> the clone's NLL on the held-out demo steps per action entry (:func:`nll_per_action_entry`), as
+    the first row of a run's log gives it (every run of a trial pretrains alike)."""
+    values: dict[int, float] = {}
+    for folder in folders:
+        for run in sorted((ROOT / "results" / folder / env / "cmz").glob("trial*")):
+            config = json.loads((run / "config.json").read_text(encoding="utf-8"))
+            space = gym.make(env, **config.get("env_kwargs") or {}).action_space
+            with (run / "logs" / "progress_0.csv").open(encoding="utf-8") as log:
+                nll = nll_per_action_entry(float(next(csv.DictReader(log))["pretrain/bc_validation_nll"]), space)
+            if nll is not None:
+                values[int(run.name.removeprefix("trial"))] = nll
+    return values
+
+
+def _d13(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dict[int, float]:
+    """Trial -> the thirteenth candidate's final policy. Where the clone falls (the tasks without an
+    :data:`EPOCHS` row), no epochs: D11's runs. Elsewhere each trial's run with the epochs where the clone's
+    held-out NLL per action entry is under :data:`AUTO_EPOCHS_NLL`, without them where it is not (no clone of
+    these falls); then :data:`D13_RUNS`, the rule's own runs."""
+    row = next(((on, off) for name, _, on, off, _ in EPOCHS if name == label), None)
+    if row is None:
+        values = _candidate(d11_folders, env, column)
+    else:
+        (on_folders, off_folders), values = row, {}
+        on, off = _candidate(on_folders, env, column), _candidate(off_folders, env, column)
+        for trial, nll in _held_out(on_folders + off_folders, env).items():
+            runs = on if nll < AUTO_EPOCHS_NLL else off
+            if trial in runs:
+                values[trial] = runs[trial]
+    values.update(_candidate(D13_RUNS.get(label, ()), env, column))
+    return values
+
+
 def _epochs() -> str:
-    """One NLL epoch after each PPO update against none, D6's other settings alike, trials 0-4."""
-    rows = ["| NLL epochs, trials 0-4 | none (D6) | one after each update | paired, one - none | D11 decides |",
-            "|---|---|---|---|---|"]
-    for label, env, on_folders, off_folders, decides in EPOCHS:
+    """No NLL epoch after each PPO update, a quarter of one (D12) and one, D6's other settings alike, and what D13
+    decides by the clone's held-out NLL, trials 0-4 (over the trials the first and the third have)."""
+    rows = ["| NLL epochs, trials 0-4 | none (D6) | a quarter (D12) | one | held-out NLL per action entry: "
+            "D13's epochs | **D13** | D13 - the better of none and one, paired |", "|---|---|---|---|---|---|---|"]
+    for label, env, on_folders, off_folders, _ in EPOCHS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
         on, off = (_candidate(folders, env, column) for folders in (on_folders, off_folders))
+        quarter = _candidate((QUARTER[label],), env, column) if label in QUARTER else {}
         shared = [t for t in range(5) if t in on and t in off]
-        diffs = np.array([on[t] - off[t] for t in shared])
-        se = diffs.std(ddof=1) / np.sqrt(len(diffs))
+        nll = _held_out(on_folders + off_folders, env)
+        d13 = _d13(label, env, column, ())
+        better = on if np.mean([on[t] for t in shared]) > np.mean([off[t] for t in shared]) else off
+        diffs = np.array([d13[t] - better[t] for t in shared])
+        kept = sum(nll[t] < AUTO_EPOCHS_NLL for t in shared)
         name = f"{label} (return)" if env in BY_RETURN else label
-        rows.append(f"| {name} | {_means({t: off[t] for t in shared})} | {_means({t: on[t] for t in shared})} | "
-                    f"{diffs.mean():+.1f} (se {se:.1f}) | {decides} |")
+        rows.append(
+            f"| {name} | {_means({t: off[t] for t in shared})} | "
+            f"{_means({t: quarter[t] for t in shared if t in quarter}) or '—'} | "
+            f"{_means({t: on[t] for t in shared})} | "
+            f"{min(nll[t] for t in shared):.2f} to {max(nll[t] for t in shared):.2f}: "
+            f"{'on' if kept == len(shared) else 'off' if not kept else f'on in {kept} of {len(shared)}'} | "
+            f"**{_means({t: d13[t] for t in shared})}** | {diffs.mean():+.1f} (se "
+            f"{diffs.std(ddof=1) / np.sqrt(len(diffs)):.1f}) against {'one' if better is on else 'none'} |")
     return "\n".join(rows)
 
 
 def _six_tasks(six: dict[str, list[list[float]]]) -> str:
-    """IQM over :data:`SIX` (trials 0-4) of each column, and D11's probability of improvement over it."""
+    """IQM over :data:`SIX` (trials 0-4) of each column with every run in, and the lead candidate's (D13 where
+    all its runs are in, else D11) probability of improvement over each other column."""
     matrices = {key: np.array(rows).T for key, rows in six.items()}  # (trials, tasks)
-    if any(np.isnan(m).any() for m in matrices.values()):
-        return "Across the six tasks: not every run is in yet."
+    missing = [k for k, m in matrices.items() if np.isnan(m).any()]
+    matrices = {k: m for k, m in matrices.items() if k not in missing}
+    lead = "D13" if "D13" in matrices else "D11"
     scores = Scores(trials={k: tuple(range(5)) for k in matrices}, tasks={k: SIX for k in matrices},
                     by_method=matrices, labels={k: k for k in matrices})
-    agg = aggregate(scores, pairs=[("D11", k) for k in matrices if k != "D11"])
-    rows = ["| Across the six tasks (trials 0-4) | tuned entry | D6 | **D11** | BC |", "|---|---|---|---|---|"]
+    agg = aggregate(scores, pairs=[(lead, k) for k in matrices if k != lead])
+    keys = [k for k in ("entry", "D6", "D11", "D13", "BC") if k in matrices]
+    names = {"entry": "tuned entry"}
+    rows = ["| Across the six tasks (trials 0-4) | " + " | ".join(
+        f"**{k}**" if k == lead else names.get(k, k) for k in keys) + " |", "|---" * (len(keys) + 1) + "|"]
     iqm = {k: agg.summary[k]["IQM"] for k in matrices}
     rows.append("| IQM, % of the expert [95% CI] | " + " | ".join(
-        f"{'**' if k == 'D11' else ''}{100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]{'**' if k == 'D11' else ''}"
-        for k, (p, lo, hi) in ((k, iqm[k]) for k in ("entry", "D6", "D11", "BC"))) + " |")
-    rows.append("| P(D11 > it) [95% CI] | " + " | ".join(
-        "—" if k == "D11" else "{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("D11", k)].probability)
-        for k in ("entry", "D6", "D11", "BC")) + " |")
+        f"{'**' if k == lead else ''}{100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]{'**' if k == lead else ''}"
+        for k, (p, lo, hi) in ((k, iqm[k]) for k in keys)) + " |")
+    rows.append(f"| P({lead} > it) [95% CI] | " + " | ".join(
+        "—" if k == lead else "{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[(lead, k)].probability)
+        for k in keys) + " |")
+    if missing:
+        rows.append(f"\n{', '.join(missing)}: not every run on the six tasks is in yet.")
     return "\n".join(rows)
 
 

@@ -45,7 +45,7 @@ from stable_baselines3.common.utils import update_learning_rate
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_cmzdril.cmzdril.scoring import ReturnScale, RolloutRecord, score_rollout
-from sb3_cmzdril.common.bc import BehaviourCloner
+from sb3_cmzdril.common.bc import AUTO_EPOCHS_NLL, BehaviourCloner, nll_per_action_entry
 from sb3_cmzdril.common.drift import AUTO_CLIP_QUANTILE, clone_drift, clone_falls
 from sb3_cmzdril.common.imitation import (
     DemosLike,
@@ -58,7 +58,7 @@ from sb3_cmzdril.common.imitation import (
 from sb3_cmzdril.common.options import check_interval, check_whole_numbers
 from sb3_cmzdril.data.demos import expert_never_terminates, time_limit
 from sb3_cmzdril.data.spaces import check_action_space
-from sb3_cmzdril.ensemble import AUTO_UNCLIPPED_SHARE, disagreement_on_demos, share_on_bound
+from sb3_cmzdril.ensemble import disagreement_on_demos
 from sb3_cmzdril.errors import UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.policies import floor_log_std, mean_log_std
@@ -110,13 +110,15 @@ class CMZDRIL(ImitationLearner, PPO):
         fifth. Off by default: the published grids ran without it (measurements:
         docs/bc_single_episode.md).
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
-        disables). ``"auto"``: none where at least
-        :data:`~sb3_cmzdril.ensemble.AUTO_UNCLIPPED_SHARE` of the demonstrations' action entries sit on
-        a bound of the action space (they record the bound where the expert's action lay beyond it) or
-        where the pretrained clone falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the
-        episodes it plays at the first ``learn()``, whose steps are not counted), so that no epoch pulls
-        the policy back to a clone that falls; the paper's one elsewhere, which holds a clone that does
-        not fall on the demonstrations. The decision and its reason go to :attr:`rules`.
+        disables; a fraction is a pass over that share of the demo steps, drawn at random, so 0.25
+        pulls the policy back to the demonstrations a quarter as hard). ``"auto"``: none where the
+        clone predicts the expert's held-out actions loosely (its NLL on the held-out demo steps, per
+        action entry in units of half its bounds' range, at least
+        :data:`~sb3_cmzdril.common.bc.AUTO_EPOCHS_NLL`: no probe needed) or where the pretrained clone
+        falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the episodes it plays at the first
+        ``learn()``, whose steps are not counted): an epoch would pull the policy back to a poor
+        clone; the paper's one elsewhere, which holds a close clone on the demonstrations. The decision
+        and its reason go to :attr:`rules`.
     :param bc_update_std: whether the NLL epochs after each PPO update also fit the policy's
         state-independent log-std (``policy.log_std``: a Gaussian's, or gSDE's exploration
         parameters), as the paper's NLL does. They pull it toward the demonstrations' residual
@@ -201,7 +203,7 @@ class CMZDRIL(ImitationLearner, PPO):
         bc_validation_fraction: float = 0.2,
         bc_patience: int = 20,
         bc_refit: bool = False,
-        bc_epochs_per_update: int | str = 1,
+        bc_epochs_per_update: float | str = 1,
         bc_update_std: bool = True,
         bc_batch_size: int = 64,
         bc_learning_rate: float | Schedule | str = 1e-3,
@@ -237,10 +239,11 @@ class CMZDRIL(ImitationLearner, PPO):
         _init_setup_model: bool = True,
     ) -> None:
         if isinstance(bc_epochs_per_update, str) and bc_epochs_per_update != "auto":
-            raise UserError(f"bc_epochs_per_update must be a whole number >= 0 or 'auto', got {bc_epochs_per_update!r}")
-        counts: dict[str, Any] = dict(critic_warmup_updates=critic_warmup_updates)
+            raise UserError(f"bc_epochs_per_update must be a number >= 0 or 'auto', got {bc_epochs_per_update!r}")
         if bc_epochs_per_update != "auto":
-            counts["bc_epochs_per_update"] = bc_epochs_per_update
+            check_finite(bc_epochs_per_update=bc_epochs_per_update)
+            check_interval("[0, inf)", bc_epochs_per_update=bc_epochs_per_update)
+        counts: dict[str, Any] = dict(critic_warmup_updates=critic_warmup_updates)
         self._init_imitation(**arguments_for(self._init_imitation, locals(), counts=counts))
         check_finite(
             bc_learning_rate=bc_learning_rate, log_std_floor=log_std_floor, learning_rate=learning_rate, gamma=gamma,
@@ -255,8 +258,8 @@ class CMZDRIL(ImitationLearner, PPO):
                        target_kl=target_kl, max_grad_norm=max_grad_norm)
         check_interval("[0, inf)", vf_coef=vf_coef)
         self.bc_refit = bool(bc_refit)
-        self.bc_epochs_per_update: int | str = (
-            "auto" if bc_epochs_per_update == "auto" else int(bc_epochs_per_update)
+        self.bc_epochs_per_update: float | str = (
+            "auto" if isinstance(bc_epochs_per_update, str) else _whole_if_whole(bc_epochs_per_update)
         )
         self.bc_update_std = bool(bc_update_std)
         #: a number or a schedule of the progress remaining (see :meth:`_bc_learning_rate`)
@@ -426,19 +429,18 @@ class CMZDRIL(ImitationLearner, PPO):
     def _decide_from_the_clone(self) -> None:
         """The ``"auto"`` settings read from the pretrained clone's own episodes, each decided once per
         model (a loaded one keeps its decisions; :func:`~sb3_cmzdril.common.drift.clone_drift` plays
-        them): ``bc_epochs_per_update`` by whether it falls (where the demonstrations' actions stay off
-        the action bounds), ``cmz_clip_quantile`` by whether the env terminates its episodes, and
+        them): ``bc_epochs_per_update`` by whether it falls (where it predicts the held-out demo steps
+        closely), ``cmz_clip_quantile`` by whether the env terminates its episodes, and
         ``absorbing`` where the expert ends its own episodes by how soon the env ends the clone's."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
-        if bc and self.demonstrations is not None:
-            share = share_on_bound(self.demonstrations.actions, self.action_space)
-            if share >= AUTO_UNCLIPPED_SHARE:  # decided by the demonstrations alone: no probe for it
-                self._record_rule(
-                    "bc_epochs_per_update", 0,
-                    f"{share:.1%} of the demonstrations' action entries sit on a bound of the action space (at "
-                    f"least {AUTO_UNCLIPPED_SHARE:.0%}): they record the bound where the expert's action lay "
-                    "beyond it, and no NLL epoch pulls the policy toward them")
-                bc = False
+        held_out = nll_per_action_entry(self.pretrain_info.get("bc_validation_nll", float("nan")), self.action_space)
+        if bc and held_out is not None and held_out >= AUTO_EPOCHS_NLL:  # decided without a probe
+            self._record_rule(
+                "bc_epochs_per_update", 0,
+                f"the clone's NLL on the held-out demo steps is {held_out:.2f} per action entry (in units of half "
+                f"its bounds' range), at least {AUTO_EPOCHS_NLL:g}: it predicts the expert's actions loosely, and "
+                "no NLL epoch pulls the policy toward it")
+            bc = False
         clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
         # where the expert ends its own episodes, absorbing="auto" asks how soon the env ends the clone's
         ends = (self.absorbing == "auto" and self.reward == "cmz" and self.clone_ends is None
@@ -467,11 +469,13 @@ class CMZDRIL(ImitationLearner, PPO):
         if bc:
             falls, why = clone_falls(drift, self.demonstrations.episode_lengths, time_limit(self.env))
             why += f" (its path scores u {drift.ratio:.2f} times its mean on the demonstrations)"
+            close = ("no held-out NLL to judge the clone by" if held_out is None else
+                     f"its held-out NLL is {held_out:.2f} per action entry, under {AUTO_EPOCHS_NLL:g}")
             self._record_rule(
                 "bc_epochs_per_update", 0 if falls else 1,
                 f"{why}: the clone falls, so no NLL epoch pulls the policy back to it" if falls else
-                f"{why}: the clone does not fall, and one NLL epoch after each update holds the policy on the "
-                "demonstrations")
+                f"{why}, and {close}: the clone does not fall, and one NLL epoch after each update holds the "
+                "policy on the demonstrations")
         if clip and not self._absorbing_applies():
             self._record_rule("cmz_clip_quantile", None, _NO_ABSORBING)
         elif clip:
@@ -489,12 +493,12 @@ class CMZDRIL(ImitationLearner, PPO):
                 self.reward_rule = self._make_rule()
 
     @property
-    def bc_epochs_active(self) -> int:
+    def bc_epochs_active(self) -> float:
         """NLL epochs after each PPO update: ``bc_epochs_per_update``, or what ``"auto"`` decided (the
         paper's 1 until it has)."""
         if self.bc_epochs_per_update != "auto":
-            return int(self.bc_epochs_per_update)
-        return int(self.rules.get("bc_epochs_per_update", {}).get("value", 1))
+            return float(self.bc_epochs_per_update)
+        return float(self.rules.get("bc_epochs_per_update", {}).get("value", 1))
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # The scorer goes first, so that every user callback's on_rollout_end sees the final rewards.
@@ -573,10 +577,18 @@ class CMZDRIL(ImitationLearner, PPO):
             bc_lr = self._bc_learning_rate(self._current_progress_remaining)
             update_learning_rate(self.bc.optimizer, bc_lr)
             self.logger.record("train/bc_learning_rate", bc_lr)
+            whole, part = divmod(self.bc_epochs_active, 1.0)
             with _without_gradient(held):
-                for _ in range(self.bc_epochs_active):
+                for _ in range(int(whole)):
                     nll = self.bc.epoch(transform)
+                if part > 0:
+                    nll = self.bc.epoch(transform, fraction=part)
             self.logger.record("train/bc_nll", nll)
+
+
+def _whole_if_whole(value: float) -> float:
+    """``value`` as an int where it is a whole number (``2.0`` -> ``2``), as it is otherwise."""
+    return int(value) if float(value).is_integer() else float(value)
 
 
 #: cmz_clip_quantile="auto"'s reason where terminations score nothing

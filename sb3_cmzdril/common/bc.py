@@ -8,6 +8,7 @@ of two different losses.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -24,6 +25,23 @@ ObsTransform = Callable[[Any], Any]
 TensorObs = th.Tensor | dict[str, th.Tensor]
 #: (policy, observations, expert actions) -> the loss of each step, (batch,)
 StepLoss = Callable[[Any, TensorObs, th.Tensor], th.Tensor]
+
+
+#: ``bc_epochs_per_update="auto"`` keeps the NLL epochs only where the clone's NLL on the held-out demo steps, per
+#: action entry in units of half its bounds' range (:func:`nll_per_action_entry`), is below this: the clone
+#: predicts the expert's held-out actions closely (chosen across tasks: docs/one_default.md)
+AUTO_EPOCHS_NLL = -1.0
+
+
+def nll_per_action_entry(nll: float, space: spaces.Space) -> float | None:
+    """A Gaussian policy's NLL of a step's action (``nll``) per entry of a Box action space, each bounded entry
+    measured in units of half its bounds' range: scaling an action by ``h`` shifts its NLL by ``log h``, so one
+    threshold reads alike on any Box. None for other spaces and where ``nll`` is not a number."""
+    if not isinstance(space, spaces.Box) or not np.isfinite(nll):
+        return None
+    half = (space.high.astype(np.float64) - space.low.astype(np.float64)).ravel() / 2
+    finite = np.isfinite(half) & (half > 0)
+    return float(nll / half.size - np.log(np.where(finite, half, 1.0)).mean())
 
 
 def nll_loss(policy: Any, obs: TensorObs, actions: th.Tensor) -> th.Tensor:
@@ -88,13 +106,17 @@ class BehaviourCloner:
         with th.no_grad():
             return float(self.loss(self.policy, obs, actions).mean())
 
-    def epoch(self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None) -> float:
+    def epoch(
+        self, obs_transform: ObsTransform | None = None, indices: np.ndarray | None = None, fraction: float = 1.0
+    ) -> float:
         """One pass over the demos (or the steps ``indices``) in shuffled minibatches; returns the
-        mean NLL over the pass."""
+        mean NLL over the pass. ``fraction`` < 1: a pass over that share of them (at least one step),
+        drawn at random without replacement."""
         obs = self._observations(obs_transform)
         rows = np.arange(len(self._actions)) if indices is None else np.asarray(indices)
         self.policy.set_training_mode(True)
-        order = th.as_tensor(self.rng.permutation(rows), device=self.policy.device)
+        shuffled = self.rng.permutation(rows)[: max(1, math.ceil(fraction * len(rows)))]
+        order = th.as_tensor(shuffled, device=self.policy.device)
         total = 0.0
         for start in range(0, len(order), self.batch_size):
             idx = order[start : start + self.batch_size]
