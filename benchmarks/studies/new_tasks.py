@@ -989,6 +989,21 @@ QUARTER_ROWS: tuple[Variant, ...] = (
                     QUARTER_LABEL, methods=("cmz",)),
 )
 
+HELD_OUT_SETS = NOREW_SETS.replace(BCUPD0, "--set bc_epochs_per_update=auto")
+HELD_OUT_LABEL = NOREW_DEFAULT_LABEL.replace(
+    "no NLL epochs", "the NLL epochs by the clone's held-out NLL and whether it falls (`bc_epochs_per_update: auto`)")
+#: the thirteenth candidate's (D13's) own runs: where no earlier candidate's runs stand for its decisions
+HELD_OUT_ROWS: tuple[Variant, ...] = (
+    *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
+        "D13-lunar", "LunarLander-v3", "TRIALS", 200000, OUTSIDE,
+        f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}"), HELD_OUT_LABEL, ("5-9",), methods=("cmz",)),
+    # the trial whose clone the held-out NLL judged loose (-0.31), run with the epochs it dropped
+    *candidate_rows("LunarLander-v3", "D13-lunar-epochs", epochs_command(
+        "D13-lunar-epochs", "LunarLander-v3", "8-8", 200000, OUTSIDE,
+        f"--base benchmarks/studies/outside_env.yml {EPOCHS_SETS}").replace("--workers 2", "--workers 1"),
+        EPOCHS_LABEL, ("8-8",), methods=("cmz",)),
+)
+
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
                               ("HalfCheetah-v5", "HalfCheetah-v5"), ("Swimmer-v5", "Swimmer-v5"),
@@ -1273,6 +1288,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *NOREW_DEFAULT_ROWS,
     *EPOCHS_ROWS,
     *QUARTER_ROWS,
+    *HELD_OUT_ROWS,
 )
 
 

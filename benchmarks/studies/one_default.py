@@ -45,7 +45,8 @@ TASKS: tuple[tuple[str, str, tuple[str, ...], str, tuple[str, ...], str], ...] =
                        ("HalfCheetah-v5", ("tuning/D11-epochs",)),
                        ("Swimmer-v5", ("tuning/D9-drift", "tuning/D11-epochs")),
                        ("WaypointNav-v0", ("tuning/D6-norew",)))),
-    ("LunarLander-v3", "LunarLander-v3", ("outside_env",), "tuning/D6-lunar", ("tuning/D6-lunar",), "tuning/D4-lunar"),
+    ("LunarLander-v3", "LunarLander-v3", ("outside_env", "outside_env_trials5-9"), "tuning/D6-lunar",
+     ("tuning/D6-lunar",), "tuning/D4-lunar"),
     *((env, env, ("untuned",), "tuning/D6-untuned", d11, bc)
       for env, d11, bc in (("MountainCarContinuous-v0", ("tuning/D11-epochs",), "tuning/D4-untuned"),
                            ("Pendulum-v1", ("tuning/D6-untuned",), "tuning/D4-untuned"),
@@ -77,7 +78,7 @@ EPOCHS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...], str], ...] = (
 QUARTER = {"Ant-v5": "tuning/D12-quarter", "WaypointNav-v0": "tuning/D12-quarter"}
 #: the thirteenth candidate's own runs (``bc_epochs_per_update: auto`` by the clone's held-out NLL), by row label:
 #: the trials no earlier candidate's runs stand for
-D13_RUNS: dict[str, tuple[str, ...]] = {}
+D13_RUNS = {"LunarLander-v3": ("tuning/D13-lunar",)}
 #: the candidates' folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
 TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
