@@ -997,6 +997,17 @@ HELD_OUT_ROWS: tuple[Variant, ...] = (
     *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
         "D13-lunar", "LunarLander-v3", "TRIALS", 200000, OUTSIDE,
         f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}"), HELD_OUT_LABEL, ("5-9",), methods=("cmz",)),
+    # DRIL on the same settings, the six tasks of the aggregate
+    *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0")
+      for row in candidate_rows(env, "D13-dril", (
+          f"python benchmarks/studies/tune.py D13-dril --as-untuned {HELD_OUT_SETS} -- --env "
+          "Walker2d-v5,Hopper-v5,HalfCheetah-v5,Swimmer-v5,WaypointNav-v0 --methods dril --trials 0-2 --timesteps "
+          "300000 --eval-every 5 --workers 2 --no-progress (stopped for the session's time once trials 0-1 had "
+          "finished, the unfinished runs removed)"), HELD_OUT_LABEL, ("0-1",), methods=("dril",))),
+    *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
+        "D13-lunar", "LunarLander-v3", "0-1", 200000, OUTSIDE,
+        f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}").replace("--methods cmz", "--methods dril")
+        .replace("--workers 2", "--workers 1"), HELD_OUT_LABEL, ("0-1",), methods=("dril",)),
     # the trial whose clone the held-out NLL judged loose (-0.31), run with the epochs it dropped
     *candidate_rows("LunarLander-v3", "D13-lunar-epochs", epochs_command(
         "D13-lunar-epochs", "LunarLander-v3", "8-8", 200000, OUTSIDE,

@@ -137,7 +137,7 @@ def table() -> str:
         if label in SIX:
             for key, values in (("entry", entry), ("D6", d6), ("D11", d11), ("D13", d13), ("BC", bc)):
                 six[key].append([values.get(t, float("nan")) / 100 for t in range(5)])
-    return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _epochs()
+    return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _dril() + "\n\n" + _epochs()
 
 
 def _held_out(folders: tuple[str, ...], env: str) -> dict[int, float]:
@@ -224,6 +224,33 @@ def _six_tasks(six: dict[str, list[list[float]]]) -> str:
         for k in keys) + " |")
     if missing:
         rows.append(f"\n{', '.join(missing)}: not every run on the six tasks is in yet.")
+    return "\n".join(rows)
+
+
+#: DRIL on D13's settings, by the six tasks' row labels
+DRIL = {label: "tuning/D13-lunar" if label.startswith("Lunar") else "tuning/D13-dril" for label in SIX}
+
+
+def _dril() -> str:
+    """DRIL against CMZ-DRIL on D13's settings, per task and across the six, on the trials DRIL has on each."""
+    tasks = [task for task in TASKS if task[0] in SIX]
+    cmz = {label: _d13(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
+    dril = {label: _per_trial((DRIL[label],), env, "dril", "pct_of_expert") for label, env, *_ in tasks}
+    trials = tuple(sorted(set.intersection(*(set(values) for values in dril.values()))))
+    if len(trials) < 2:
+        return "DRIL on D13's settings: not two trials on every task yet."
+    arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
+              for key, by_label in (("CMZ-DRIL", cmz), ("DRIL", dril))}
+    agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
+                           by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", "DRIL")])
+    rows = [f"| On D13's settings, trials {', '.join(map(str, trials))} | " + " | ".join(SIX) + " | IQM [95% CI] |",
+            "|---" * (len(SIX) + 2) + "|"]
+    for key, array in arrays.items():
+        p, lo, hi = agg.summary[key]["IQM"]
+        rows.append(f"| {key} | " + " | ".join(f"{100 * v:.1f}" for v in array.mean(axis=0)) +
+                    f" | {100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] |")
+    rows.append("\nP(CMZ-DRIL > DRIL) across the six: {:.2f} [{:.2f}, {:.2f}].".format(
+        *agg.improvement[("CMZ-DRIL", "DRIL")].probability))
     return "\n".join(rows)
 
 
