@@ -158,8 +158,9 @@ def _held_out(folders: tuple[str, ...], env: str) -> dict[int, float]:
 def _d13(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dict[int, float]:
     """Trial -> the thirteenth candidate's final policy. Where the clone falls (the tasks without an
     :data:`EPOCHS` row), no epochs: D11's runs. Elsewhere each trial's run with the epochs where the clone's
-    held-out NLL per action entry is under :data:`AUTO_EPOCHS_NLL`, without them where it is not (no clone of
-    these falls); then :data:`D13_RUNS`, the rule's own runs."""
+    held-out NLL per action entry is under :data:`AUTO_EPOCHS_NLL`, without them where it is not (the clones
+    that fall there, BipedalWalkerHardcore-v3's trials 3-4, read as loose too); then :data:`D13_RUNS`, the
+    rule's own runs."""
     row = next(((on, off) for name, _, on, off, _ in EPOCHS if name == label), None)
     if row is None:
         values = _candidate(d11_folders, env, column)
