@@ -186,6 +186,28 @@ def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_th
         decided["reason"]
 
 
+@pytest.mark.parametrize("falls", [True, False])
+def test_where_the_expert_ends_its_episodes_a_loose_clone_keeps_the_nll_epochs_unless_it_falls(
+        pendulum_demos, falls):
+    # The demonstrations end at 100 steps, before the env's limit of 150: the expert ends its own episodes, and
+    # the held-out NLL is not asked; whether the clone falls decides.
+    model = _auto_epochs(_Falls(_pendulum(150)) if falls else _pendulum(150), _inside(pendulum_demos))
+    model.pretrain()
+    model.pretrain_info["bc_validation_nll"] = 0.5 + np.log(2.0)  # loose: 0.50 per action entry
+    model.learn(64)
+    decided = model.rules["bc_epochs_per_update"]
+    assert decided["value"] == (0 if falls else 1) and model.bc_epochs_active == decided["value"]
+    assert ("train/bc_nll" in model.logger.name_to_value) is not falls
+    if falls:
+        assert decided["reason"].endswith("the clone falls, so no NLL epoch pulls the policy back to it")
+    else:
+        assert decided["reason"].startswith("the env terminated 0 of the clone's 5 episodes (its path scores u ")
+        assert decided["reason"].endswith(
+            "and the expert ends its own episodes, an end the disagreement reward does not ask for (its held-out "
+            "NLL, 0.50 per action entry, is not asked): the clone does not fall, and one NLL epoch after each "
+            "update holds the policy on the demonstrations")
+
+
 def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(pendulum_demos, close_clones):
     pendulum_demos = _inside(pendulum_demos)
     auto = _auto_epochs(_pendulum(40), pendulum_demos, seed=3)

@@ -112,13 +112,14 @@ class CMZDRIL(ImitationLearner, PPO):
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
         disables; a fraction is a pass over that share of the demo steps, drawn at random, so 0.25
         pulls the policy back to the demonstrations a quarter as hard). ``"auto"``: none where the
-        clone predicts the expert's held-out actions loosely (its NLL on the held-out demo steps, per
-        action entry in units of half its bounds' range, at least
-        :data:`~sb3_cmzdril.common.bc.AUTO_EPOCHS_NLL`: no probe needed) or where the pretrained clone
-        falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the episodes it plays at the first
-        ``learn()``, whose steps are not counted): an epoch would pull the policy back to a poor
-        clone; the paper's one elsewhere, which holds a close clone on the demonstrations. The decision
-        and its reason go to :attr:`rules`.
+        pretrained clone falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the episodes it
+        plays at the first ``learn()``, whose steps are not counted) or, unless the expert ends its own
+        episodes before the env's time limit, where the clone predicts the expert's held-out actions
+        loosely (its NLL on the held-out demo steps, per action entry in units of half its bounds'
+        range, at least :data:`~sb3_cmzdril.common.bc.AUTO_EPOCHS_NLL`: no probe needed): an epoch
+        would pull the policy back to a poor clone. The paper's one elsewhere: it holds a close clone
+        on the demonstrations, and keeps a clone's way to an end the expert reaches (a landing, a goal),
+        which the disagreement reward does not ask for. The decision and its reason go to :attr:`rules`.
     :param bc_update_std: whether the NLL epochs after each PPO update also fit the policy's
         state-independent log-std (``policy.log_std``: a Gaussian's, or gSDE's exploration
         parameters), as the paper's NLL does. They pull it toward the demonstrations' residual
@@ -434,7 +435,10 @@ class CMZDRIL(ImitationLearner, PPO):
         ``absorbing`` where the expert ends its own episodes by how soon the env ends the clone's."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
         held_out = nll_per_action_entry(self.pretrain_info.get("bc_validation_nll", float("nan")), self.action_space)
-        if bc and held_out is not None and held_out >= AUTO_EPOCHS_NLL:  # decided without a probe
+        expert_ends = (self.demonstrations is not None and self.env is not None and time_limit(self.env) is not None
+                       and not expert_never_terminates(self.demonstrations, self.env))
+        loose = held_out is not None and held_out >= AUTO_EPOCHS_NLL
+        if bc and loose and not expert_ends:  # decided without a probe
             self._record_rule(
                 "bc_epochs_per_update", 0,
                 f"the clone's NLL on the held-out demo steps is {held_out:.2f} per action entry (in units of half "
@@ -443,9 +447,7 @@ class CMZDRIL(ImitationLearner, PPO):
             bc = False
         clip = self.cmz_clip_quantile == "auto" and self.reward == "cmz" and "cmz_clip_quantile" not in self.rules
         # where the expert ends its own episodes, absorbing="auto" asks how soon the env ends the clone's
-        ends = (self.absorbing == "auto" and self.reward == "cmz" and self.clone_ends is None
-                and self.demonstrations is not None and self.env is not None and time_limit(self.env) is not None
-                and not expert_never_terminates(self.demonstrations, self.env))
+        ends = self.absorbing == "auto" and self.reward == "cmz" and self.clone_ends is None and expert_ends
         if not (bc or clip or ends) or not (bc or ends or self._absorbing_applies()):
             if clip:  # without an absorbing state there is no fall to clip, and nothing else to probe
                 self._record_rule("cmz_clip_quantile", None, _NO_ABSORBING)
@@ -470,7 +472,9 @@ class CMZDRIL(ImitationLearner, PPO):
             falls, why = clone_falls(drift, self.demonstrations.episode_lengths, time_limit(self.env))
             why += f" (its path scores u {drift.ratio:.2f} times its mean on the demonstrations)"
             close = ("no held-out NLL to judge the clone by" if held_out is None else
-                     f"its held-out NLL is {held_out:.2f} per action entry, under {AUTO_EPOCHS_NLL:g}")
+                     f"its held-out NLL is {held_out:.2f} per action entry, under {AUTO_EPOCHS_NLL:g}" if not loose
+                     else f"the expert ends its own episodes, an end the disagreement reward does not ask for "
+                          f"(its held-out NLL, {held_out:.2f} per action entry, is not asked)")
             self._record_rule(
                 "bc_epochs_per_update", 0 if falls else 1,
                 f"{why}: the clone falls, so no NLL epoch pulls the policy back to it" if falls else
