@@ -830,9 +830,15 @@ def candidate_rows(env: str, name: str, command: str, candidate: str, trial_sets
     return tuple(
         Variant(env, method, f"{METHOD_LABELS[method]}, {candidate}: trials {label}",
                 f"results/tuning/{name}", command.replace("TRIALS", label),
-                trials=tuple(range(int(label[0]), int(label[-1]) + 1)))
+                trials=_trial_range(label))
         for method in methods for label in trial_sets
     )
+
+
+def _trial_range(label: str) -> tuple[int, ...]:
+    """'5-9' -> (5, 6, 7, 8, 9), '10-14' -> (10, ..., 14), '8' -> (8,)."""
+    first, _, last = label.partition("-")
+    return tuple(range(int(first), int(last or first) + 1))
 
 
 def raw_default_rows(env: str, name: str, command: str, trial_sets: tuple[str, ...] = ("0-4",)) -> tuple[Variant, ...]:
@@ -992,11 +998,16 @@ QUARTER_ROWS: tuple[Variant, ...] = (
 HELD_OUT_SETS = NOREW_SETS.replace(BCUPD0, "--set bc_epochs_per_update=auto")
 HELD_OUT_LABEL = NOREW_DEFAULT_LABEL.replace(
     "no NLL epochs", "the NLL epochs by the clone's held-out NLL and whether it falls (`bc_epochs_per_update: auto`)")
+#: where the thirteenth candidate's rule stood: the fourteenth's (commit 3e8495a7) keeps the epochs where the expert
+#: ends its own episodes and the clone does not fall
+HELD_OUT_COMMIT = (" (at commit 921c968c, before `bc_epochs_per_update: auto` kept the NLL epochs where the expert "
+                   "ends its own episodes)")
 #: the thirteenth candidate's (D13's) own runs: where no earlier candidate's runs stand for its decisions
 HELD_OUT_ROWS: tuple[Variant, ...] = (
     *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
         "D13-lunar", "LunarLander-v3", "TRIALS", 200000, OUTSIDE,
-        f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}"), HELD_OUT_LABEL, ("5-9",), methods=("cmz",)),
+        f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}") + HELD_OUT_COMMIT, HELD_OUT_LABEL, ("5-9",),
+        methods=("cmz",)),
     # DRIL on the same settings, the six tasks of the aggregate
     *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0")
       for row in candidate_rows(env, "D13-dril", (
@@ -1007,12 +1018,37 @@ HELD_OUT_ROWS: tuple[Variant, ...] = (
     *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
         "D13-lunar", "LunarLander-v3", "0-1", 200000, OUTSIDE,
         f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}").replace("--methods cmz", "--methods dril")
-        .replace("--workers 2", "--workers 1"), HELD_OUT_LABEL, ("0-1",), methods=("dril",)),
+        .replace("--workers 2", "--workers 1") + HELD_OUT_COMMIT, HELD_OUT_LABEL, ("0-1",), methods=("dril",)),
     # the trial whose clone the held-out NLL judged loose (-0.31), run with the epochs it dropped
     *candidate_rows("LunarLander-v3", "D13-lunar-epochs", epochs_command(
         "D13-lunar-epochs", "LunarLander-v3", "8-8", 200000, OUTSIDE,
         f"--base benchmarks/studies/outside_env.yml {EPOCHS_SETS}").replace("--workers 2", "--workers 1"),
         EPOCHS_LABEL, ("8-8",), methods=("cmz",)),
+)
+
+D14_LABEL = NOREW_DEFAULT_LABEL.replace(
+    "no NLL epochs", "the NLL epochs by whether the clone falls and, unless the expert ends its own episodes, its "
+    "held-out NLL (`bc_epochs_per_update: auto`)")
+D14_LUNAR = epochs_command("D14-lunar", "LunarLander-v3", "TRIALS", 200000, OUTSIDE,
+                           f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}")
+D14_UNTUNED = (f"python benchmarks/studies/tune.py D14-untuned --as-untuned {HELD_OUT_SETS} -- --env "
+               f"{MOUNTAIN},{BIPEDAL} --methods cmz,bc --trials 5-9 --timesteps 300000 --eval-every 5 --workers 2 "
+               f"--no-progress --demos-dir {UNTUNED}")
+#: LunarLander-v3's fresh trials 10-14 with the outside-env study's settings, to confirm the fourteenth candidate
+OUTSIDE_TRIALS10_14 = "results/outside_env_trials10-14"
+OUTSIDE_TRIALS10_14_COMMAND = OUTSIDE_TRIALS5_9_COMMAND.replace("bc,dril,cmz", "bc,cmz").replace("5-9", "10-14")
+#: the fourteenth candidate's (D14's) own runs, on trials no run of an earlier candidate had: LunarLander-v3's
+#: 10-14 and DRIL's 0-4, MountainCarContinuous-v0's and BipedalWalker-v3's 5-9
+D14_ROWS: tuple[Variant, ...] = (
+    Variant("LunarLander-v3", "cmz", "package defaults, 3 demonstrations: trials 10-14 (fresh trials)",
+            OUTSIDE_TRIALS10_14, OUTSIDE_TRIALS10_14_COMMAND, trials=tuple(range(10, 15)), extends_reference=True),
+    Variant("LunarLander-v3", "bc", "BC: trials 10-14", OUTSIDE_TRIALS10_14, OUTSIDE_TRIALS10_14_COMMAND,
+            trials=tuple(range(10, 15))),
+    *candidate_rows("LunarLander-v3", "D14-lunar", D14_LUNAR, D14_LABEL, ("10-14",), methods=("cmz",)),
+    *candidate_rows("LunarLander-v3", "D14-lunar", D14_LUNAR.replace("--methods cmz", "--methods dril"), D14_LABEL,
+                    ("0-4",), methods=("dril",)),
+    *(row for env in (MOUNTAIN, BIPEDAL) for row in candidate_rows(env, "D14-untuned", D14_UNTUNED, D14_LABEL,
+                                                                    ("5-9",))),
 )
 
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
@@ -1300,6 +1336,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *EPOCHS_ROWS,
     *QUARTER_ROWS,
     *HELD_OUT_ROWS,
+    *D14_ROWS,
 )
 
 

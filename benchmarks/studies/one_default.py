@@ -1,14 +1,13 @@
 """The table of docs/one_default.md: the leading candidate for one default against the tuned entries.
 
 CMZ-DRIL's final policy per task, % of the expert (the return on Pendulum-v1, whose returns are
-negative), mean over trials 0-4 / 5-9: the published grid's tuned entries (on the untuned tasks, the
-shipped default; on another expert's pools, the task's entry run on them), the sixth candidate's runs
-(``results/tuning/D6-*``), the eleventh's, its paired difference to the entry over the trials both have,
-and BC on the candidates' inputs. The eleventh's runs are each trial's run of the candidate that decides
-as it does there (a seeded run goes on as the decided value runs it): where its NLL-epochs rule turns them
-off, the sixth's (the tenth's where that one's absorbing rule decides otherwise); where it keeps them, the
-ninth's (which kept them too) or its own (``results/tuning/D11-*``). ``--check`` fails (exit 1) when the
-page's table is not what the records give.
+negative), mean over trials 0-4 / 5-9 (/ 10-14 where run): the published grid's tuned entries (on the
+untuned tasks, the shipped default; on another expert's pools, the task's entry run on them), the sixth
+candidate's runs (``results/tuning/D6-*``), the thirteenth's and the fourteenth's, the fourteenth's paired
+difference to the entry over the trials both have, and BC on the candidates' inputs. A rule's column takes,
+per trial, the run of the candidate that decides as the rule does there (a seeded run goes on as the
+decided value runs it), then the rule's own runs. ``--check`` fails (exit 1) when the page's table is not
+what the records give.
 
     python benchmarks/studies/one_default.py           # rewrite the table in docs/one_default.md
     python benchmarks/studies/one_default.py --check
@@ -45,8 +44,8 @@ TASKS: tuple[tuple[str, str, tuple[str, ...], str, tuple[str, ...], str], ...] =
                        ("HalfCheetah-v5", ("tuning/D11-epochs",)),
                        ("Swimmer-v5", ("tuning/D9-drift", "tuning/D11-epochs")),
                        ("WaypointNav-v0", ("tuning/D6-norew",)))),
-    ("LunarLander-v3", "LunarLander-v3", ("outside_env", "outside_env_trials5-9"), "tuning/D6-lunar",
-     ("tuning/D6-lunar",), "tuning/D4-lunar"),
+    ("LunarLander-v3", "LunarLander-v3", ("outside_env", "outside_env_trials5-9", "outside_env_trials10-14"),
+     "tuning/D6-lunar", ("tuning/D6-lunar",), "tuning/D4-lunar"),
     *((env, env, ("untuned",), "tuning/D6-untuned", d11, bc)
       for env, d11, bc in (("MountainCarContinuous-v0", ("tuning/D11-epochs",), "tuning/D4-untuned"),
                            ("Pendulum-v1", ("tuning/D6-untuned",), "tuning/D4-untuned"),
@@ -67,7 +66,8 @@ EPOCHS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...], str], ...] = (
     ("MountainCarContinuous-v0", "MountainCarContinuous-v0", ("tuning/D11-epochs",), ("tuning/D6-untuned",), "on"),
     ("HalfCheetah-v5, another expert (TQC)", "HalfCheetah-v5", ("tuning/D11-tqc",), ("tuning/D6-tqc",), "on"),
     ("WaypointNav-v0", "WaypointNav-v0", ("tuning/D11-epochs",), ("tuning/D6-norew",), "off: actions on a bound"),
-    ("LunarLander-v3", "LunarLander-v3", ("tuning/D11-lunar",), ("tuning/D6-lunar",), "off: actions on a bound"),
+    ("LunarLander-v3", "LunarLander-v3", ("tuning/D11-lunar", "tuning/D13-lunar-epochs"), ("tuning/D6-lunar",),
+     "off: actions on a bound"),
     ("BipedalWalker-v3", "BipedalWalker-v3", ("tuning/D11-epochs",), ("tuning/D6-untuned",),
      "off: actions on a bound"),
     ("BipedalWalkerHardcore-v3", "BipedalWalkerHardcore-v3", ("tuning/D11-epochs",),
@@ -79,6 +79,13 @@ QUARTER = {"Ant-v5": "tuning/D12-quarter", "WaypointNav-v0": "tuning/D12-quarter
 #: the thirteenth candidate's own runs (``bc_epochs_per_update: auto`` by the clone's held-out NLL), by row label:
 #: the trials no earlier candidate's runs stand for
 D13_RUNS = {"LunarLander-v3": ("tuning/D13-lunar",)}
+#: the fourteenth candidate's (D14's) own runs, on trials no earlier run stands for: D13 where the expert ends its
+#: own episodes before the env's time limit keeps the NLL epochs unless the clone falls
+D14_RUNS = {"LunarLander-v3": ("tuning/D14-lunar",), "MountainCarContinuous-v0": ("tuning/D14-untuned",),
+            "BipedalWalker-v3": ("tuning/D14-untuned",)}
+#: BC's runs on the trials after 0-4 that the fourteenth candidate's confirmation ran, by row label
+BC_LATER = {"LunarLander-v3": ("outside_env_trials10-14",), "MountainCarContinuous-v0": ("tuning/D14-untuned",),
+            "BipedalWalker-v3": ("tuning/D14-untuned",)}
 #: the candidates' folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
 TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
@@ -100,9 +107,9 @@ def _per_trial(folders: tuple[str, ...], env: str, method: str, column: str) -> 
 
 
 def _means(values: dict[int, float]) -> str:
-    """'mean of trials 0-4 / mean of trials 5-9', each only where it has trials."""
+    """'mean of trials 0-4 / mean of trials 5-9 / mean of trials 10-14', each only where it has trials."""
     parts = [np.mean([v for t, v in values.items() if t in trials]) if set(values) & set(trials) else None
-             for trials in (range(5), range(5, 10))]
+             for trials in (range(5), range(5, 10), range(10, 15))]
     return " / ".join(f"{p:.1f}" if abs(p) < 1000 else f"{p:.0f}" for p in parts if p is not None)
 
 
@@ -118,24 +125,25 @@ def _candidate(folders: tuple[str, ...], env: str, column: str) -> dict[int, flo
 def table() -> str:
     """The page's table and the six tasks' aggregate under it, from the records."""
     materialize_all(ROOT / "results")
-    lines = ["| Task | tuned entry | D6 | D11 | **D13** | paired, D13 - entry | BC |", "|---|---|---|---|---|---|---|"]
-    six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D11": [], "D13": [], "BC": []}
+    lines = ["| Task | tuned entry | D6 | D13 | **D14** | paired, D14 - entry | BC |", "|---|---|---|---|---|---|---|"]
+    six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D13": [], "D14": [], "BC": []}
     for label, env, entry_folders, d6_folder, d11_folders, bc_folder in TASKS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
         entry = _per_trial(entry_folders, env, "cmz", column)
-        d6, d11 = _candidate((d6_folder,), env, column), _candidate(d11_folders, env, column)
-        d13 = _d13(label, env, column, d11_folders)
+        d6 = _candidate((d6_folder,), env, column)
+        d13, d14 = _d13(label, env, column, d11_folders), _d14(label, env, column, d11_folders)
         bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", column).items() if t < 5}
-        shared = sorted(set(entry) & set(d13))
-        diffs = np.array([d13[t] - entry[t] for t in shared])
+        bc.update({t: v for t, v in _per_trial(BC_LATER.get(label, ()), env, "bc", column).items() if t >= 5})
+        shared = sorted(set(entry) & set(d14))
+        diffs = np.array([d14[t] - entry[t] for t in shared])
         se = diffs.std(ddof=1) / np.sqrt(len(diffs)) if len(diffs) > 1 else float("nan")
         paired = (f"{diffs.mean():+.1f} (se {se:.1f}), higher in {int((diffs > 0).sum())} of {len(diffs)}"
                   if len(diffs) else "")
         name = f"{label} (return)" if env in BY_RETURN else label
-        lines.append(f"| {name} | {_means(entry) or '—'} | {_means(d6)} | {_means(d11) or '—'} | "
-                     f"**{_means(d13) or '—'}** | {paired} | {_means(bc)} |")
+        lines.append(f"| {name} | {_means(entry) or '—'} | {_means(d6)} | {_means(d13)} | "
+                     f"**{_means(d14)}** | {paired} | {_means(bc)} |")
         if label in SIX:
-            for key, values in (("entry", entry), ("D6", d6), ("D11", d11), ("D13", d13), ("BC", bc)):
+            for key, values in (("entry", entry), ("D6", d6), ("D13", d13), ("D14", d14), ("BC", bc)):
                 six[key].append([values.get(t, float("nan")) / 100 for t in range(5)])
     return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _dril() + "\n\n" + _epochs()
 
@@ -175,20 +183,67 @@ def _d13(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dic
     return values
 
 
+def _ends(folders: tuple[str, ...], env: str) -> dict[int, bool]:
+    """Trial -> whether the clone falls, on the trials where the expert ends its own episodes before the env's
+    time limit, as the absorbing rule of a run of the trial recorded it (every run of a trial probes alike)."""
+    ends: dict[int, bool] = {}
+    for folder in folders:
+        for run in sorted((ROOT / "results" / folder / env / "cmz").glob("trial*")):
+            reason = json.loads((run / "config.json").read_text(encoding="utf-8")).get("rules", {}).get(
+                "absorbing", {}).get("reason", "")
+            if "demonstrations end before the env's time limit" in reason and "the env ends the clone's" in reason:
+                ends[int(run.name.removeprefix("trial"))] = reason.endswith("the clone falls")
+    return ends
+
+
+def _decided(folder: str, env: str) -> dict[int, float]:
+    """Trial -> the NLL epochs ``bc_epochs_per_update="auto"`` decided in the run's record."""
+    decided: dict[int, float] = {}
+    for run in sorted((ROOT / "results" / folder / env / "cmz").glob("trial*")):
+        rule = json.loads((run / "config.json").read_text(encoding="utf-8")).get("rules", {}).get(
+            "bc_epochs_per_update")
+        if rule is not None:
+            decided[int(run.name.removeprefix("trial"))] = rule["value"]
+    return decided
+
+
+def _d14(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dict[int, float]:
+    """Trial -> the fourteenth candidate's final policy: D13's, but where the expert ends its own episodes
+    before the env's time limit, the run with the NLL epochs unless the clone falls (D13's own runs count as
+    runs with the epochs they decided); then :data:`D14_RUNS`, the rule's own runs."""
+    values = _d13(label, env, column, d11_folders)
+    row = next(((on, off) for name, _, on, off, _ in EPOCHS if name == label), None)
+    if row is not None:
+        on_folders, off_folders = row
+        on, off = _candidate(on_folders, env, column), _candidate(off_folders, env, column)
+        for folder in D13_RUNS.get(label, ()):
+            decided, runs = _decided(folder, env), _candidate((folder,), env, column)
+            for trial, value in runs.items():
+                (on if decided.get(trial) else off).setdefault(trial, value)
+        for trial, falls in _ends(on_folders + off_folders + D13_RUNS.get(label, ()), env).items():
+            runs = off if falls else on
+            if trial in runs:
+                values[trial] = runs[trial]
+    values.update(_candidate(D14_RUNS.get(label, ()), env, column))
+    return values
+
+
 def _epochs() -> str:
-    """No NLL epoch after each PPO update, a quarter of one (D12) and one, D6's other settings alike, and what D13
-    decides by the clone's held-out NLL, trials 0-4 (over the trials the first and the third have)."""
+    """No NLL epoch after each PPO update, a quarter of one (D12) and one, D6's other settings alike, what D13
+    decides by the clone's held-out NLL and what D14 decides, trials 0-4 (over the trials the first and the third
+    have)."""
     rows = ["| NLL epochs, trials 0-4 | none (D6) | a quarter (D12) | one | held-out NLL per action entry: "
-            "D13's epochs | **D13** | D13 - the better of none and one, paired |", "|---|---|---|---|---|---|---|"]
+            "D13's epochs | D13 | **D14** | D14 - the better of none and one, paired |",
+            "|---|---|---|---|---|---|---|---|"]
     for label, env, on_folders, off_folders, _ in EPOCHS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
         on, off = (_candidate(folders, env, column) for folders in (on_folders, off_folders))
         quarter = _candidate((QUARTER[label],), env, column) if label in QUARTER else {}
         shared = [t for t in range(5) if t in on and t in off]
         nll = _held_out(on_folders + off_folders, env)
-        d13 = _d13(label, env, column, ())
+        d13, d14 = _d13(label, env, column, ()), _d14(label, env, column, ())
         better = on if np.mean([on[t] for t in shared]) > np.mean([off[t] for t in shared]) else off
-        diffs = np.array([d13[t] - better[t] for t in shared])
+        diffs = np.array([d14[t] - better[t] for t in shared])
         kept = sum(nll[t] < AUTO_EPOCHS_NLL for t in shared)
         name = f"{label} (return)" if env in BY_RETURN else label
         rows.append(
@@ -197,22 +252,23 @@ def _epochs() -> str:
             f"{_means({t: on[t] for t in shared})} | "
             f"{min(nll[t] for t in shared):.2f} to {max(nll[t] for t in shared):.2f}: "
             f"{'on' if kept == len(shared) else 'off' if not kept else f'on in {kept} of {len(shared)}'} | "
-            f"**{_means({t: d13[t] for t in shared})}** | {diffs.mean():+.1f} (se "
+            f"{_means({t: d13[t] for t in shared})} | **{_means({t: d14[t] for t in shared})}** | "
+            f"{diffs.mean():+.1f} (se "
             f"{diffs.std(ddof=1) / np.sqrt(len(diffs)):.1f}) against {'one' if better is on else 'none'} |")
     return "\n".join(rows)
 
 
 def _six_tasks(six: dict[str, list[list[float]]]) -> str:
-    """IQM over :data:`SIX` (trials 0-4) of each column with every run in, and the lead candidate's (D13 where
-    all its runs are in, else D11) probability of improvement over each other column."""
+    """IQM over :data:`SIX` (trials 0-4) of each column with every run in, and the lead candidate's (D14)
+    probability of improvement over each other column."""
     matrices = {key: np.array(rows).T for key, rows in six.items()}  # (trials, tasks)
     missing = [k for k, m in matrices.items() if np.isnan(m).any()]
     matrices = {k: m for k, m in matrices.items() if k not in missing}
-    lead = "D13" if "D13" in matrices else "D11"
+    lead = "D14"
     scores = Scores(trials={k: tuple(range(5)) for k in matrices}, tasks={k: SIX for k in matrices},
                     by_method=matrices, labels={k: k for k in matrices})
     agg = aggregate(scores, pairs=[(lead, k) for k in matrices if k != lead])
-    keys = [k for k in ("entry", "D6", "D11", "D13", "BC") if k in matrices]
+    keys = [k for k in ("entry", "D6", "D13", "D14", "BC") if k in matrices]
     names = {"entry": "tuned entry"}
     rows = ["| Across the six tasks (trials 0-4) | " + " | ".join(
         f"**{k}**" if k == lead else names.get(k, k) for k in keys) + " |", "|---" * (len(keys) + 1) + "|"]
@@ -228,23 +284,24 @@ def _six_tasks(six: dict[str, list[list[float]]]) -> str:
     return "\n".join(rows)
 
 
-#: DRIL on D13's settings, by the six tasks' row labels
-DRIL = {label: "tuning/D13-lunar" if label.startswith("Lunar") else "tuning/D13-dril" for label in SIX}
+#: DRIL on D14's settings, by the six tasks' row labels (D13's on the five where the two decide alike: no expert
+#: there ends its own episodes before a time limit)
+DRIL = {label: "tuning/D14-lunar" if label.startswith("Lunar") else "tuning/D13-dril" for label in SIX}
 
 
 def _dril() -> str:
-    """DRIL against CMZ-DRIL on D13's settings, per task and across the six, on the trials DRIL has on each."""
+    """DRIL against CMZ-DRIL on D14's settings, per task and across the six, on the trials DRIL has on each."""
     tasks = [task for task in TASKS if task[0] in SIX]
-    cmz = {label: _d13(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
+    cmz = {label: _d14(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
     dril = {label: _per_trial((DRIL[label],), env, "dril", "pct_of_expert") for label, env, *_ in tasks}
     trials = tuple(sorted(set.intersection(*(set(values) for values in dril.values()))))
     if len(trials) < 2:
-        return "DRIL on D13's settings: not two trials on every task yet."
+        return "DRIL on D14's settings: not two trials on every task yet."
     arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
               for key, by_label in (("CMZ-DRIL", cmz), ("DRIL", dril))}
     agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
                            by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", "DRIL")])
-    rows = [f"| On D13's settings, trials {', '.join(map(str, trials))} | " + " | ".join(SIX) + " | IQM [95% CI] |",
+    rows = [f"| On D14's settings, trials {', '.join(map(str, trials))} | " + " | ".join(SIX) + " | IQM [95% CI] |",
             "|---" * (len(SIX) + 2) + "|"]
     for key, array in arrays.items():
         p, lo, hi = agg.summary[key]["IQM"]
