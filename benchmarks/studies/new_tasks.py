@@ -1014,7 +1014,9 @@ HELD_OUT_ROWS: tuple[Variant, ...] = (
           f"python benchmarks/studies/tune.py D13-dril --as-untuned {HELD_OUT_SETS} -- --env "
           "Walker2d-v5,Hopper-v5,HalfCheetah-v5,Swimmer-v5,WaypointNav-v0 --methods dril --trials 0-2 --timesteps "
           "300000 --eval-every 5 --workers 2 --no-progress (stopped for the session's time once trials 0-1 had "
-          "finished, the unfinished runs removed)"), HELD_OUT_LABEL, ("0-1",), methods=("dril",))),
+          "finished, the unfinished runs removed)" + HELD_OUT_COMMIT + "; trials 2-4 by the same with --trials 2-4 "
+          "at commit 3e8495a7, whose rule decides alike on these tasks (no expert here ends its own episodes "
+          "before a time limit)"), HELD_OUT_LABEL, ("0-4",), methods=("dril",))),
     *candidate_rows("LunarLander-v3", "D13-lunar", epochs_command(
         "D13-lunar", "LunarLander-v3", "0-1", 200000, OUTSIDE,
         f"--base benchmarks/studies/outside_env.yml {HELD_OUT_SETS}").replace("--methods cmz", "--methods dril")
