@@ -11,7 +11,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from helpers import TINY
+from helpers import PAPER, TINY
 from sb3_cmzdril import CMZDRIL, CMZReward, DisagreementReward, DRILReward
 from sb3_cmzdril.data.demos import Demonstrations
 from sb3_cmzdril.errors import UserError
@@ -185,7 +185,8 @@ def test_load_with_other_n_envs(pendulum_demos, tmp_path):
 
 def _rollout_of(env_fn, pendulum_demos, **kwargs) -> CMZDRIL:
     model = CMZDRIL(
-        "MlpPolicy", env_fn(), demonstrations=pendulum_demos, **{**TINY, "n_steps": 160, "batch_size": 80, **kwargs}
+        "MlpPolicy", env_fn(), demonstrations=pendulum_demos,
+        **{**TINY, **PAPER, "n_steps": 160, "batch_size": 80, **kwargs}
     )
     model.learn(2 * 160 * model.n_envs)
     return model
@@ -515,7 +516,7 @@ def _check_mujoco_warnings_routed(mujoco, pendulum_demos, tmp_path, capfd) -> No
         ("cmz", 500, "auto", True),
         ("dril", 100, "auto", False),  # "auto" leaves the baselines as defined
         ("dril", 100, True, True),
-        ("cmz", 100, False, False),  # the default
+        ("cmz", 100, False, False),  # the paper's
     ],
 )
 def test_absorbing_auto_is_on_where_the_expert_never_terminates(
@@ -523,7 +524,8 @@ def test_absorbing_auto_is_on_where_the_expert_never_terminates(
 ):
     assert np.all(cartpole_demos.episode_lengths == 100)  # the expert holds the pole for all recorded steps
     env = gym.make("CartPole-v1", max_episode_steps=limit)
-    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, reward=reward, absorbing=absorbing, **TINY)
+    model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos,
+                    **{**TINY, **PAPER, "reward": reward, "absorbing": absorbing})
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(64)
     assert model.absorbing_active is expected
@@ -631,7 +633,7 @@ def test_absorbing_errors_and_save_load(cartpole_demos, tmp_path):
         CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing="yes")
     with pytest.raises(ValueError, match="absorbing_score must be 'highest' or 'terminal', got 'lowest'"):
         CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos, absorbing_score="lowest")
-    assert CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos).absorbing is False
+    assert CMZDRIL("MlpPolicy", "CartPole-v1", demonstrations=cartpole_demos).absorbing == "auto"  # the default
     env = gym.make("CartPole-v1", max_episode_steps=100)
     model = CMZDRIL("MlpPolicy", env, demonstrations=cartpole_demos, absorbing="auto", absorbing_score="terminal",
                     **TINY)

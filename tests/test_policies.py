@@ -37,7 +37,7 @@ def test_standardizer_forward_and_bad_statistics():
 
 
 def test_policy_sees_demo_standardised_inputs_that_survive_save_load(pendulum_demos, tmp_path):
-    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **TINY)
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, standardize_observations=True, **TINY)
     model.pretrain()
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer)
@@ -77,7 +77,8 @@ def test_a_users_extractor_is_composed_and_vecnormalize_wins(pendulum_demos, cap
 
 
 def test_statistics_of_every_standardizer_when_actor_and_critic_do_not_share(pendulum_demos):
-    kwargs = {**TINY, "policy_kwargs": {"share_features_extractor": False, "net_arch": [8]}}
+    kwargs = {**TINY, "standardize_observations": True,
+              "policy_kwargs": {"share_features_extractor": False, "net_arch": [8]}}
     model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, **kwargs)
     model.pretrain()
     mean, _ = observation_statistics(pendulum_demos.observations)

@@ -46,31 +46,53 @@ def test_the_run_records_live_apart_from_the_documentation_source():
     assert not list((ROOT / "docs").glob("runs*")) and not (ROOT / "docs" / "tuning").exists()
 
 
-#: The folders whose rows the docs call the package defaults: the published grid, its trials 5-9 and the
-#: task nobody here tuned for (results/untuned: the `default` entry).
-DEFAULTS_FOLDERS = ("runs", "runs_cmz_trials5-9", "runs_dril_trials5-9", "runs_sac_trials5-9", "runs_bc_trials10",
-                    "untuned")
+#: The folders whose rows the docs call the published grid (its trials 5-9 among them): the shipped YAML's
+#: entries make them.
+PUBLISHED_FOLDERS = ("runs", "runs_cmz_trials5-9", "runs_dril_trials5-9", "runs_sac_trials5-9", "runs_bc_trials10")
+#: Study folders made with a YAML of their own: the tasks nobody here tuned for, on the defaults before 0.3.0.
+STUDY_YAMLS = {"untuned": ROOT / "benchmarks" / "studies" / "untuned.yml"}
 
 
 def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
-    # A row labelled "package defaults" must come from the shipped YAML as it is now: a default that
-    # changes moves the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
+    # A published row must come from the YAML its command names as that YAML is now, read by this version
+    # (a record of an older one ran with that version's defaults): a default or an entry that changes moves
+    # the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
     from sb3_cmzdril.hyperparams import load_hyperparams
     from sb3_cmzdril.training.run_folder import as_stored
-    from sb3_cmzdril.training.spec import default_hyperparams_name, effective_values
+    from sb3_cmzdril.training.spec import default_hyperparams_name, effective_values, record_version
 
     checked, stale = 0, []
-    for folder in DEFAULTS_FOLDERS:
+    for folder in (*PUBLISHED_FOLDERS, *STUDY_YAMLS):
         for path in sorted((ROOT / "results" / folder).glob("*/*/trial*/config.json")):
             config = json.loads(path.read_text())
-            shipped = ROOT / "hyperparams" / f"{default_hyperparams_name(config['method'])}.yml"
-            entry = load_hyperparams(shipped, config["env_id"], config["method"])
-            checked += 1
             method = config["method"]
+            shipped = ROOT / "hyperparams" / f"{default_hyperparams_name(method)}.yml"
+            yaml_file = STUDY_YAMLS.get(folder, shipped) if shipped.name == "cmzdril.yml" else shipped
+            entry = load_hyperparams(yaml_file, config["env_id"], method)
+            checked += 1
             if (effective_values(as_stored({"values": entry.raw})["values"], method)
-                    != effective_values(config["hyperparams_values"], method)):
+                    != effective_values(config["hyperparams_values"], method, record_version(config))):
                 stale.append(str(path.relative_to(ROOT)))
     assert checked > 200 and stale == []
+
+
+def test_a_record_of_an_older_version_reads_a_default_it_left_out_as_that_version_had_it():
+    from sb3_cmzdril.training.spec import effective_values, learner_defaults
+
+    assert learner_defaults("cmz")["absorbing"] == "auto"
+    assert learner_defaults("cmz", "0.2.0")["absorbing"] is False
+    assert learner_defaults("cmz", "0.3.0.dev0")["absorbing"] == "auto"
+    # a 0.2.0 run that left absorbing out ran without the absorbing state: this version states it
+    assert effective_values({"n_timesteps": 1e6}, "cmz", "0.2.0") == {
+        "n_timesteps": 1e6, "absorbing": False, "cmz_clip_quantile": None, "disagreement": "std",
+        "standardize_observations": True, "bc_epochs_per_update": 1}
+    # the same entry now is another run; one that states the old values is the same run
+    assert effective_values({"n_timesteps": 1e6}, "cmz") == {"n_timesteps": 1e6}
+    assert effective_values({"n_timesteps": 1e6, "absorbing": False, "cmz_clip_quantile": None,
+                             "disagreement": "std", "standardize_observations": True, "bc_epochs_per_update": 1},
+                            "cmz") == effective_values({"n_timesteps": 1e6}, "cmz", "0.2.0")
+    # a record that stated a default since adopted is the run that leaves it out now
+    assert "absorbing" not in effective_values({"absorbing": "auto"}, "cmz", "0.2.0")
 
 
 def test_the_constraints_file_names_the_versions_the_published_records_were_made_with():

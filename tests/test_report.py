@@ -404,11 +404,11 @@ def test_the_final_evaluation_figure_reads_at_page_width(tmp_path):
 
 def test_setting_differences_name_missing_settings(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
-    write_run(a, "bc", 0, [1.0], hyperparams={"standardize_observations": True, "n_steps": 2048, "norm": 1})
+    write_run(a, "bc", 0, [1.0], hyperparams={"standardize_observations": "auto", "n_steps": 2048, "norm": 1})
     write_run(b, "bc", 0, [1.0], hyperparams={"n_steps": 2048})
     write_run(b, "bc", 0, [1.0], env="Hopper-v5", hyperparams={"n_steps": 1})  # only in b: not compared
     write_run(a, "cmz-sac", 0, [1.0], hyperparams={"buffer_size": 10})  # a method only a has: not compared
-    # a setting one grid leaves out counts at the learner's default (here True: no difference); a key
+    # a setting one grid leaves out counts at the learner's default (here 'auto': no difference); a key
     # that is no constructor argument and that one grid lacks is named as not set
     assert setting_differences(load_runs(a), load_runs(b)) == {ENV: [("norm", "1", NOT_SET)]}
     c = tmp_path / "c"

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from helpers import TINY, TINY_SAC
+from helpers import PAPER, TINY, TINY_SAC
 from sb3_cmzdril import CMZDRIL, CMZDRILSAC, Demonstrations
 
 
@@ -60,7 +60,8 @@ def test_the_disagreement_rule_reads_how_many_expert_actions_sit_on_a_bound(pend
 
 
 def test_settings_given_outright_are_no_rule(pendulum_demos):
-    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos, absorbing=True, **TINY)
+    model = CMZDRIL("MlpPolicy", "Pendulum-v1", demonstrations=pendulum_demos,
+                    **{**TINY, **PAPER, "absorbing": True})
     model.learn(64)
     assert model.rules == {}
 
@@ -72,24 +73,27 @@ def test_a_runs_record_keeps_what_its_rules_decided(tiny_experiment, tmp_path):
     from sb3_cmzdril.training.runs import plan_run, run_experiment
 
     hp = tmp_path / "auto.yml"
-    hp.write_text(tiny_experiment["hp"].read_text() + "  absorbing: auto\n  disagreement: auto\n")
+    hp.write_text(tiny_experiment["hp"].read_text() + "  bc_epochs_per_update: 1\n")  # the defaults' other rules
     spec = plan_run(ENV, "cmz", 0, demos=tiny_experiment["pool"], n_eval_episodes=1, timesteps=128,
                     hyperparams=hp, output_dir=tmp_path / "run")
     run_experiment(spec)
     rules = json.loads((tmp_path / "run" / "done.json").read_text())["rules"]
-    assert set(rules) == {"absorbing", "disagreement"} and rules["absorbing"]["value"] is True
+    assert set(rules) == {"absorbing", "disagreement", "cmz_clip_quantile", "standardize_observations"}
+    assert rules["absorbing"]["value"] is True
     assert rules["absorbing"]["reason"].startswith("every demonstration lasts the env's time limit (50 steps)")
     config = json.loads((tmp_path / "run" / "config.json").read_text())
     assert config["rules"] == rules
     # every constructor argument as the run gave it: the YAML's, the run's own, the constructor's defaults
     constructor = config["constructor"]
     assert constructor["absorbing"] == "auto" and constructor["reward"] == "cmz" and constructor["seed"] == 0
+    assert constructor["bc_epochs_per_update"] == 1
     assert constructor["alpha"] == 10.0 and constructor["gae_lambda"] == 0.95 and constructor["device"] == "cpu"
     assert not {"env", "demonstrations", "verbose", "self"} & set(constructor)
 
 
 def _auto_epochs(env, demos, **kwargs):
-    return CMZDRIL("MlpPolicy", env, demonstrations=demos, bc_epochs_per_update="auto", **{**TINY, **kwargs})
+    return CMZDRIL("MlpPolicy", env, demonstrations=demos,
+                   **{**TINY, **PAPER, "bc_epochs_per_update": "auto", **kwargs})
 
 
 def _inside(demos: Demonstrations) -> Demonstrations:
@@ -214,7 +218,7 @@ def test_the_clones_probe_leaves_the_run_as_the_decided_value_would_have_run_it(
     auto.learn(128)
     decided = auto.rules["bc_epochs_per_update"]["value"]
     given = CMZDRIL("MlpPolicy", _pendulum(40), demonstrations=pendulum_demos,
-                    **{**TINY, "seed": 3, "bc_epochs_per_update": decided})
+                    **{**TINY, **PAPER, "seed": 3, "bc_epochs_per_update": decided})
     given.learn(128)
     for (name, a), (_, b) in zip(auto.policy.state_dict().items(), given.policy.state_dict().items(), strict=True):
         assert np.array_equal(a.cpu().numpy(), b.cpu().numpy()), name
@@ -351,7 +355,8 @@ def test_no_absorbing_state_leaves_u_unclipped_without_a_probe(pendulum_demos, m
     import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
 
     monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
-    model = CMZDRIL("MlpPolicy", _pendulum(40), demonstrations=pendulum_demos, cmz_clip_quantile="auto", **TINY)
+    model = CMZDRIL("MlpPolicy", _pendulum(40), demonstrations=pendulum_demos,
+                    **{**TINY, **PAPER, "cmz_clip_quantile": "auto"})
     model.learn(64)
     assert model.rules["cmz_clip_quantile"] == {
         "value": None, "reason": "no absorbing state: an episode's end costs nothing to clip"}

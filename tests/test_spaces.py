@@ -229,7 +229,8 @@ def test_dict_demonstrations_save_load_and_select(tmp_path):
 def test_dict_observations_standardise_their_box_entries_only():
     space = OBS_SPACES["dict"]
     demos = record(SpacesEnv(space, ACTION_SPACES["box"]))
-    model = CMZDRIL("MultiInputPolicy", SpacesEnv(space, ACTION_SPACES["box"]), demonstrations=demos, **TINY)
+    model = CMZDRIL("MultiInputPolicy", SpacesEnv(space, ACTION_SPACES["box"]), demonstrations=demos,
+                    standardize_observations=True, **TINY)
     model.pretrain()
     ext = model.policy.features_extractor
     assert isinstance(ext, DemoStandardizer) and isinstance(ext.extractor, CombinedExtractor)

@@ -186,6 +186,8 @@ OUTSIDE_TRIALS5_9_COMMAND = ("sb3-cmzdril benchmark --env LunarLander-v3 --metho
                              f"benchmarks/studies/outside_env.yml --demos-dir {OUTSIDE} -o {OUTSIDE_TRIALS5_9}")
 #: the tasks nobody here tuned for (benchmarks/studies/untuned_task.sh): their BC and DRIL with the package defaults
 UNTUNED = "results/untuned"
+#: the YAML the untuned tasks' scripts name: the defaults before 0.3.0, which their PPO runs were made with
+UNTUNED_YAML = "benchmarks/studies/untuned.yml"
 BASELINES = (GRID, BC_TRIALS10, DRIL_TRIALS5_9, CMZ_TRIALS5_9, OUTSIDE, OUTSIDE_TRIALS5_9, UNTUNED)
 CONFIRMATION_TRIALS = (5, 6, 7, 8, 9)
 
@@ -579,7 +581,8 @@ PENDULUM_UNCLIPPED_LABEL = f"the same, {PPO_UNCLIPPED_LABEL}"
 def pendulum_rows(method: str, label: str, name: str, sets: str, methods: str) -> tuple[Variant, ...]:
     """``method``'s runs of a Pendulum-v1 variant in results/tuning/NAME (made with ``--methods methods``), a row
     per five trials."""
-    made_by = (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py {name} {sets} -- --methods {methods} "
+    made_by = (f"{PENDULUM_STUDY}: python benchmarks/studies/tune.py {name} --base {UNTUNED_YAML} {sets} -- "
+               f"--methods {methods} "
                f"--trials 0-4 (then 5-9) {PENDULUM_RUN}")
     return trial_set_rows(PENDULUM, f"{METHOD_LABELS[method]}, {label}", f"results/tuning/{name}", made_by,
                           method=method)
@@ -590,7 +593,7 @@ def pendulum_defaults(method: str, methods: str, trials: str) -> Variant:
     with ``--methods methods --trials trials``."""
     return Variant(PENDULUM, method, f"{METHOD_LABELS[method]}, package defaults (the `default` entry)",
                    UNTUNED, f"{PENDULUM_STUDY}: sb3-cmzdril benchmark --methods {methods} --trials {trials} "
-                   f"{PENDULUM_RUN} -o {UNTUNED}")
+                   f"--hyperparams {UNTUNED_YAML} {PENDULUM_RUN} -o {UNTUNED}")
 
 
 #: the off-policy learner's rows on the untuned tasks: hyperparams/cmzdril_sac.yml as shipped (no entry for them),
@@ -695,8 +698,8 @@ def untuned_sac_command(env: str, trials: str) -> str:
 #: A2C) holds a bound in over half its action entries, so the unclipped u is what `disagreement: auto` would take
 BIPEDAL = "BipedalWalker-v3"
 BIPEDAL_GRID = ("bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env BipedalWalker-v3 --methods "
-                "bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir "
-                f"{UNTUNED} -o {UNTUNED}")
+                "bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 --hyperparams "
+                f"{UNTUNED_YAML} --workers 2 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}")
 BIPEDAL_ROWS: tuple[Variant, ...] = (
     Variant(BIPEDAL, "cmz", "package defaults (the `default` entry)", UNTUNED, BIPEDAL_GRID),
     *tuning_rows(BIPEDAL, PPO_UNCLIPPED_LABEL, "BW-unclipped",
@@ -725,7 +728,8 @@ BIPEDAL_ROWS: tuple[Variant, ...] = (
 MOUNTAIN_ROWS: tuple[Variant, ...] = (
     Variant(MOUNTAIN, "bc", f"{METHOD_LABELS['bc']}, package defaults (the `default` entry)", UNTUNED,
             f"bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env {MOUNTAIN} --methods bc "
-            f"--trials 0-9 --eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}"),
+            f"--trials 0-9 --eval-every 5 --hyperparams {UNTUNED_YAML} --workers 2 --no-progress --demos-dir "
+            f"{UNTUNED} -o {UNTUNED}"),
     *both_readouts(lambda words: Variant(
         MOUNTAIN, "cmz-sac", f"{METHOD_LABELS['cmz-sac']}, {SAC_DEFAULT_LABEL}, {words}: trials 0-4", UNTUNED,
         untuned_sac_command(MOUNTAIN, "0-4") + " (two such processes, --workers 1 each)", trials=tuple(range(5)))),
@@ -926,7 +930,8 @@ def clone_ends_command(name: str, env: str, trials: str, demos: str) -> str:
 HARDCORE_ROWS: tuple[Variant, ...] = (
     Variant(HARDCORE, "cmz", "package defaults (the `default` entry)", UNTUNED,
             f"bash benchmarks/studies/untuned_task.sh: sb3-cmzdril benchmark --env {HARDCORE} --methods cmz --trials "
-            f"0-4 --timesteps 300000 --eval-every 5 --workers 2 --no-progress --demos-dir {UNTUNED} -o {UNTUNED}"),
+            f"0-4 --timesteps 300000 --eval-every 5 --hyperparams {UNTUNED_YAML} --workers 2 --no-progress "
+            f"--demos-dir {UNTUNED} -o {UNTUNED}"),
     *norew_rows(HARDCORE, "D6-untuned", D6_BIPEDAL, methods=("cmz", "bc")),
 )
 CLONE_ENDS_ROWS: tuple[Variant, ...] = (

@@ -4,6 +4,8 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/../.."
 zoo=${ZOO:-rl-trained-agents}
 untuned=results/untuned
+# CMZDRIL's defaults before 0.3.0, which the study ran on (PPO methods; cmz-sac reads its own file)
+hyperparams=benchmarks/studies/untuned.yml
 workers=${WORKERS:-2}
 cli=${SB3_CMZDRIL:-sb3-cmzdril}
 # The study's records are committed as results/untuned.tar.xz: unpack them before adding runs, and

@@ -42,8 +42,8 @@ common=(--env "$env_id" --timesteps 100000 --eval-every 5 --workers "$workers" -
 zoo_ppo=(--set n_envs=4 --set n_steps=1024 --set gamma=0.9 --set learning_rate=1e-3 --set use_sde=true
          --set sde_sample_freq=4)
 for trials in 0-4 5-9; do
-    python benchmarks/studies/tune.py P-zoo-ppo "${zoo_ppo[@]}" -- --methods bc,cmz,env --trials "$trials" "${common[@]}"
-    python benchmarks/studies/tune.py P-zoo-ppo-unclipped "${zoo_ppo[@]}" --set disagreement=std_unclipped \
+    python benchmarks/studies/tune.py P-zoo-ppo --base "$hyperparams" "${zoo_ppo[@]}" -- --methods bc,cmz,env --trials "$trials" "${common[@]}"
+    python benchmarks/studies/tune.py P-zoo-ppo-unclipped --base "$hyperparams" "${zoo_ppo[@]}" --set disagreement=std_unclipped \
         -- --methods cmz,dril --trials "$trials" "${common[@]}"
 done
 # The package's off-policy method, its ceiling and its no-reward ablation, at their own file's budget.
@@ -51,6 +51,6 @@ $cli benchmark --env "$env_id" --methods cmz-sac,env-sac,zero-sac --trials 0-4 -
     --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env "$env_id" --methods cmz-sac --trials 5-9 --eval-every 5 --workers "$workers" \
     --no-progress --demos-dir "$untuned" -o "$untuned"
-# The package defaults: its BC on every trial (seconds a run), the clone every row is paired with.
-$cli benchmark --methods cmz,env --trials 0-4 "${common[@]}" -o "$untuned"
-$cli benchmark --methods bc --trials 0-9 "${common[@]}" -o "$untuned"
+# The package defaults before 0.3.0: its BC on every trial (seconds a run), the clone every row is paired with.
+$cli benchmark --methods cmz,env --trials 0-4 --hyperparams "$hyperparams" "${common[@]}" -o "$untuned"
+$cli benchmark --methods bc --trials 0-9 --hyperparams "$hyperparams" "${common[@]}" -o "$untuned"

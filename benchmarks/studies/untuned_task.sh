@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Tasks nobody here tuned for, run as a new user would: a published RL Zoo agent records the demo pool,
-# the grid runs with the package defaults (hyperparams/cmzdril.yml has no entry for the env, so every
-# run takes its `default` entry), and the report goes to docs/untuned/. BipedalWalker-v3, Ant-v5,
+# the grid runs with the package defaults before 0.3.0 (the paper's settings, kept in
+# benchmarks/studies/untuned.yml; D14, the rules that replaced them: docs/one_default.md), and the report
+# goes to docs/untuned/. BipedalWalker-v3, Ant-v5,
 # MountainCarContinuous-v0 and BipedalWalkerHardcore-v3 here;
 # Pendulum-v1 by benchmarks/studies/untuned_pendulum.sh, which this script calls before the report.
 # Resumable: rerun it to continue; finished runs are skipped, an existing pool is kept.
@@ -19,7 +20,7 @@ source "$(dirname "$0")/untuned_common.sh"
 env_id=BipedalWalker-v3
 record_pool "$env_id"
 $cli benchmark --env "$env_id" --methods bc,cmz,env,dril --trials 5 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # The off-policy method, one trial, by this command since its kept policy is, where the expert ends its
 # episodes, the check whose episodes last as long as the expert's (results/tuning/goal-tasks-u-alone: the
 # same training keeping the lowest u alone, a rule that never shipped). Before that, the same training made
@@ -34,20 +35,20 @@ $cli benchmark --env "$env_id" --methods cmz-sac --trials 0-0 --eval-every 5 --w
 # BC and CMZ-DRIL only (the other methods were not run for time).
 record_pool Ant-v5 ars/Ant-v3_1
 $cli benchmark --env Ant-v5 --methods bc,cmz --trials 5 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # MountainCarContinuous-v0, from the zoo's SAC agent (94.7 +/- 1.1 over the pool's 30 episodes, 100 steps on
 # average): its expert, like BipedalWalker-v3's, ends the episode at the goal. BC (trials 0-9), the off-policy method
 # and PPO's CMZ-DRIL (trials 0-4), and the RL ceiling (PPO on the env's reward, trials 0-2; DRIL, no reward and
 # env-sac were not run, for time).
 record_pool MountainCarContinuous-v0 sac/MountainCarContinuous-v0_1
 $cli benchmark --env MountainCarContinuous-v0 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
-    --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env MountainCarContinuous-v0 --methods cmz-sac --trials 0-4 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env MountainCarContinuous-v0 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env MountainCarContinuous-v0 --methods env --trials 0-2 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # BipedalWalkerHardcore-v3 (stumps, pits and stairs on the course), from the zoo's PPO agent (138.8 +/- 123.2 over the
 # pool's 30 episodes, 12 of them falls; its A2C agent 110.1 +/- 134.0, and the clone had no model file for its SAC,
 # TD3 and TQC agents): a task nobody tuned for where cloning one episode fails. BC (trials 0-9), the off-policy
@@ -55,13 +56,13 @@ $cli benchmark --env MountainCarContinuous-v0 --methods env --trials 0-2 --times
 # trials 0-4; DRIL, no reward and env-sac were not run.
 record_pool BipedalWalkerHardcore-v3 ppo/BipedalWalkerHardcore-v3_1
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods bc --trials 0-9 --eval-every 5 --workers "$workers" \
-    --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz-sac --trials 0-4 --eval-every 5 \
     --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods cmz --trials 0-4 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 $cli benchmark --env BipedalWalkerHardcore-v3 --methods env --trials 0-4 --timesteps 300000 --eval-every 5 \
-    --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
+    --hyperparams "$hyperparams" --workers "$workers" --no-progress --demos-dir "$untuned" -o "$untuned"
 # Pendulum-v1, where cloning one episode fails: its own script (the package defaults and the zoo's PPO settings).
 bash benchmarks/studies/untuned_pendulum.sh
 $cli report "$untuned" -o docs/untuned --no-paper --label "tasks nobody here tuned for, the package defaults" \

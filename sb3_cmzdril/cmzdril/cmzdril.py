@@ -71,7 +71,11 @@ class CMZDRIL(ImitationLearner, PPO):
     """PPO trained on CMZ-DRIL's disagreement reward plus NLL behaviour-cloning epochs.
 
     PPO's arguments (``learning_rate`` ... ``device``) mean what they mean for
-    :class:`stable_baselines3.PPO`; the defaults are PPO's. CMZ-DRIL's:
+    :class:`stable_baselines3.PPO`; the defaults are PPO's. CMZ-DRIL's: five of them default to
+    ``"auto"``, a rule that reads the demonstrations, the env or the clone at the first ``learn()``
+    and records its decision and reason in :attr:`rules` (docs: "One default for any task"); the
+    paper's values, the defaults before 0.3.0, are ``absorbing=False, cmz_clip_quantile=None,
+    disagreement="std", standardize_observations=True, bc_epochs_per_update=1``.
 
     :param demonstrations: a :class:`~sb3_cmzdril.data.demos.Demonstrations`, a path to a saved one, or a
         list of episode dicts. Required before the first ``learn()``.
@@ -83,11 +87,12 @@ class CMZDRIL(ImitationLearner, PPO):
     :param cmz_clip_quantile: clip u in the ``"cmz"`` reward at this quantile of u on the demos (the
         statistic of DRIL's threshold), so that every state beyond it costs the same and a few
         far-off states cannot dominate the reward (``CMZReward(u_max=...)``); None (the paper) does
-        not clip. ``"auto"``: at :data:`~sb3_cmzdril.common.drift.AUTO_CLIP_QUANTILE` where the absorbing
+        not clip. ``"auto"`` (the default): at :data:`~sb3_cmzdril.common.drift.AUTO_CLIP_QUANTILE` where the absorbing
         state is on and the pretrained clone falls (the env terminates one of the episodes it plays
         at the first ``learn()``), so that a fall costs at most the clip's reward; unclipped otherwise.
-    :param disagreement: ``"std"``, ``"quadratic"``, ``"std_unclipped"`` (Box actions) or ``"auto"``
-        (unclipped where the demonstrations' actions hold a bound; see :mod:`sb3_cmzdril.ensemble`).
+    :param disagreement: ``"std"`` (the paper), ``"quadratic"``, ``"std_unclipped"`` (Box actions) or
+        ``"auto"`` (the default: unclipped where the demonstrations' actions hold a bound; see
+        :mod:`sb3_cmzdril.ensemble`).
     :param ensemble_size: number of ensemble members (paper/DRIL: 5).
     :param ensemble_hidden: hidden layer widths of each member.
     :param ensemble_epochs: epochs of ensemble fitting.
@@ -96,8 +101,8 @@ class CMZDRIL(ImitationLearner, PPO):
     :param standardize_observations: the policy sees observations standardised with fixed statistics
         of the demonstrations (the ensemble's; :mod:`sb3_cmzdril.policies`). False gives SB3's raw
         inputs (the paper-faithful setting); prefer it where the observations are already scaled to
-        about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). ``"auto"``:
-        only the entries the observation space leaves unbounded are standardised; a bounded one is
+        about unit range (WaypointNav-v0's, bounded in [-1, 1], cloned worse standardised). ``"auto"``
+        (the default): only the entries the observation space leaves unbounded are standardised; a bounded one is
         scaled by the env already and is left as it is (the decision goes to :attr:`rules`). Ignored, with a warning,
         when a VecNormalize already normalises the observations.
     :param bc_pretrain_epochs: most NLL epochs before RL.
@@ -111,8 +116,8 @@ class CMZDRIL(ImitationLearner, PPO):
         docs/bc_single_episode.md).
     :param bc_epochs_per_update: NLL epochs on all demo steps after each PPO update (paper: 1; 0
         disables; a fraction is a pass over that share of the demo steps, drawn at random, so 0.25
-        pulls the policy back to the demonstrations a quarter as hard). ``"auto"``: none where the
-        pretrained clone falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the episodes it
+        pulls the policy back to the demonstrations a quarter as hard). ``"auto"`` (the default): none
+        where the pretrained clone falls (:func:`~sb3_cmzdril.common.drift.clone_falls`, from the episodes it
         plays at the first ``learn()``, whose steps are not counted) or, unless the expert ends its own
         episodes before the env's time limit, where the clone predicts the expert's held-out actions
         loosely (its NLL on the held-out demo steps, per action entry in units of half its bounds'
@@ -146,9 +151,9 @@ class CMZDRIL(ImitationLearner, PPO):
         expert never terminates) or, where the expert ends its own episodes, when the env ends the
         pretrained clone's (played at the first ``learn()``) before
         :data:`~sb3_cmzdril.common.drift.EARLY_END_FRACTION` of the shortest demonstration's length on
-        average (the expert's one episode ended in a fall, the clone falls at once). Off by default:
-        on Walker2d-v5 ``"auto"`` doubled CMZ-DRIL's final return, on Hopper-v5 it lowered it in 4 of 5
-        trials (docs/new_tasks.md).
+        average (the expert's one episode ended in a fall, the clone falls at once). The default
+        (False before 0.3.0, the paper): on Walker2d-v5 it doubled CMZ-DRIL's final return
+        (docs/new_tasks.md).
     :param absorbing_score: the absorbing state's disagreement: ``"highest"``, the highest u seen so
         far (every termination as bad as the worst state met); ``"terminal"``, the ensemble's u at the
         observation the episode ended in (``infos["terminal_observation"]``, at the policy's
@@ -181,6 +186,10 @@ class CMZDRIL(ImitationLearner, PPO):
     off_policy = False
     loads_plain_sb3 = True  # a PPO agent to go on from
     logs_pretraining = True
+    defaults_before: ClassVar[dict[str, dict[str, Any]]] = {
+        "0.3.0": {"absorbing": False, "cmz_clip_quantile": None, "disagreement": "std",
+                  "standardize_observations": True, "bc_epochs_per_update": 1},  # the paper's (and DRIL's)
+    }
 
     def __init__(
         self,
@@ -192,24 +201,24 @@ class CMZDRIL(ImitationLearner, PPO):
         ema: float = 0.99,
         u0: float = 0.0,
         dril_quantile: float = 0.98,
-        cmz_clip_quantile: float | str | None = None,
-        disagreement: str = "std",
+        cmz_clip_quantile: float | str | None = "auto",
+        disagreement: str = "auto",
         ensemble_size: int = 5,
         ensemble_hidden: Sequence[int] = (64, 64),
         ensemble_epochs: int = 200,
         ensemble_batch_size: int = 64,
         ensemble_learning_rate: float = 1e-3,
-        standardize_observations: bool | str = True,
+        standardize_observations: bool | str = "auto",
         bc_pretrain_epochs: int = 1000,
         bc_validation_fraction: float = 0.2,
         bc_patience: int = 20,
         bc_refit: bool = False,
-        bc_epochs_per_update: float | str = 1,
+        bc_epochs_per_update: float | str = "auto",
         bc_update_std: bool = True,
         bc_batch_size: int = 64,
         bc_learning_rate: float | Schedule | str = 1e-3,
         log_std_floor: float | None = -1.0,
-        absorbing: bool | str = False,
+        absorbing: bool | str = "auto",
         absorbing_score: str = "highest",
         critic_warmup_updates: int = 0,
         batch_scoring: bool = True,

@@ -162,6 +162,9 @@ class ImitationLearner(_Algorithm):
     logs_pretraining: ClassVar[bool] = False
     #: the policy's ``policy_kwargs`` when none are given: SB3's (nothing) unless the learner says
     default_policy_kwargs: ClassVar[dict[str, Any]] = {}
+    #: constructor defaults a release changed, by that release: what a run made by an earlier version got
+    #: for an argument it left out (its records name the version), e.g. ``{"0.3.0": {"absorbing": False}}``
+    defaults_before: ClassVar[dict[str, dict[str, Any]]] = {}
 
     demonstrations: Demonstrations | None
     ensemble: BCEnsemble

@@ -79,7 +79,14 @@ from sb3_cmzdril.io import (
     write_json,
 )
 from sb3_cmzdril.training.methods import METHOD_REGISTRY, Method
-from sb3_cmzdril.training.spec import ResolvedRun, RunSpec, effective_values, resolve_run, train_command
+from sb3_cmzdril.training.spec import (
+    ResolvedRun,
+    RunSpec,
+    effective_values,
+    record_version,
+    resolve_run,
+    train_command,
+)
 
 #: Table I averages each run over its last this-many epochs (paper, Table I caption).
 TABLE_WINDOW = 100
@@ -336,13 +343,15 @@ def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(jsonable(dict(config))))
 
 
-def _identity_value(key: str, value: Any, method: Any) -> Any:
-    """``value`` of config.json's ``key`` as two runs compare it: an env id by its name, hyperparameters
-    by what they change (:func:`~sb3_cmzdril.training.spec.effective_values`)."""
+def _identity_value(key: str, config: Mapping[str, Any], method: Any) -> Any:
+    """config.json's ``key`` as two runs compare it: an env id by its name, hyperparameters by what they
+    change (:func:`~sb3_cmzdril.training.spec.effective_values`, a default read as the version that made
+    the run had it)."""
+    value = config.get(key)
     if key == "env_id" and isinstance(value, str):
         return env_name(value)
     if key == "hyperparams_values" and isinstance(value, dict) and method in METHOD_REGISTRY:
-        return effective_values(value, method)
+        return effective_values(value, method, record_version(config))
     return value
 
 
@@ -353,11 +362,12 @@ def check_same_run(
 
     An env id is compared without its ``module:`` prefix: gymnasium's ``module:Env-v0`` imports the module
     and makes ``Env-v0``, the same env as ``Env-v0`` made after that import. Hyperparameters are compared
-    without the values that restate a default: a run made when the YAML stated them is the same run.
+    without the values that restate a default: a run made when the YAML stated them is the same run, and
+    one made by an earlier version that left out a default since changed is not.
     """
     method = fresh.get("method")
-    differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved.get(k), method)
-                 != _identity_value(k, fresh.get(k), method)]
+    differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved, method)
+                 != _identity_value(k, fresh, method)]
     if differing:
         diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
         raise UserError(

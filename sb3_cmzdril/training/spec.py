@@ -398,9 +398,30 @@ def _model_kwargs(hp: Hyperparams, method: Method) -> dict[str, Any]:
     return kwargs
 
 
-def learner_defaults(method: str) -> dict[str, Any]:
+def _release(version: str) -> tuple[int, ...]:
+    """``"0.3.0.dev0"`` -> ``(0, 3, 0)``: a version's leading numbers, so that a development version
+    counts as the release it leads to."""
+    numbers = []
+    for part in version.split("."):
+        if not part.isdigit():
+            break
+        numbers.append(int(part))
+    return tuple(numbers)
+
+
+def record_version(config: Mapping[str, Any]) -> str | None:
+    """The sb3-cmzdril version that made the run of ``config`` (config.json's ``versions``), None where
+    the record does not say."""
+    versions = config.get("versions")
+    found = versions.get("sb3_cmzdril") if isinstance(versions, Mapping) else None
+    return found if isinstance(found, str) else None
+
+
+def learner_defaults(method: str, version: str | None = None) -> dict[str, Any]:
     """What a run of ``method`` gets for a hyperparameter its entry leaves out, as config.json stores
-    values: the learner's constructor defaults, the fallback policy and number of demos, one env."""
+    values: the learner's constructor defaults, the fallback policy and number of demos, one env. With
+    ``version``, those of that sb3-cmzdril version (the learner's ``defaults_before``): what a record
+    it made ran with."""
     import inspect
 
     learner = Method.of(method).learner.classes()[0]
@@ -408,20 +429,30 @@ def learner_defaults(method: str) -> dict[str, Any]:
                 if p.default is not inspect.Parameter.empty}
     defaults.update(policy=FALLBACK_POLICY, n_demos=FALLBACK_N_DEMOS, n_envs=1,
                     policy_kwargs=learner.default_policy_kwargs)
+    if version is not None:  # the newest change first, so that the oldest one still ahead of it wins
+        for changed_in, before in sorted(learner.defaults_before.items(), key=lambda kv: _release(kv[0]),
+                                         reverse=True):
+            if _release(version) < _release(changed_in):
+                defaults.update(before)
     return json.loads(json.dumps(jsonable(defaults)))
 
 
-def effective_values(values: Mapping[str, Any], method: str) -> dict[str, Any]:
-    """A hyperparameter entry's ``values`` (as config.json stores them) without those that say what the
-    run does anyway (:func:`learner_defaults`). Two entries that differ only there make the same run
-    (the shipped YAML states no default, the records of older runs state every one)."""
+def effective_values(values: Mapping[str, Any], method: str, version: str | None = None) -> dict[str, Any]:
+    """A hyperparameter entry's ``values`` (as config.json stores them) as this version's YAML would
+    state them: without those that say what the run does anyway (:func:`learner_defaults`), and with a
+    default of ``version`` (the one that made a record) that this version's defaults changed. Two
+    entries with the same effective values make the same run (the shipped YAML states no default, the
+    records of older runs state every one)."""
     from sb3_cmzdril.hyperparams import safe_eval
 
-    stored = learner_defaults(method)
+    current = learner_defaults(method)
+    then = learner_defaults(method, version) if version is not None else current
     given = dict(values)
     if isinstance(given.get("policy_kwargs"), str):  # the YAML's expression: compared as what it makes
         given["policy_kwargs"] = jsonable(safe_eval(given["policy_kwargs"]))
-    return {k: values[k] for k, v in given.items() if k not in stored or stored[k] != v}
+    stated = {k: values[k] for k, v in given.items() if k not in current or current[k] != v}
+    implied = {k: v for k, v in then.items() if k not in given and current.get(k) != v}
+    return {**implied, **stated}
 
 
 def _device(asked: Any) -> str:
@@ -803,6 +834,7 @@ __all__ = [
     "FALLBACK_POLICY",
     "effective_values",
     "learner_defaults",
+    "record_version",
     "HYPERPARAMS_NAME",
     "METHODS",
     "METHOD_REGISTRY",

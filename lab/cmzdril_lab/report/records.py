@@ -35,7 +35,7 @@ from sb3_cmzdril.training.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.training.spec import METHODS, effective_values, learner_defaults, result_policy
+from sb3_cmzdril.training.spec import METHODS, effective_values, learner_defaults, record_version, result_policy
 
 logger = logging.getLogger(__name__)
 
@@ -367,7 +367,9 @@ def _hyperparams(config: dict[str, Any]) -> dict[str, Any]:
     """config.json's hyperparameters without those at a default (a record that states one and one that
     does not are the same run)."""
     values = config.get("hyperparams_values", {})
-    return effective_values(values, config["method"]) if config.get("method") in METHODS else values
+    if config.get("method") not in METHODS:
+        return values
+    return effective_values(values, config["method"], record_version(config))
 
 
 def _run_settings(records: Sequence[RunRecord], env: str) -> list[tuple[dict[str, Any], dict[str, Any]]]:

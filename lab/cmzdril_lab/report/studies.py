@@ -703,6 +703,13 @@ def render(
         "# Beyond the three tuned tasks: demonstrations, budget and ablations",
         f"Written by `{command}` on {stamp} from the runs named under each table; no number is typed in. "
         "The main grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs) is in [results.md](results.md).",
+        "Versions: these runs were made before 0.3.0 (each config.json names its version), and \"package "
+        "defaults\" here means the settings of then: the task's entry in `hyperparams/cmzdril.yml` or, for a task "
+        "with none, the paper's. From 0.3.0 a task with no entry gets the rules of [one default](one_default.md) "
+        "instead; a command here that runs such a task without naming `absorbing`, `cmz_clip_quantile`, "
+        "`disagreement`, `standardize_observations` and `bc_epochs_per_update` makes its runs at commit a7b611ab "
+        "(the untuned tasks' scripts and the outside-env study name the YAML that pins them), and its run folder "
+        "refuses to resume under 0.3.0.",
         "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
         "start state. % of expert: 100 x the run's mean return / the expert's mean return on the same "
         "episodes; a cell is the mean over trials [95% bootstrap CI over trials, n/a under 3 trials]. "
