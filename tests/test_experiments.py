@@ -614,6 +614,22 @@ def test_an_env_id_with_its_module_prefix_names_the_same_run(tmp_path):
         check_same_run(tmp_path, saved, {**saved, "env_id": "sb3_cmzdril:WaypointNav-v0", "seed": 4})
 
 
+def test_a_run_folder_of_an_older_version_reads_the_defaults_it_ran_with():
+    """A 0.2.0 record that left the five rule settings out ran with the paper's values: the same entry now
+    (the rules) is another run, named setting by setting; an entry that states the old values is the same."""
+    from helpers import PAPER
+    from sb3_cmzdril.training.run_folder import check_same_run
+
+    saved = {"env_id": "Pendulum-v1", "method": "cmz", "seed": 0, "hyperparams_values": {"n_timesteps": 1e6},
+             "versions": {"sb3_cmzdril": "0.2.0"}}
+    fresh = {**saved, "versions": {"sb3_cmzdril": "0.3.0.dev0"}}
+    with pytest.raises(ValueError, match=r"hyperparams_values: absorbing False there, the default now; .*"
+                                         r"standardize_observations True there, the default now \(the folder's "
+                                         r"run was made by sb3-cmzdril 0\.2\.0\)"):
+        check_same_run(Path("out"), saved, fresh)
+    check_same_run(Path("out"), saved, {**fresh, "hyperparams_values": {"n_timesteps": 1e6, **PAPER}})
+
+
 def test_grid_module_names():
     assert runs.METHODS == ("bc", "zero", "env", "dril", "cmz", "cmz-sac", "dril-sac", "zero-sac", "env-sac")
     assert grid.parse_list("cmz, bc,cmz,,") == ["cmz", "bc"]

@@ -355,6 +355,23 @@ def _identity_value(key: str, config: Mapping[str, Any], method: Any) -> Any:
     return value
 
 
+def _difference(key: str, saved: Mapping[str, Any], fresh: Mapping[str, Any], method: Any) -> str:
+    """How the folder's run and the asked one differ in ``key``: for the hyperparameters, each setting
+    that differs as it is compared (a default by its value at the version that made the run)."""
+    there, now = _identity_value(key, saved, method), _identity_value(key, fresh, method)
+    if not (isinstance(there, dict) and isinstance(now, dict)):
+        return f"{key}: {saved.get(key)!r} there, {fresh.get(key)!r} now"
+    def shown(values: dict[str, Any], name: str) -> str:
+        return repr(values[name]) if name in values else "the default"
+
+    settings = "; ".join(f"{name} {shown(there, name)} there, {shown(now, name)} now"
+                         for name in sorted({*there, *now}) if shown(there, name) != shown(now, name))
+    made_by = record_version(saved)
+    if made_by is not None and made_by != record_version(fresh):
+        settings += f" (the folder's run was made by sb3-cmzdril {made_by})"
+    return f"{key}: {settings}"
+
+
 def check_same_run(
     out: Path, saved: Mapping[str, Any], fresh: Mapping[str, Any], what: str = "a different run"
 ) -> None:
@@ -369,7 +386,7 @@ def check_same_run(
     differing = [k for k in _IDENTITY_KEYS if k in saved and _identity_value(k, saved, method)
                  != _identity_value(k, fresh, method)]
     if differing:
-        diffs = ", ".join(f"{k}: {saved.get(k)!r} there, {fresh.get(k)!r} now" for k in differing)
+        diffs = ", ".join(_difference(k, saved, fresh, method) for k in differing)
         raise UserError(
             f"{out} holds {what} ({diffs}); "
             "use another output folder or delete that one"
