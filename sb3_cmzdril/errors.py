@@ -21,6 +21,11 @@ class UserError(ValueError):
     """The input is wrong: a bad value, file or folder; the message names it and says what to do."""
 
 
+class OptionError(UserError, AssertionError):
+    """A learner option that SB3's own algorithm refuses with an assertion: one line on the command line,
+    and code written for SB3 that catches its AssertionError catches this too."""
+
+
 class MissingFileError(UserError, FileNotFoundError):
     """A file or folder the user named (or a default one the command needs) does not exist."""
 
@@ -48,4 +53,4 @@ def check_finite(**values: Any) -> None:
             raise UserError(f"{name} must be finite, got {value}")
 
 
-__all__ = ["MissingFileError", "OutputExistsError", "UserError", "check_finite"]
+__all__ = ["MissingFileError", "OptionError", "OutputExistsError", "UserError", "check_finite"]

@@ -16,7 +16,7 @@ does), replaces the reward with the rule's, and keeps the true one in ``info["en
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol, cast
 
 import numpy as np
@@ -222,10 +222,14 @@ class EnvReward(RewardRule):
     sequence = __call__
 
 
-def terminations(dones: np.ndarray, infos: list[dict]) -> np.ndarray:
-    """Which envs' episodes ended by termination at this step: done, and not cut by a time limit."""
-    truncated = np.array([bool(info.get("TimeLimit.truncated", False)) for info in infos], dtype=bool)
-    return np.asarray(dones, dtype=bool) & ~truncated
+def terminations(dones: np.ndarray, infos: Sequence[dict]) -> np.ndarray:
+    """Which envs' episodes ended by termination at this step: done, and not cut by a time limit. An env
+    the VecEnv gives no info dict for (a custom VecEnv may return ``[]``, as PPO tolerates) is read as not
+    truncated."""
+    done = np.asarray(dones, dtype=bool)
+    truncated = np.array([i < len(infos) and bool(infos[i].get("TimeLimit.truncated", False))
+                          for i in range(len(done))], dtype=bool)
+    return done & ~truncated
 
 
 def with_absorbing_state(

@@ -126,6 +126,13 @@ def test_ppo_settings_that_cannot_learn_are_refused(option, value, message, pend
     assert re.match(message, got), got
 
 
+@pytest.mark.parametrize("option, value", [("n_steps", 1), ("batch_size", 1), ("clip_range_vf", -0.2)])
+def test_what_ppo_asserts_is_still_an_assertion_error(option, value, pendulum_demos):
+    # code written for SB3's PPO catches AssertionError here (SB3's own tests do)
+    with pytest.raises(AssertionError, match="must be"):
+        CMZDRIL("MlpPolicy", ENV, demonstrations=pendulum_demos, **{**TINY, option: value})
+
+
 def test_ppo_takes_minibatches_of_one_without_advantage_normalisation(pendulum_demos):
     model = CMZDRIL("MlpPolicy", ENV, demonstrations=pendulum_demos,
                     **{**TINY, "batch_size": 1, "normalize_advantage": False})

@@ -222,6 +222,8 @@ def test_absorbing_state_hand_computed():
 def test_terminations_leave_out_time_limit_truncations():
     infos = [{"TimeLimit.truncated": True}, {}, {"TimeLimit.truncated": False}, {}]
     assert terminations(np.array([True, True, True, False]), infos).tolist() == [False, True, True, False]
+    # a VecEnv that gives no info dicts (PPO takes one): every done is a termination
+    assert terminations(np.array([True, False]), []).tolist() == [True, False]
 
 
 def test_wrapper_scores_terminations_as_the_absorbing_state():

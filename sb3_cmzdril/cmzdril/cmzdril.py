@@ -59,7 +59,7 @@ from sb3_cmzdril.common.options import check_interval, check_whole_numbers
 from sb3_cmzdril.data.demos import expert_never_terminates, time_limit
 from sb3_cmzdril.data.spaces import check_action_space
 from sb3_cmzdril.ensemble import disagreement_on_demos
-from sb3_cmzdril.errors import UserError, check_finite
+from sb3_cmzdril.errors import OptionError, UserError, check_finite
 from sb3_cmzdril.hyperparams import parse_schedule
 from sb3_cmzdril.policies import floor_log_std, mean_log_std
 from sb3_cmzdril.rewards import DisagreementReward
@@ -264,8 +264,12 @@ class CMZDRIL(ImitationLearner, PPO):
             raise UserError(f"log_std_floor must be finite or None, got {log_std_floor}")
         _check_ppo_options(env, n_steps, batch_size, n_epochs, normalize_advantage)
         check_interval("[0, 1]", gamma=gamma, gae_lambda=gae_lambda)
-        check_interval("(0, inf)", learning_rate=learning_rate, clip_range=clip_range, clip_range_vf=clip_range_vf,
-                       target_kl=target_kl, max_grad_norm=max_grad_norm)
+        check_interval("(0, inf)", learning_rate=learning_rate, clip_range=clip_range, target_kl=target_kl,
+                       max_grad_norm=max_grad_norm)
+        try:
+            check_interval("(0, inf)", clip_range_vf=clip_range_vf)
+        except UserError as error:  # SB3 asserts this one
+            raise OptionError(str(error)) from None
         check_interval("[0, inf)", vf_coef=vf_coef)
         self.bc_refit = bool(bc_refit)
         self.bc_epochs_per_update: float | str = (
@@ -616,13 +620,14 @@ def _check_ppo_options(
     below 2 where ``normalize_advantage`` normalises each minibatch and the rollout (SB3's own
     checks of these are assertions, whose traceback says nothing of the option)."""
     check_whole_numbers(1, n_steps=n_steps, n_epochs=n_epochs)
-    # SB3's words, as a UserError: with normalize_advantage, the advantages of one step normalise to nan.
+    # SB3's words and its AssertionError (an OptionError): with normalize_advantage, the advantages of one
+    # step normalise to nan.
     if normalize_advantage and isinstance(batch_size, (int, np.integer)) and batch_size < 2:
-        raise UserError(f"`batch_size` must be greater than 1 with normalize_advantage=True, got {batch_size}")
+        raise OptionError(f"`batch_size` must be greater than 1 with normalize_advantage=True, got {batch_size}")
     check_whole_numbers(1, batch_size=batch_size)
     n_envs = env.num_envs if isinstance(env, VecEnv) else 1
     if normalize_advantage and env is not None and n_steps * n_envs < 2:
-        raise UserError(f"`n_steps * n_envs` must be greater than 1 with normalize_advantage=True, got "
+        raise OptionError(f"`n_steps * n_envs` must be greater than 1 with normalize_advantage=True, got "
                         f"n_steps={n_steps} and n_envs={n_envs}")
 
 
