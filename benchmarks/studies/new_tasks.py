@@ -1041,6 +1041,9 @@ D14_LUNAR = epochs_command("D14-lunar", "LunarLander-v3", "TRIALS", 200000, OUTS
 D14_UNTUNED = (f"python benchmarks/studies/tune.py D14-untuned --as-untuned {HELD_OUT_SETS} -- --env "
                f"{MOUNTAIN},{BIPEDAL} --methods cmz,bc --trials 5-9 --timesteps 300000 --eval-every 5 --workers 2 "
                f"--no-progress --demos-dir {UNTUNED}")
+D14_DRIL = (f"python benchmarks/studies/tune.py D14-dril --as-untuned {HELD_OUT_SETS} -- --env Walker2d-v5,Hopper-v5,"
+            "HalfCheetah-v5,Swimmer-v5,sb3_cmzdril:WaypointNav-v0 --methods dril --trials TRIALS --timesteps 300000 "
+            "--eval-every 5 --workers 2 --no-progress")
 #: LunarLander-v3's fresh trials 10-14 with the outside-env study's settings, to confirm the fourteenth candidate
 OUTSIDE_TRIALS10_14 = "results/outside_env_trials10-14"
 OUTSIDE_TRIALS10_14_COMMAND = OUTSIDE_TRIALS5_9_COMMAND.replace("bc,dril,cmz", "bc,cmz").replace("5-9", "10-14")
@@ -1056,6 +1059,13 @@ D14_ROWS: tuple[Variant, ...] = (
                     ("0-4",), methods=("dril",)),
     *(row for env in (MOUNTAIN, BIPEDAL) for row in candidate_rows(env, "D14-untuned", D14_UNTUNED, D14_LABEL,
                                                                     ("5-9",))),
+    # the confirmation trials of DRIL on the six tasks and of the untuned tasks no earlier candidate ran there
+    *candidate_rows("LunarLander-v3", "D14-lunar", D14_LUNAR.replace("--methods cmz", "--methods dril"), D14_LABEL,
+                    ("5-9",), methods=("dril",)),
+    *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0")
+      for row in candidate_rows(env, "D14-dril", D14_DRIL, D14_LABEL, ("5-9",), methods=("dril",))),
+    *candidate_rows(PENDULUM, "D14-untuned", D14_UNTUNED.replace(f"{MOUNTAIN},{BIPEDAL}", PENDULUM)
+                    .replace("300000", "100000"), D14_LABEL, ("5-9",)),
 )
 
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (

@@ -81,11 +81,12 @@ QUARTER = {"Ant-v5": "tuning/D12-quarter", "WaypointNav-v0": "tuning/D12-quarter
 D13_RUNS = {"LunarLander-v3": ("tuning/D13-lunar",)}
 #: the fourteenth candidate's (D14's) own runs, on trials no earlier run stands for: D13 where the expert ends its
 #: own episodes before the env's time limit keeps the NLL epochs unless the clone falls
-D14_RUNS = {"LunarLander-v3": ("tuning/D14-lunar",), "MountainCarContinuous-v0": ("tuning/D14-untuned",),
-            "BipedalWalker-v3": ("tuning/D14-untuned",)}
+D14_RUNS = {"LunarLander-v3": ("tuning/D14-lunar",),
+            **{label: ("tuning/D14-untuned",)
+               for label in ("MountainCarContinuous-v0", "BipedalWalker-v3", "Pendulum-v1")}}
 #: BC's runs on the trials after 0-4 that the fourteenth candidate's confirmation ran, by row label
-BC_LATER = {"LunarLander-v3": ("outside_env_trials10-14",), "MountainCarContinuous-v0": ("tuning/D14-untuned",),
-            "BipedalWalker-v3": ("tuning/D14-untuned",)}
+BC_LATER = {"LunarLander-v3": ("outside_env_trials10-14",), **{label: folders for label, folders in D14_RUNS.items()
+                                                                if label != "LunarLander-v3"}}
 #: the candidates' folders whose trials after 0-4 are a few runs for another study (docs/new_tasks.md), not a set
 TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
@@ -284,31 +285,36 @@ def _six_tasks(six: dict[str, list[list[float]]]) -> str:
     return "\n".join(rows)
 
 
-#: DRIL on D14's settings, by the six tasks' row labels (D13's on the five where the two decide alike: no expert
-#: there ends its own episodes before a time limit)
-DRIL = {label: "tuning/D14-lunar" if label.startswith("Lunar") else "tuning/D13-dril" for label in SIX}
+#: DRIL on D14's settings, by the six tasks' row labels: trials 0-4 from D13's runs on the five where the two decide
+#: alike (no expert there ends its own episodes before a time limit), trials 5-9 from D14's own
+DRIL = {label: ("tuning/D14-lunar",) if label.startswith("Lunar") else ("tuning/D13-dril", "tuning/D14-dril")
+        for label in SIX}
 
 
 def _dril() -> str:
-    """DRIL against CMZ-DRIL on D14's settings, per task and across the six, on the trials DRIL has on each."""
+    """DRIL against CMZ-DRIL on D14's settings, per task and across the six, trials 0-4 and 5-9 (each on the
+    trials DRIL has on every task)."""
     tasks = [task for task in TASKS if task[0] in SIX]
     cmz = {label: _d14(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
-    dril = {label: _per_trial((DRIL[label],), env, "dril", "pct_of_expert") for label, env, *_ in tasks}
-    trials = tuple(sorted(set.intersection(*(set(values) for values in dril.values()))))
-    if len(trials) < 2:
-        return "DRIL on D14's settings: not two trials on every task yet."
-    arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
-              for key, by_label in (("CMZ-DRIL", cmz), ("DRIL", dril))}
-    agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
-                           by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", "DRIL")])
-    rows = [f"| On D14's settings, trials {', '.join(map(str, trials))} | " + " | ".join(SIX) + " | IQM [95% CI] |",
-            "|---" * (len(SIX) + 2) + "|"]
-    for key, array in arrays.items():
-        p, lo, hi = agg.summary[key]["IQM"]
-        rows.append(f"| {key} | " + " | ".join(f"{100 * v:.1f}" for v in array.mean(axis=0)) +
-                    f" | {100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] |")
-    rows.append("\nP(CMZ-DRIL > DRIL) across the six: {:.2f} [{:.2f}, {:.2f}].".format(
-        *agg.improvement[("CMZ-DRIL", "DRIL")].probability))
+    dril = {label: _per_trial(DRIL[label], env, "dril", "pct_of_expert") for label, env, *_ in tasks}
+    rows = ["| On D14's settings | trials | " + " | ".join(SIX) + " | IQM [95% CI] | P(CMZ-DRIL > DRIL) [95% CI] |",
+            "|---" * (len(SIX) + 4) + "|"]
+    for block in (range(5), range(5, 10)):
+        trials = tuple(t for t in block if all(t in values for values in dril.values()))
+        if len(trials) < 2:
+            rows.append(f"| DRIL | {block.start}-{block.stop - 1}: not two trials on every task yet |")
+            continue
+        arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
+                  for key, by_label in (("CMZ-DRIL", cmz), ("DRIL", dril))}
+        agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
+                               by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", "DRIL")])
+        named = ", ".join(map(str, trials))
+        for key, array in arrays.items():
+            p, lo, hi = agg.summary[key]["IQM"]
+            better = ("{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("CMZ-DRIL", "DRIL")].probability)
+                      if key == "CMZ-DRIL" else "")
+            rows.append(f"| {key} | {named} | " + " | ".join(f"{100 * v:.1f}" for v in array.mean(axis=0)) +
+                        f" | {100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] | {better} |")
     return "\n".join(rows)
 
 
