@@ -28,12 +28,11 @@ TINY: dict[str, Any] = dict(
     bc_pretrain_epochs=5,
     seed=0,
 )
-#: The same network and batch for a SAC expert (its own keys: a replay buffer and its warm-up). Its
-#: policy_kwargs is a dict of its own: SB3's off-policy algorithms write ``use_sde`` into theirs.
 #: CMZDRIL's five rule settings given outright, its defaults before 0.3.0 (the paper's): a test of one rule
 #: gives the others these, so that only its own decides
 PAPER: dict[str, Any] = dict(CMZDRIL.defaults_before["0.3.0"])
-
+#: The same network and batch for a SAC expert (its own keys: a replay buffer and its warm-up). Its
+#: policy_kwargs is a dict of its own: SB3's off-policy algorithms write ``use_sde`` into theirs.
 TINY_SAC: dict[str, Any] = dict(
     learning_starts=50,
     buffer_size=2000,

@@ -266,10 +266,7 @@ class CMZDRIL(ImitationLearner, PPO):
         check_interval("[0, 1]", gamma=gamma, gae_lambda=gae_lambda)
         check_interval("(0, inf)", learning_rate=learning_rate, clip_range=clip_range, target_kl=target_kl,
                        max_grad_norm=max_grad_norm)
-        try:
-            check_interval("(0, inf)", clip_range_vf=clip_range_vf)
-        except UserError as error:  # SB3 asserts this one
-            raise OptionError(str(error)) from None
+        check_interval("(0, inf)", OptionError, clip_range_vf=clip_range_vf)  # SB3 asserts this one
         check_interval("[0, inf)", vf_coef=vf_coef)
         self.bc_refit = bool(bc_refit)
         self.bc_epochs_per_update: float | str = (

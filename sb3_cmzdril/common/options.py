@@ -78,10 +78,11 @@ def check_whole_numbers(minimum: int, **counts: Any) -> None:
             raise UserError(f"{name} must be >= {minimum}, got {value}")
 
 
-def check_interval(interval: str, **values: Any) -> None:
-    """UserError naming the first option in ``values`` outside ``interval``, written as in maths:
-    ``"[0, 1]"``, ``"(0, 1]"``, ``"(0, inf)"``. None (an option switched off) and schedules (callables,
-    checked when training starts) pass; inf and nan are :func:`~sb3_cmzdril.errors.check_finite`'s."""
+def check_interval(interval: str, error: type[UserError] = UserError, **values: Any) -> None:
+    """``error`` (a UserError) naming the first option in ``values`` outside ``interval``, written as in
+    maths: ``"[0, 1]"``, ``"(0, 1]"``, ``"(0, inf)"``. None (an option switched off) and schedules
+    (callables, checked when training starts) pass; inf and nan are
+    :func:`~sb3_cmzdril.errors.check_finite`'s."""
     low_open, high_open = interval[0] == "(", interval[-1] == ")"
     low, high = (float(bound) for bound in interval[1:-1].split(","))
     rule = f"finite and {'>' if low_open else '>='} {low:g}" if math.isinf(high) else f"in {interval}"
@@ -89,11 +90,11 @@ def check_interval(interval: str, **values: Any) -> None:
         if value is None or callable(value):
             continue
         if not _is_number(value):
-            raise UserError(f"{name} must be a number {rule}, got {value!r}")
+            raise error(f"{name} must be a number {rule}, got {value!r}")
         above = value > low if low_open else value >= low
         below = value < high if high_open else value <= high
         if not (above and below):
-            raise UserError(f"{name} must be {rule}, got {float(value)!r}")
+            raise error(f"{name} must be {rule}, got {float(value)!r}")
 
 
 __all__ = ["REWARD_MODES", "check_imitation_options", "check_interval", "check_whole_numbers"]

@@ -361,6 +361,7 @@ def _difference(key: str, saved: Mapping[str, Any], fresh: Mapping[str, Any], me
     there, now = _identity_value(key, saved, method), _identity_value(key, fresh, method)
     if not (isinstance(there, dict) and isinstance(now, dict)):
         return f"{key}: {saved.get(key)!r} there, {fresh.get(key)!r} now"
+
     def shown(values: dict[str, Any], name: str) -> str:
         return repr(values[name]) if name in values else "the default"
 
