@@ -178,6 +178,22 @@ def test_the_nll_epochs_rule_drops_them_where_the_clone_falls(pendulum_demos, cl
     assert model.bc_epochs_per_update == "auto"
 
 
+@pytest.mark.parametrize("reward", ["dril", "env"])
+def test_the_baselines_keep_their_nll_epoch_where_the_rule_would_drop_it(pendulum_demos, monkeypatch, reward):
+    import sb3_cmzdril.cmzdril.cmzdril as cmzdril_module
+
+    # A clone that falls would lose its epochs under the 'cmz' reward; DRIL keeps its BC step, unprobed.
+    monkeypatch.setattr(cmzdril_module, "clone_drift", lambda *a, **k: pytest.fail("probed"))
+    model = _auto_epochs(_Falls(_pendulum(40)), _inside(pendulum_demos), reward=reward)
+    model.learn(64)
+    assert model.rules["bc_epochs_per_update"] == {
+        "value": 1,
+        "reason": f"the {reward!r} reward keeps the paper's NLL epoch after each update, as its method defines "
+                  "it; the rule decides only for the 'cmz' reward",
+    }
+    assert model.bc_epochs_active == 1 and "train/bc_nll" in model.logger.name_to_value
+
+
 def test_where_the_expert_ends_its_episodes_the_nll_epochs_rule_asks_how_soon_the_clone_ends(
         pendulum_demos, close_clones):
     # The demonstrations end at 100 steps, the env's limit is 150: the clone falls where the env ends its

@@ -124,7 +124,8 @@ class CMZDRIL(ImitationLearner, PPO):
         range, at least :data:`~sb3_cmzdril.common.bc.AUTO_EPOCHS_NLL`: no probe needed): an epoch
         would pull the policy back to a poor clone. The paper's one elsewhere: it holds a close clone
         on the demonstrations, and keeps a clone's way to an end the expert reaches (a landing, a goal),
-        which the disagreement reward does not ask for. The decision and its reason go to :attr:`rules`.
+        which the disagreement reward does not ask for. The other rewards (DRIL's, the env's) keep the
+        paper's one, as their methods define it. The decision and its reason go to :attr:`rules`.
     :param bc_update_std: whether the NLL epochs after each PPO update also fit the policy's
         state-independent log-std (``policy.log_std``: a Gaussian's, or gSDE's exploration
         parameters), as the paper's NLL does. They pull it toward the demonstrations' residual
@@ -444,6 +445,11 @@ class CMZDRIL(ImitationLearner, PPO):
         closely), ``cmz_clip_quantile`` by whether the env terminates its episodes, and
         ``absorbing`` where the expert ends its own episodes by how soon the env ends the clone's."""
         bc = self.bc_epochs_per_update == "auto" and "bc_epochs_per_update" not in self.rules
+        if bc and self.reward != "cmz":  # a baseline runs as its method defines it (DRIL's own BC step)
+            self._record_rule("bc_epochs_per_update", 1,
+                              f"the {self.reward!r} reward keeps the paper's NLL epoch after each update, as its "
+                              "method defines it; the rule decides only for the 'cmz' reward")
+            bc = False
         held_out = nll_per_action_entry(self.pretrain_info.get("bc_validation_nll", float("nan")), self.action_space)
         expert_ends = (self.demonstrations is not None and self.env is not None and time_limit(self.env) is not None
                        and not expert_never_terminates(self.demonstrations, self.env))
