@@ -49,8 +49,10 @@ def test_the_run_records_live_apart_from_the_documentation_source():
 #: The folders whose rows the docs call the published grid (its trials 5-9 among them): the shipped YAML's
 #: entries make them.
 PUBLISHED_FOLDERS = ("runs", "runs_cmz_trials5-9", "runs_dril_trials5-9", "runs_sac_trials5-9", "runs_bc_trials10")
-#: Study folders made with a YAML of their own: the tasks nobody here tuned for, on the defaults before 0.3.0.
-STUDY_YAMLS = {"untuned": ROOT / "benchmarks" / "studies" / "untuned.yml"}
+#: Folders made with a YAML of their own: the tasks nobody here tuned for, on the defaults before 0.3.0, and
+#: the paper-faithful grid.
+STUDY_YAMLS = {"untuned": ROOT / "benchmarks" / "studies" / "untuned.yml",
+               "runs_paper_faithful": ROOT / "hyperparams" / "cmzdril-paper.yml"}
 
 
 def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
@@ -59,7 +61,7 @@ def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
     # the runs it replaces out of these folders (and rerunning the grid resumes, not refuses).
     from sb3_cmzdril.hyperparams import load_hyperparams
     from sb3_cmzdril.training.run_folder import as_stored
-    from sb3_cmzdril.training.spec import default_hyperparams_name, effective_values, record_version
+    from sb3_cmzdril.training.spec import default_hyperparams_name, effective_values, record_made
 
     checked, stale = 0, []
     for folder in (*PUBLISHED_FOLDERS, *STUDY_YAMLS):
@@ -71,7 +73,7 @@ def test_the_published_runs_are_what_the_shipped_hyperparameters_make():
             entry = load_hyperparams(yaml_file, config["env_id"], method)
             checked += 1
             if (effective_values(as_stored({"values": entry.raw})["values"], method)
-                    != effective_values(config["hyperparams_values"], method, record_version(config))):
+                    != effective_values(config["hyperparams_values"], method, **record_made(config))):
                 stale.append(str(path.relative_to(ROOT)))
     assert checked > 200 and stale == []
 
@@ -82,6 +84,13 @@ def test_a_record_of_an_older_version_reads_a_default_it_left_out_as_that_versio
     assert learner_defaults("cmz")["absorbing"] == "auto"
     assert learner_defaults("cmz", "0.2.0")["absorbing"] is False
     assert learner_defaults("cmz", "0.3.0.dev0")["absorbing"] == "auto"
+    # within 0.1.0, a run made before standardisation and held-out early stopping existed ran without them
+    early = learner_defaults("cmz", "0.1.0", "2026-11-21T07:31:25+0000")
+    assert (early["standardize_observations"], early["bc_validation_fraction"], early["log_std_floor"]) == \
+        (False, 0.0, None)
+    later = learner_defaults("cmz", "0.1.0", "2026-11-21T18:56:23+00:00")
+    assert (later["standardize_observations"], later["bc_validation_fraction"], later["log_std_floor"]) == \
+        (True, 0.2, -1.0)
     # a 0.2.0 run that left absorbing out ran without the absorbing state: this version states it
     assert effective_values({"n_timesteps": 1e6}, "cmz", "0.2.0") == {
         "n_timesteps": 1e6, "absorbing": False, "cmz_clip_quantile": None, "disagreement": "std",

@@ -191,6 +191,10 @@ class CMZDRIL(ImitationLearner, PPO):
         "0.3.0": {"absorbing": False, "cmz_clip_quantile": None, "disagreement": "std",
                   "standardize_observations": True, "bc_epochs_per_update": 1},  # the paper's (and DRIL's)
     }
+    options_added: ClassVar[dict[str, dict[str, Any]]] = {  # in 0.1.0's development (commit b75741f7)
+        "2026-11-21T18:56:23+00:00": {"standardize_observations": False, "bc_validation_fraction": 0.0,
+                                      "log_std_floor": None},
+    }
 
     def __init__(
         self,

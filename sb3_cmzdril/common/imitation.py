@@ -165,6 +165,9 @@ class ImitationLearner(_Algorithm):
     #: constructor defaults a release changed, by that release: what a run made by an earlier version got
     #: for an argument it left out (its records name the version), e.g. ``{"0.3.0": {"absorbing": False}}``
     defaults_before: ClassVar[dict[str, dict[str, Any]]] = {}
+    #: arguments added within a release, by when (UTC, ISO 8601): the value that runs as the code did
+    #: before they existed, for a run made earlier (its records name when: config.json's ``created_at``)
+    options_added: ClassVar[dict[str, dict[str, Any]]] = {}
 
     demonstrations: Demonstrations | None
     ensemble: BCEnsemble

@@ -83,6 +83,7 @@ from sb3_cmzdril.training.spec import (
     ResolvedRun,
     RunSpec,
     effective_values,
+    record_made,
     record_version,
     resolve_run,
     train_command,
@@ -346,12 +347,12 @@ def as_stored(config: Mapping[str, Any]) -> dict[str, Any]:
 def _identity_value(key: str, config: Mapping[str, Any], method: Any) -> Any:
     """config.json's ``key`` as two runs compare it: an env id by its name, hyperparameters by what they
     change (:func:`~sb3_cmzdril.training.spec.effective_values`, a default read as the version that made
-    the run had it)."""
+    the run had it when it made it)."""
     value = config.get(key)
     if key == "env_id" and isinstance(value, str):
         return env_name(value)
     if key == "hyperparams_values" and isinstance(value, dict) and method in METHOD_REGISTRY:
-        return effective_values(value, method, record_version(config))
+        return effective_values(value, method, **record_made(config))
     return value
 
 

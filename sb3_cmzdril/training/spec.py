@@ -14,6 +14,7 @@ writes the files of :mod:`sb3_cmzdril.training.run_folder`.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import functools
 import json
 import math
@@ -417,11 +418,23 @@ def record_version(config: Mapping[str, Any]) -> str | None:
     return found if isinstance(found, str) else None
 
 
-def learner_defaults(method: str, version: str | None = None) -> dict[str, Any]:
+def record_made(config: Mapping[str, Any]) -> dict[str, str | None]:
+    """When and by which version the run of ``config`` was made: the ``version`` and ``created_at``
+    arguments of :func:`learner_defaults` and :func:`effective_values` (None where it does not say)."""
+    created = config.get("created_at")
+    return {"version": record_version(config), "created_at": created if isinstance(created, str) else None}
+
+
+def _moment(stamp: str) -> datetime.datetime:
+    """A record's ``created_at`` (``2026-11-21T07:31:25+0000``, the offset with or without a colon)."""
+    return datetime.datetime.strptime(stamp, "%Y-%m-%dT%H:%M:%S%z")
+
+
+def learner_defaults(method: str, version: str | None = None, created_at: str | None = None) -> dict[str, Any]:
     """What a run of ``method`` gets for a hyperparameter its entry leaves out, as config.json stores
     values: the learner's constructor defaults, the fallback policy and number of demos, one env. With
-    ``version``, those of that sb3-cmzdril version (the learner's ``defaults_before``): what a record
-    it made ran with."""
+    ``version`` (and ``created_at``), those of that sb3-cmzdril version (the learner's ``defaults_before``)
+    at that time (its ``options_added``): what a record it made ran with."""
     import inspect
 
     learner = Method.of(method).learner.classes()[0]
@@ -429,24 +442,30 @@ def learner_defaults(method: str, version: str | None = None) -> dict[str, Any]:
                 if p.default is not inspect.Parameter.empty}
     defaults.update(policy=FALLBACK_POLICY, n_demos=FALLBACK_N_DEMOS, n_envs=1,
                     policy_kwargs=learner.default_policy_kwargs)
-    if version is not None:  # the newest change first, so that the oldest one still ahead of it wins
+    # the newest change first, so that the oldest one still ahead of the record wins
+    if version is not None:
         for changed_in, before in sorted(learner.defaults_before.items(), key=lambda kv: _release(kv[0]),
                                          reverse=True):
             if _release(version) < _release(changed_in):
                 defaults.update(before)
+    if created_at is not None:
+        for added_at, before in sorted(learner.options_added.items(), key=lambda kv: _moment(kv[0]), reverse=True):
+            if _moment(created_at) < _moment(added_at):
+                defaults.update(before)
     return json.loads(json.dumps(jsonable(defaults)))
 
 
-def effective_values(values: Mapping[str, Any], method: str, version: str | None = None) -> dict[str, Any]:
+def effective_values(values: Mapping[str, Any], method: str, version: str | None = None,
+                     created_at: str | None = None) -> dict[str, Any]:
     """A hyperparameter entry's ``values`` (as config.json stores them) as this version's YAML would
     state them: without those that say what the run does anyway (:func:`learner_defaults`), and with a
-    default of ``version`` (the one that made a record) that this version's defaults changed. Two
-    entries with the same effective values make the same run (the shipped YAML states no default, the
-    records of older runs state every one)."""
+    default of ``version`` at ``created_at`` (when a record was made) that this version's defaults
+    changed. Two entries with the same effective values make the same run (the shipped YAML states no
+    default, the records of older runs state every one)."""
     from sb3_cmzdril.hyperparams import safe_eval
 
     current = learner_defaults(method)
-    then = learner_defaults(method, version) if version is not None else current
+    then = learner_defaults(method, version, created_at) if (version, created_at) != (None, None) else current
     given = dict(values)
     if isinstance(given.get("policy_kwargs"), str):  # the YAML's expression: compared as what it makes
         given["policy_kwargs"] = jsonable(safe_eval(given["policy_kwargs"]))
@@ -834,6 +853,7 @@ __all__ = [
     "FALLBACK_POLICY",
     "effective_values",
     "learner_defaults",
+    "record_made",
     "record_version",
     "HYPERPARAMS_NAME",
     "METHODS",

@@ -35,7 +35,7 @@ from sb3_cmzdril.training.run_folder import (
     read_eval_csv,
     run_status,
 )
-from sb3_cmzdril.training.spec import METHODS, effective_values, learner_defaults, record_version, result_policy
+from sb3_cmzdril.training.spec import METHODS, effective_values, learner_defaults, record_made, result_policy
 
 logger = logging.getLogger(__name__)
 
@@ -369,7 +369,7 @@ def _hyperparams(config: dict[str, Any]) -> dict[str, Any]:
     values = config.get("hyperparams_values", {})
     if config.get("method") not in METHODS:
         return values
-    return effective_values(values, config["method"], record_version(config))
+    return effective_values(values, config["method"], **record_made(config))
 
 
 def _run_settings(records: Sequence[RunRecord], env: str) -> list[tuple[dict[str, Any], dict[str, Any]]]:
