@@ -593,7 +593,7 @@ def test_a_published_run_folder_is_still_the_same_run():
     spec = RunSpec(
         env_id=config["env_id"], method=config["method"], demos=str(repo / "experts" / "Hopper-v5" / "demos.npz"),
         seed=config["seed"], n_demos=config["n_demos"], n_eval_episodes=config["n_eval_episodes"],
-        timesteps=config["timesteps"], output_dir=str(out), hyperparams=str(repo / "hyperparams" / "cmzdril.yml"),
+        timesteps=config["timesteps"], output_dir=str(out), hyperparams=str(repo / "hyperparams" / "cmzdril-tuned.yml"),
     )
     assert check_finished(spec) == json.loads((out / "done.json").read_text())
     with pytest.raises(ValueError, match="holds a different, finished run \\(seed: 0 there, 1 now"):

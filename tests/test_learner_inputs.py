@@ -248,3 +248,15 @@ def test_the_shipped_default_entry_runs_the_constructors_defaults(learner, file)
     assert differ == {}
     # and states none of them again: the constructor is the one place of each default
     assert [key for key in entry if key in defaults or key in ("policy", "n_demos")] == []
+
+
+def test_the_shipped_ppo_entries_hold_only_what_their_task_defines():
+    # Every setting is the constructor's (its rules read the task's data); an entry says what its task is.
+    import yaml
+
+    from sb3_cmzdril.shipped import shipped_file
+
+    entries = yaml.safe_load(shipped_file("hyperparams", "cmzdril.yml").read_text())
+    tasks = {name: entry for name, entry in entries.items() if name != "default"}
+    assert tasks and {name: sorted(set(entry) - {"n_demos", "env_kwargs", "n_timesteps"})
+                      for name, entry in tasks.items()} == {name: [] for name in tasks}

@@ -5,7 +5,7 @@
 # runs' small records (config, state, eval.csv, final_eval.csv, pretrain.csv, progress logs) are
 # tracked by git.
 #
-#   bash benchmarks/studies/paper_grid.sh               # the shipped defaults (hyperparams/cmzdril.yml) -> results/runs
+#   bash benchmarks/studies/paper_grid.sh               # the tuned entries (hyperparams/cmzdril-tuned.yml) -> results/runs
 #   HYPERPARAMS=hyperparams/cmzdril-paper.yml RUNS=results/runs_paper_faithful bash benchmarks/studies/paper_grid.sh
 #                                                # the paper-faithful setting (raw inputs, 100 BC epochs)
 #
@@ -14,14 +14,14 @@
 # evaluation costs more than a training epoch there), WaypointNav-v0 after every update; each run ends
 # with a final evaluation of every pool episode it did not train on.
 #
-# Where a task's entry in hyperparams/cmzdril.yml changed after this grid ran (HalfCheetah-v5,
+# Where a task's entry in hyperparams/cmzdril-tuned.yml changed after this grid ran (HalfCheetah-v5,
 # Walker2d-v5, WaypointNav-v0), its runs in results/runs are the ones the entry's study made (its
 # commands are in docs/new_tasks.md; WaypointNav-v0's evaluate every 5 updates); rerunning this
 # script skips them as finished.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 workers=${WORKERS:-2}
-hyperparams=${HYPERPARAMS:-hyperparams/cmzdril.yml}
+hyperparams=${HYPERPARAMS:-hyperparams/cmzdril-tuned.yml}
 runs=${RUNS:-results/runs}
 cli=${SB3_CMZDRIL:-sb3-cmzdril}
 for methods in bc,cmz,zero dril,env; do

@@ -1,9 +1,10 @@
-"""Run the benchmark grid with some hyperparameters changed: the evidence behind hyperparams/cmzdril.yml.
+"""Run the benchmark grid with some hyperparameters changed: the evidence behind the published grid's entries.
 
     python benchmarks/studies/tune.py NAME --set target_kl=0.02 [--set learning_rate=1e-4 ...] \
         -- --env HalfCheetah-v5 --methods cmz --trials 2 --timesteps 100000 --eval-every 5
 
-writes results/tuning/NAME/hyperparams.yml (the repository's hyperparams/cmzdril.yml, or --base, with every env
+writes results/tuning/NAME/hyperparams.yml (the published grid's tuned entries, hyperparams/cmzdril-tuned.yml, which
+these studies tuned, or --base; ``--as-untuned`` cuts them to what the tasks define, the default's runs; with every env
 entry updated by the --set values, for every method: a key --set names leaves the entries' per_method
 blocks; values are parsed as YAML, so 1e-4, 0.02, null and [64, 64] work) and runs
 ``sb3-cmzdril benchmark --hyperparams results/tuning/NAME/hyperparams.yml -o results/tuning/NAME`` with the
@@ -85,7 +86,7 @@ def main() -> None:
     parser.add_argument("name", help="variant name: output goes to results/tuning/NAME")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="hyperparameter to change in every env entry (repeatable)")
-    parser.add_argument("--base", default=str(ROOT / "hyperparams" / "cmzdril.yml"))
+    parser.add_argument("--base", default=str(ROOT / "hyperparams" / "cmzdril-tuned.yml"))
     parser.add_argument("--as-untuned", action="store_true",
                         help=f"cut every env entry down to the default and {', '.join(TASK_KEYS)} first")
     args = parser.parse_args(argv)

@@ -2,7 +2,7 @@
 # A second task nobody here tuned for, one where cloning fails: Pendulum-v1. The demo pool comes from a
 # published RL Zoo agent as a new user would record it; the runs are
 #
-#   1. the package defaults (hyperparams/cmzdril.yml has no Pendulum-v1 entry: its `default` entry),
+#   1. the package defaults before 0.3.0 (benchmarks/studies/untuned.yml: the paper's settings),
 #      results/untuned (BC on trials 0-9, CMZ-DRIL and PPO on the env's reward on trials 0-4);
 #   2. the zoo's tuned PPO settings for Pendulum-v1 (rl-baselines3-zoo hyperparams/ppo.yml, as the
 #      agent's own config.yml records them: 4 envs x 1024 steps, gamma 0.9, learning rate 1e-3, gSDE

@@ -98,7 +98,7 @@ def plan_grid(
     :param n_demos: training episodes per trial (default: the YAML's per-env ``n_demos``: 1 for the
         MuJoCo envs, 5 for WaypointNav, as in the paper).
     :param demos_dir: demo pools are ``<demos_dir>/<EnvName>/demos.npz``.
-    :param hyperparams: the PPO methods' YAML (default: the shipped cmzdril.yml).
+    :param hyperparams: the PPO methods' YAML (default: the shipped cmzdril.yml, the package's defaults).
     :param offpolicy_hyperparams: the off-policy methods' (``cmz-sac``) YAML (default: the shipped
         cmzdril_sac.yml), as the zoo keeps one file per algorithm.
     Order: trial, then env, then method, so that whole trials finish first.
