@@ -250,13 +250,17 @@ def test_the_shipped_default_entry_runs_the_constructors_defaults(learner, file)
     assert [key for key in entry if key in defaults or key in ("policy", "n_demos")] == []
 
 
-def test_the_shipped_ppo_entries_hold_only_what_their_task_defines():
-    # Every setting is the constructor's (its rules read the task's data); an entry says what its task is.
+@pytest.mark.parametrize("file", ["cmzdril.yml", "cmzdril_sac.yml"])
+def test_the_shipped_entries_hold_only_what_their_task_defines(file):
+    # Every setting is the default's (the constructor's rules read the task's data); an entry says what its
+    # task is: its budget, its demonstrations, how its env is made.
     import yaml
 
     from sb3_cmzdril.shipped import shipped_file
 
-    entries = yaml.safe_load(shipped_file("hyperparams", "cmzdril.yml").read_text())
-    tasks = {name: entry for name, entry in entries.items() if name != "default"}
-    assert tasks and {name: sorted(set(entry) - {"n_demos", "env_kwargs", "n_timesteps"})
-                      for name, entry in tasks.items()} == {name: [] for name in tasks}
+    entries = yaml.safe_load(shipped_file("hyperparams", file).read_text())
+    default = entries.pop("default")
+    beyond = {name: sorted(k for k, v in entry.items() if default.get(k, object()) != v and
+                           k not in ("n_demos", "env_kwargs", "n_timesteps"))
+              for name, entry in entries.items()}
+    assert entries and beyond == {name: [] for name in entries}

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -70,10 +71,18 @@ def test_a_users_extractor_is_composed_and_vecnormalize_wins(pendulum_demos, cap
     assert isinstance(ext, DemoStandardizer) and type(ext.extractor) is FlattenExtractor
     assert not caplog.records  # flattening is what MlpPolicy does anyway: nothing to note
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("Pendulum-v1")]), norm_reward=False)
-    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, standardize_observations=True, **TINY)
     with pytest.warns(UserWarning, match="VecNormalize normalises the observations already"):
         model.pretrain()
     assert float(model.policy.features_extractor.obs_std.min()) == 1.0  # left as the identity
+    # the default's rule decides the same without a warning, and says why
+    model = CMZDRIL("MlpPolicy", venv, demonstrations=pendulum_demos, **TINY)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.pretrain()
+    assert model.rules["standardize_observations"] == {
+        "value": False, "reason": "a VecNormalize normalises the observations already: the policy sees its inputs"}
+    assert float(model.policy.features_extractor.obs_std.min()) == 1.0
 
 
 def test_statistics_of_every_standardizer_when_actor_and_critic_do_not_share(pendulum_demos):

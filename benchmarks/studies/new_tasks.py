@@ -1044,6 +1044,15 @@ D14_UNTUNED = (f"python benchmarks/studies/tune.py D14-untuned --as-untuned {HEL
 D14_DRIL = (f"python benchmarks/studies/tune.py D14-dril --as-untuned {HELD_OUT_SETS} -- --env Walker2d-v5,Hopper-v5,"
             "HalfCheetah-v5,Swimmer-v5,sb3_cmzdril:WaypointNav-v0 --methods dril --trials TRIALS --timesteps 300000 "
             "--eval-every 5 --workers 2 --no-progress")
+#: DRIL with its own BC step on the four tasks where the rule drops the NLL epochs for CMZ-DRIL (commit 449d8bab
+#: left DRIL its step; D14-dril's runs there had none)
+D14_DRIL_BC = (f"python benchmarks/studies/tune.py D14-dril-bc --as-untuned {HELD_OUT_SETS} -- --env "
+               "sb3_cmzdril:WaypointNav-v0,Walker2d-v5,Hopper-v5,HalfCheetah-v5 --methods dril --trials TRIALS "
+               "--timesteps 300000 --eval-every 5 --workers 2 --no-progress")
+D14_DRIL_BC_LABEL = D14_LABEL.replace("(`bc_epochs_per_update: auto`)", "(`bc_epochs_per_update: auto`), which "
+                                      "leaves DRIL its BC step")
+D14_DRIL_BEFORE_LABEL = D14_LABEL.replace("(`bc_epochs_per_update: auto`)", "(`bc_epochs_per_update: auto`, "
+                                          "for DRIL as well before commit 449d8bab)")
 #: LunarLander-v3's fresh trials 10-14 with the outside-env study's settings, to confirm the fourteenth candidate
 OUTSIDE_TRIALS10_14 = "results/outside_env_trials10-14"
 OUTSIDE_TRIALS10_14_COMMAND = OUTSIDE_TRIALS5_9_COMMAND.replace("bc,dril,cmz", "bc,cmz").replace("5-9", "10-14")
@@ -1063,9 +1072,11 @@ D14_ROWS: tuple[Variant, ...] = (
     *candidate_rows("LunarLander-v3", "D14-lunar", D14_LUNAR.replace("--methods cmz", "--methods dril"), D14_LABEL,
                     ("5-9",), methods=("dril",)),
     *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0")
-      for row in candidate_rows(env, "D14-dril", D14_DRIL, D14_LABEL, ("5-9",), methods=("dril",))),
+      for row in candidate_rows(env, "D14-dril", D14_DRIL, D14_DRIL_BEFORE_LABEL, ("5-9",), methods=("dril",))),
     *candidate_rows(PENDULUM, "D14-untuned", D14_UNTUNED.replace(f"{MOUNTAIN},{BIPEDAL}", PENDULUM)
                     .replace("300000", "100000"), D14_LABEL, ("5-9",)),
+    *(row for env in ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "WaypointNav-v0")
+      for row in candidate_rows(env, "D14-dril-bc", D14_DRIL_BC, D14_DRIL_BC_LABEL, ("0-4", "5-9"), methods=("dril",))),
 )
 
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (

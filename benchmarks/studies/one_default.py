@@ -1,4 +1,4 @@
-"""The table of docs/one_default.md: the leading candidate for one default against the tuned entries.
+"""The tables of docs/one_default.md and the README's headline: the default against the tuned entries.
 
 CMZ-DRIL's final policy per task, % of the expert (the return on Pendulum-v1, whose returns are
 negative), mean over trials 0-4 / 5-9 (/ 10-14 where run): the published grid's tuned entries (on the
@@ -6,10 +6,11 @@ untuned tasks, the shipped default; on another expert's pools, the task's entry 
 candidate's runs (``results/tuning/D6-*``), the thirteenth's and the fourteenth's, the fourteenth's paired
 difference to the entry over the trials both have, and BC on the candidates' inputs. A rule's column takes,
 per trial, the run of the candidate that decides as the rule does there (a seeded run goes on as the
-decided value runs it), then the rule's own runs. ``--check`` fails (exit 1) when the page's table is not
-what the records give.
+decided value runs it), then the rule's own runs. The README's table: BC, DRIL and CMZ-DRIL on the
+default (D14) beside CMZ-DRIL's tuned entries on the six tasks. ``--check`` fails (exit 1) when a table is
+not what the records give.
 
-    python benchmarks/studies/one_default.py           # rewrite the table in docs/one_default.md
+    python benchmarks/studies/one_default.py           # rewrite the tables (docs/one_default.md, README.md)
     python benchmarks/studies/one_default.py --check
 """
 from __future__ import annotations
@@ -33,6 +34,9 @@ from sb3_cmzdril.common.bc import AUTO_EPOCHS_NLL, nll_per_action_entry
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "one_default.md"
 BEGIN, END = "<!-- one default table: written by benchmarks/studies/one_default.py -->", "<!-- end of table -->"
+README = ROOT / "README.md"
+README_BEGIN = "<!-- default table: written by benchmarks/studies/one_default.py, do not edit by hand -->"
+README_END = "<!-- end of default table -->"
 #: the six tasks of the issue's across-task target (IQM over them, trials 0-4)
 SIX = ("Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Swimmer-v5", "WaypointNav-v0", "LunarLander-v3")
 
@@ -285,54 +289,126 @@ def _six_tasks(six: dict[str, list[list[float]]]) -> str:
     return "\n".join(rows)
 
 
-#: DRIL on D14's settings, by the six tasks' row labels: trials 0-4 from D13's runs on the five where the two decide
-#: alike (no expert there ends its own episodes before a time limit), trials 5-9 from D14's own
-DRIL = {label: ("tuning/D14-lunar",) if label.startswith("Lunar") else ("tuning/D13-dril", "tuning/D14-dril")
-        for label in SIX}
+#: DRIL on D14's settings, by the six tasks' row labels. DRIL keeps its own BC step (one NLL epoch after each
+#: update): on Swimmer-v5 and LunarLander-v3 the rule kept it for every method, so trials 0-4 are D13's runs there
+#: (the two decide alike), 5-9 D14's; elsewhere the runs made after the rule left DRIL its step
+DRIL = {label: ("tuning/D14-lunar",) if label.startswith("Lunar") else
+        ("tuning/D13-dril", "tuning/D14-dril") if label == "Swimmer-v5" else ("tuning/D14-dril-bc",) for label in SIX}
+#: the same before the rule left DRIL its step: where it dropped the epochs for every method, DRIL ran without them
+DRIL_NO_STEP = {label: ("tuning/D14-lunar",) if label.startswith("Lunar") else ("tuning/D13-dril", "tuning/D14-dril")
+                for label in SIX}
 
 
 def _dril() -> str:
     """DRIL against CMZ-DRIL on D14's settings, per task and across the six, trials 0-4 and 5-9 (each on the
-    trials DRIL has on every task)."""
+    trials DRIL has on every task); then DRIL without its BC step where the rule dropped it."""
     tasks = [task for task in TASKS if task[0] in SIX]
     cmz = {label: _d14(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
-    dril = {label: _per_trial(DRIL[label], env, "dril", "pct_of_expert") for label, env, *_ in tasks}
     rows = ["| On D14's settings | trials | " + " | ".join(SIX) + " | IQM [95% CI] | P(CMZ-DRIL > DRIL) [95% CI] |",
             "|---" * (len(SIX) + 4) + "|"]
-    for block in (range(5), range(5, 10)):
-        trials = tuple(t for t in block if all(t in values for values in dril.values()))
-        if len(trials) < 2:
-            rows.append(f"| DRIL | {block.start}-{block.stop - 1}: not two trials on every task yet |")
-            continue
-        arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
-                  for key, by_label in (("CMZ-DRIL", cmz), ("DRIL", dril))}
-        agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
-                               by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", "DRIL")])
-        named = ", ".join(map(str, trials))
-        for key, array in arrays.items():
-            p, lo, hi = agg.summary[key]["IQM"]
-            better = ("{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("CMZ-DRIL", "DRIL")].probability)
-                      if key == "CMZ-DRIL" else "")
-            rows.append(f"| {key} | {named} | " + " | ".join(f"{100 * v:.1f}" for v in array.mean(axis=0)) +
-                        f" | {100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] | {better} |")
+    for name, folders in (("DRIL", DRIL), ("DRIL, no BC step where the rule drops it", DRIL_NO_STEP)):
+        dril = {label: _per_trial(folders[label], env, "dril", "pct_of_expert") for label, env, *_ in tasks}
+        for block in (range(5), range(5, 10)):
+            trials = tuple(t for t in block if all(t in values for values in dril.values()))
+            if len(trials) < 2:
+                rows.append(f"| {name} | {block.start}-{block.stop - 1}: not two trials on every task yet |")
+                continue
+            arrays = {key: np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
+                      for key, by_label in (("CMZ-DRIL", cmz), (name, dril))}
+            agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: SIX for k in arrays},
+                                   by_method=arrays, labels={k: k for k in arrays}), pairs=[("CMZ-DRIL", name)])
+            named = ", ".join(map(str, trials))
+            for key, array in arrays.items():
+                if key == "CMZ-DRIL" and name != "DRIL":
+                    continue  # its row is above
+                p, lo, hi = agg.summary[key]["IQM"]
+                better = "{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("CMZ-DRIL", name)].probability)
+                rows.append(f"| {key} | {named} | " + " | ".join(f"{100 * v:.1f}" for v in array.mean(axis=0)) +
+                            f" | {100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] | " +
+                            (f"against DRIL: {better}" if key == "CMZ-DRIL" else
+                             "" if name == "DRIL" else f"against it: {better}") + " |")
     return "\n".join(rows)
+
+
+#: BC's runs of the confirmation trials 5-9 on the six tasks (inputs as D14 gives them)
+BC_CONFIRM = {**{label: ("runs_bc_trials10",) for label in SIX if label != "LunarLander-v3"},
+              "LunarLander-v3": ("outside_env_trials5-9",)}
+
+
+def _iqm(by_label: dict[str, dict[int, float]], block: range) -> str:
+    """The six tasks' IQM [95% CI] over the trials of ``block`` that every task has (named where not all)."""
+    trials = tuple(t for t in block if all(t in by_label[label] for label in SIX))
+    if len(trials) < 2:
+        return "—"
+    array = np.array([[by_label[label][t] / 100 for label in SIX] for t in trials])
+    agg = aggregate(Scores(trials={"m": trials}, tasks={"m": SIX}, by_method={"m": array}, labels={"m": "m"}),
+                    pairs=[])
+    p, lo, hi = agg.summary["m"]["IQM"]
+    return f"{100 * p:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]" + _partial(trials, block)
+
+
+def _partial(trials: tuple[int, ...] | list[int], block: range) -> str:
+    """' (trials 0, 1)' where ``trials`` are not all of ``block``, else ''."""
+    return "" if len(trials) == len(block) else f" (trials {', '.join(map(str, trials))})"
+
+
+def _block_means(values: dict[int, float]) -> str:
+    """'mean of trials 0-4 / mean of trials 5-9', each only where it has trials, naming them where not all."""
+    parts = []
+    for block in (range(5), range(5, 10)):
+        trials = [t for t in block if t in values]
+        if trials:
+            parts.append(f"{np.mean([values[t] for t in trials]):.1f}{_partial(trials, block)}")
+    return " / ".join(parts) or "—"
+
+
+def readme_table() -> str:
+    """The README's headline: BC, DRIL and CMZ-DRIL on the default (D14) and CMZ-DRIL on its tuned entry, per
+    task (mean over trials 0-4 / 5-9) and across the six."""
+    columns: dict[str, dict[str, dict[int, float]]] = {"BC": {}, "DRIL": {}, "CMZ-DRIL": {},
+                                                       "CMZ-DRIL, tuned entry": {}}
+    for label, env, entry_folders, _, d11_folders, bc_folder in (task for task in TASKS if task[0] in SIX):
+        bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", "pct_of_expert").items() if t < 5}
+        bc.update(_per_trial(BC_CONFIRM[label], env, "bc", "pct_of_expert"))
+        columns["BC"][label] = bc
+        columns["DRIL"][label] = _per_trial(DRIL[label], env, "dril", "pct_of_expert")
+        columns["CMZ-DRIL"][label] = _d14(label, env, "pct_of_expert", d11_folders)
+        columns["CMZ-DRIL, tuned entry"][label] = _per_trial(entry_folders, env, "cmz", "pct_of_expert")
+    rows = ["| % of the expert, trials 0-4 / 5-9 | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    rows += [f"| {label} | " + " | ".join(_block_means(by_label[label]) for by_label in columns.values()) + " |"
+             for label in SIX]
+    rows += [f"| IQM, trials {block.start}-{block.stop - 1} [95% CI] | " +
+             " | ".join(_iqm(by_label, block) for by_label in columns.values()) + " |"
+             for block in (range(5), range(5, 10))]
+    return "\n".join(rows)
+
+
+def _replace(text: str, begin: str, end: str, block: str) -> str:
+    """``text`` with what stands between the lines ``begin`` and ``end`` replaced by ``block``."""
+    head, rest = text.split(begin + "\n")
+    _, tail = rest.split(end)
+    return f"{head}{begin}\n{block}\n{end}{tail}"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="fail when the page's table is out of date")
     args = parser.parse_args(argv)
-    text = PAGE.read_text(encoding="utf-8")
-    head, rest = text.split(BEGIN + "\n")
-    _, tail = rest.split(END)
-    new = f"{head}{BEGIN}\n{table()}\n{END}{tail}"
-    if args.check:
-        if new != text:
-            print(f"{PAGE} is out of date: run python benchmarks/studies/one_default.py", file=sys.stderr)
-            return 1
-        return 0
-    PAGE.write_text(new, encoding="utf-8")
-    print(PAGE)
+    pages = {PAGE: (BEGIN, END, table()), README: (README_BEGIN, README_END, readme_table())}
+    stale = []
+    for page, (begin, end, block) in pages.items():
+        text = page.read_text(encoding="utf-8")
+        new = _replace(text, begin, end, block)
+        if new == text:
+            continue
+        stale.append(page)
+        if not args.check:
+            page.write_text(new, encoding="utf-8")
+            print(page)
+    if args.check and stale:
+        print(f"{', '.join(map(str, stale))}: out of date; run python benchmarks/studies/one_default.py",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -374,16 +374,20 @@ class ImitationLearner(_Algorithm):
     def _fit_standardizers(self, obs_transform: ObsTransform | None = None) -> None:
         """Set the policy's input standardisation (one per features extractor) to the demos'
         statistics; where ``obs_transform`` (a VecNormalize's) normalises the observations already, it
-        is left as the identity, with a warning."""
+        is left as the identity: a rule's decision for ``"auto"``, a warning where it was asked for."""
         assert self.demonstrations is not None
         standardizers = [m for m in self.policy.modules() if isinstance(m, DemoStandardizer)]
         if standardizers and obs_transform is not None:
-            warnings.warn(
-                "VecNormalize normalises the observations already: the demo standardisation of the policy "
-                f"is left as the identity ({self.learner_name}(standardize_observations=False) silences this)",
-                UserWarning,
-                stacklevel=4,
-            )
+            if self.standardize_observations == "auto":
+                self._record_rule("standardize_observations", False,
+                                  "a VecNormalize normalises the observations already: the policy sees its inputs")
+            else:
+                warnings.warn(
+                    "VecNormalize normalises the observations already: the demo standardisation of the policy "
+                    f"is left as the identity ({self.learner_name}(standardize_observations=False) silences this)",
+                    UserWarning,
+                    stacklevel=4,
+                )
             return
         by_bounds = self.standardize_observations == "auto"
         scaled = [standardizer.fit(self.demonstrations.observations, by_bounds) for standardizer in standardizers]

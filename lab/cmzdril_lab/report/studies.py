@@ -703,14 +703,14 @@ def render(
         "# Beyond the three tuned tasks: demonstrations, budget and ablations",
         f"Written by `{command}` on {stamp} from the runs named under each table; no number is typed in. "
         "The main grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs) is in [results.md](results.md).",
-        "Versions: most of these runs were made before 0.3.0 (each config.json names its version), and \"package "
-        "defaults\" there means the settings of then: the task's entry in `hyperparams/cmzdril.yml` (now "
-        "`hyperparams/cmzdril-tuned.yml`, which a command here that names the former makes its runs with) or, for "
-        "a task with none, the paper's. From 0.3.0 every task gets the rules of [one default](one_default.md) "
-        "instead; a command here that runs a task with no entry without naming `absorbing`, `cmz_clip_quantile`, "
-        "`disagreement`, `standardize_observations` and `bc_epochs_per_update` makes its runs at commit a7b611ab "
-        "(the untuned tasks' scripts and the outside-env study name the YAML that pins them), and its run folder "
-        "refuses to resume under 0.3.0.",
+        "Versions: most of these runs were made before 0.3.0 (each config.json names its version), and "
+        "\"package defaults\" there means the settings of then: the task's entry in `hyperparams/cmzdril.yml` "
+        "or `cmzdril_sac.yml` (now `cmzdril-tuned.yml`, `cmzdril_sac-tuned.yml`: a command here that names "
+        "the former makes its runs with these) or, for a task with none, the paper's. From 0.3.0 every task "
+        "gets the rules of [one default](one_default.md) instead; a command here that runs a task with no "
+        "entry without naming `absorbing`, `cmz_clip_quantile`, `disagreement`, `standardize_observations` "
+        "and `bc_epochs_per_update` makes its runs at commit a7b611ab (the untuned tasks' scripts and the "
+        "outside-env study name the YAML that pins them), and its run folder refuses to resume under 0.3.0.",
         "Each run's final evaluation replays every demo-pool episode not used for training from the expert's "
         "start state. % of expert: 100 x the run's mean return / the expert's mean return on the same "
         "episodes; a cell is the mean over trials [95% bootstrap CI over trials, n/a under 3 trials]. "
