@@ -12,14 +12,18 @@ not what the records give.
 
     python benchmarks/studies/one_default.py           # rewrite the tables (docs/one_default.md, README.md)
     python benchmarks/studies/one_default.py --check
+    python benchmarks/studies/one_default.py --grid results/default_grid  # the default's grid, for the report
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import json
+import shutil
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -96,19 +100,40 @@ TRIALS_0_4_ONLY = ("tuning/D6-tqc", "tuning/D10-tqc")
 #: tasks scored by their return: a negative expert return makes no percentage
 BY_RETURN = ("Pendulum-v1",)
 
+V = TypeVar("V")
+
 
 def _row(folder: str, env: str, method: str) -> FinalRow | None:
     return find(final_table([r for r in load_runs(ROOT / "results" / folder) if r.env == env]), env, method)
 
 
-def _per_trial(folders: tuple[str, ...], env: str, method: str, column: str) -> dict[int, float]:
-    """Trial -> the final policy's value of ``column``, over ``folders`` (a later folder adds trials)."""
-    values: dict[int, float] = {}
+#: what a table reads of a row's runs, by trial: a metric of the final policy (:func:`_metric`) or the run folder
+Pick = Callable[[FinalRow], dict[int, V]]
+
+
+def _metric(column: str) -> Pick[float]:
+    """Trial -> the final policy's value of ``column``."""
+    return lambda row: row.per_trial(column)
+
+
+def _run_folder(row: FinalRow) -> dict[int, Path]:
+    """Trial -> the run's folder."""
+    return {run.trial: run.path for run in row.runs}
+
+
+def _values(folders: tuple[str, ...], env: str, method: str, pick: Pick[V]) -> dict[int, V]:
+    """Trial -> what ``pick`` reads, over ``folders`` (a later folder adds trials)."""
+    values: dict[int, V] = {}
     for folder in folders:
         row = _row(folder, env, method)
         if row is not None:
-            values.update(row.per_trial(column))
+            values.update(pick(row))
     return values
+
+
+def _per_trial(folders: tuple[str, ...], env: str, method: str, column: str) -> dict[int, float]:
+    """Trial -> the final policy's value of ``column``, over ``folders`` (a later folder adds trials)."""
+    return _values(folders, env, method, _metric(column))
 
 
 def _means(values: dict[int, float]) -> str:
@@ -118,11 +143,12 @@ def _means(values: dict[int, float]) -> str:
     return " / ".join(f"{p:.1f}" if abs(p) < 1000 else f"{p:.0f}" for p in parts if p is not None)
 
 
-def _candidate(folders: tuple[str, ...], env: str, column: str) -> dict[int, float]:
-    """Trial -> CMZ-DRIL's final policy over a candidate's ``folders`` (a few-runs folder: trials 0-4 only)."""
-    values: dict[int, float] = {}
+def _candidate(folders: tuple[str, ...], env: str, pick: Pick[V]) -> dict[int, V]:
+    """Trial -> what ``pick`` reads of CMZ-DRIL's runs over a candidate's ``folders`` (a few-runs folder: trials
+    0-4 only)."""
+    values: dict[int, V] = {}
     for folder in folders:
-        values.update({t: v for t, v in _per_trial((folder,), env, "cmz", column).items()
+        values.update({t: v for t, v in _values((folder,), env, "cmz", pick).items()
                        if t < 5 or folder not in TRIALS_0_4_ONLY})
     return values
 
@@ -134,9 +160,9 @@ def table() -> str:
     six: dict[str, list[list[float]]] = {"entry": [], "D6": [], "D13": [], "D14": [], "BC": []}
     for label, env, entry_folders, d6_folder, d11_folders, bc_folder in TASKS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
-        entry = _per_trial(entry_folders, env, "cmz", column)
-        d6 = _candidate((d6_folder,), env, column)
-        d13, d14 = _d13(label, env, column, d11_folders), _d14(label, env, column, d11_folders)
+        entry, pick = _per_trial(entry_folders, env, "cmz", column), _metric(column)
+        d6 = _candidate((d6_folder,), env, pick)
+        d13, d14 = _d13(label, env, pick, d11_folders), _d14(label, env, pick, d11_folders)
         bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", column).items() if t < 5}
         bc.update({t: v for t, v in _per_trial(BC_LATER.get(label, ()), env, "bc", column).items() if t >= 5})
         shared = sorted(set(entry) & set(d14))
@@ -150,7 +176,8 @@ def table() -> str:
         if label in SIX:
             for key, values in (("entry", entry), ("D6", d6), ("D13", d13), ("D14", d14), ("BC", bc)):
                 six[key].append([values.get(t, float("nan")) / 100 for t in range(5)])
-    return "\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _dril() + "\n\n" + _epochs()
+    return ("\n".join(lines) + "\n\n" + _six_tasks(six) + "\n\n" + _over_bc() + "\n\n" + _dril() + "\n\n" +
+            _epochs())
 
 
 def _held_out(folders: tuple[str, ...], env: str) -> dict[int, float]:
@@ -168,7 +195,7 @@ def _held_out(folders: tuple[str, ...], env: str) -> dict[int, float]:
     return values
 
 
-def _d13(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dict[int, float]:
+def _d13(label: str, env: str, pick: Pick[V], d11_folders: tuple[str, ...]) -> dict[int, V]:
     """Trial -> the thirteenth candidate's final policy. Where the clone falls (the tasks without an
     :data:`EPOCHS` row), no epochs: D11's runs. Elsewhere each trial's run with the epochs where the clone's
     held-out NLL per action entry is under :data:`AUTO_EPOCHS_NLL`, without them where it is not (the clones
@@ -176,15 +203,15 @@ def _d13(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dic
     rule's own runs."""
     row = next(((on, off) for name, _, on, off, _ in EPOCHS if name == label), None)
     if row is None:
-        values = _candidate(d11_folders, env, column)
+        values = _candidate(d11_folders, env, pick)
     else:
         (on_folders, off_folders), values = row, {}
-        on, off = _candidate(on_folders, env, column), _candidate(off_folders, env, column)
+        on, off = _candidate(on_folders, env, pick), _candidate(off_folders, env, pick)
         for trial, nll in _held_out(on_folders + off_folders, env).items():
             runs = on if nll < AUTO_EPOCHS_NLL else off
             if trial in runs:
                 values[trial] = runs[trial]
-    values.update(_candidate(D13_RUNS.get(label, ()), env, column))
+    values.update(_candidate(D13_RUNS.get(label, ()), env, pick))
     return values
 
 
@@ -212,24 +239,24 @@ def _decided(folder: str, env: str) -> dict[int, float]:
     return decided
 
 
-def _d14(label: str, env: str, column: str, d11_folders: tuple[str, ...]) -> dict[int, float]:
+def _d14(label: str, env: str, pick: Pick[V], d11_folders: tuple[str, ...]) -> dict[int, V]:
     """Trial -> the fourteenth candidate's final policy: D13's, but where the expert ends its own episodes
     before the env's time limit, the run with the NLL epochs unless the clone falls (D13's own runs count as
     runs with the epochs they decided); then :data:`D14_RUNS`, the rule's own runs."""
-    values = _d13(label, env, column, d11_folders)
+    values = _d13(label, env, pick, d11_folders)
     row = next(((on, off) for name, _, on, off, _ in EPOCHS if name == label), None)
     if row is not None:
         on_folders, off_folders = row
-        on, off = _candidate(on_folders, env, column), _candidate(off_folders, env, column)
+        on, off = _candidate(on_folders, env, pick), _candidate(off_folders, env, pick)
         for folder in D13_RUNS.get(label, ()):
-            decided, runs = _decided(folder, env), _candidate((folder,), env, column)
+            decided, runs = _decided(folder, env), _candidate((folder,), env, pick)
             for trial, value in runs.items():
                 (on if decided.get(trial) else off).setdefault(trial, value)
         for trial, falls in _ends(on_folders + off_folders + D13_RUNS.get(label, ()), env).items():
             runs = off if falls else on
             if trial in runs:
                 values[trial] = runs[trial]
-    values.update(_candidate(D14_RUNS.get(label, ()), env, column))
+    values.update(_candidate(D14_RUNS.get(label, ()), env, pick))
     return values
 
 
@@ -242,11 +269,12 @@ def _epochs() -> str:
             "|---|---|---|---|---|---|---|---|"]
     for label, env, on_folders, off_folders, _ in EPOCHS:
         column = "return" if env in BY_RETURN else "pct_of_expert"
-        on, off = (_candidate(folders, env, column) for folders in (on_folders, off_folders))
-        quarter = _candidate((QUARTER[label],), env, column) if label in QUARTER else {}
+        pick = _metric(column)
+        on, off = (_candidate(folders, env, pick) for folders in (on_folders, off_folders))
+        quarter = _candidate((QUARTER[label],), env, pick) if label in QUARTER else {}
         shared = [t for t in range(5) if t in on and t in off]
         nll = _held_out(on_folders + off_folders, env)
-        d13, d14 = _d13(label, env, column, ()), _d14(label, env, column, ())
+        d13, d14 = _d13(label, env, pick, ()), _d14(label, env, pick, ())
         better = on if np.mean([on[t] for t in shared]) > np.mean([off[t] for t in shared]) else off
         diffs = np.array([d14[t] - better[t] for t in shared])
         kept = sum(nll[t] < AUTO_EPOCHS_NLL for t in shared)
@@ -303,7 +331,8 @@ def _dril() -> str:
     """DRIL against CMZ-DRIL on D14's settings, per task and across the six, trials 0-4 and 5-9 (each on the
     trials DRIL has on every task); then DRIL without its BC step where the rule dropped it."""
     tasks = [task for task in TASKS if task[0] in SIX]
-    cmz = {label: _d14(label, env, "pct_of_expert", d11_folders) for label, env, _, _, d11_folders, _ in tasks}
+    cmz = {label: _d14(label, env, _metric("pct_of_expert"), d11_folders)
+           for label, env, _, _, d11_folders, _ in tasks}
     rows = ["| On D14's settings | trials | " + " | ".join(SIX) + " | IQM [95% CI] | P(CMZ-DRIL > DRIL) [95% CI] |",
             "|---" * (len(SIX) + 4) + "|"]
     for name, folders in (("DRIL", DRIL), ("DRIL, no BC step where the rule drops it", DRIL_NO_STEP)):
@@ -333,6 +362,37 @@ def _dril() -> str:
 #: BC's runs of the confirmation trials 5-9 on the six tasks (inputs as D14 gives them)
 BC_CONFIRM = {**{label: ("runs_bc_trials10",) for label in SIX if label != "LunarLander-v3"},
               "LunarLander-v3": ("outside_env_trials5-9",)}
+
+
+def _bc(label: str, env: str, bc_folder: str) -> dict[int, float]:
+    """Trial -> BC's final policy, % of the expert, on one of the six tasks: trials 0-4 from the candidates' BC
+    folder, 5-9 from :data:`BC_CONFIRM`."""
+    bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", "pct_of_expert").items() if t < 5}
+    bc.update(_per_trial(BC_CONFIRM[label], env, "bc", "pct_of_expert"))
+    return bc
+
+
+def _over_bc() -> str:
+    """D14's probability of improvement over BC on the six tasks where BC's mean over trials 0-4 stays under 90%
+    of the expert, trials 0-4 and 5-9 (each over the trials every such task has)."""
+    tasks = [task for task in TASKS if task[0] in SIX]
+    cmz = {label: _d14(label, env, _metric("pct_of_expert"), d11_folders) for label, env, _, _, d11_folders, _ in tasks}
+    bc = {label: _bc(label, env, bc_folder) for label, env, _, _, _, bc_folder in tasks}
+    low = tuple(label for label in SIX if np.mean([v for t, v in bc[label].items() if t < 5]) < 90)
+    parts = []
+    for block in (range(5), range(5, 10)):
+        trials = tuple(t for t in block if all(t in values[label] for values in (cmz, bc) for label in low))
+        if len(trials) < 2:
+            parts.append("—")
+            continue
+        arrays = {key: np.array([[values[label][t] / 100 for label in low] for t in trials])
+                  for key, values in (("D14", cmz), ("BC", bc))}
+        agg = aggregate(Scores(trials={k: trials for k in arrays}, tasks={k: low for k in arrays},
+                               by_method=arrays, labels={k: k for k in arrays}), pairs=[("D14", "BC")])
+        parts.append("{:.2f} [{:.2f}, {:.2f}]".format(*agg.improvement[("D14", "BC")].probability) +
+                     _partial(trials, block))
+    return (f"P(D14 > BC) [95% CI] where BC stays under 90% of the expert ({', '.join(low)}), trials 0-4 / 5-9: "
+            f"{' / '.join(parts)}.")
 
 
 def _iqm(by_label: dict[str, dict[int, float]], block: range) -> str:
@@ -368,11 +428,9 @@ def readme_table() -> str:
     columns: dict[str, dict[str, dict[int, float]]] = {"BC": {}, "DRIL": {}, "CMZ-DRIL": {},
                                                        "CMZ-DRIL, tuned entry": {}}
     for label, env, entry_folders, _, d11_folders, bc_folder in (task for task in TASKS if task[0] in SIX):
-        bc = {t: v for t, v in _per_trial((bc_folder,), env, "bc", "pct_of_expert").items() if t < 5}
-        bc.update(_per_trial(BC_CONFIRM[label], env, "bc", "pct_of_expert"))
-        columns["BC"][label] = bc
+        columns["BC"][label] = _bc(label, env, bc_folder)
         columns["DRIL"][label] = _per_trial(DRIL[label], env, "dril", "pct_of_expert")
-        columns["CMZ-DRIL"][label] = _d14(label, env, "pct_of_expert", d11_folders)
+        columns["CMZ-DRIL"][label] = _d14(label, env, _metric("pct_of_expert"), d11_folders)
         columns["CMZ-DRIL, tuned entry"][label] = _per_trial(entry_folders, env, "cmz", "pct_of_expert")
     rows = ["| % of the expert, trials 0-4 / 5-9 | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
     rows += [f"| {label} | " + " | ".join(_block_means(by_label[label]) for by_label in columns.values()) + " |"
@@ -381,6 +439,56 @@ def readme_table() -> str:
              " | ".join(_iqm(by_label, block) for by_label in columns.values()) + " |"
              for block in (range(5), range(5, 10))]
     return "\n".join(rows)
+
+
+#: PPO on the env's reward on D14's settings, by the six tasks' row labels (no reward was not run on them)
+BASELINES = {label: ("tuning/D14-lunar-baselines",) if label.startswith("Lunar") else ("tuning/D14-baselines",)
+             for label in SIX}
+#: the default grid's methods
+GRID_METHODS = ("bc", "dril", "cmz", "env")
+#: what a run folder holds that the report does not read (models, checkpoints, the console log)
+NOT_RECORDS = ("*.zip", "*.pt", "*.pkl", "log.txt", "*.lock", "checkpoint")
+
+
+def grid_runs() -> dict[tuple[str, str, int], Path]:
+    """(env, method, trial) -> the run folder of the default's grid on the six tasks, trials 0-4: BC on D14's
+    inputs, DRIL (:data:`DRIL`), CMZ-DRIL (the runs D14 stands on, :func:`_d14`) and PPO on the env's reward
+    (:data:`BASELINES`)."""
+    materialize_all(ROOT / "results")
+    runs: dict[tuple[str, str, int], Path] = {}
+    for label, env, _, _, d11_folders, bc_folder in (task for task in TASKS if task[0] in SIX):
+        baselines = tuple(folder for folder in BASELINES[label] if (ROOT / "results" / folder).is_dir())
+        by_method: dict[str, dict[int, Path]] = {
+            "bc": _values((bc_folder,), env, "bc", _run_folder), "dril": _values(DRIL[label], env, "dril", _run_folder),
+            "cmz": _d14(label, env, _run_folder, d11_folders), "env": _values(baselines, env, "env", _run_folder)}
+        runs.update({(env, method, trial): folder for method, folders in by_method.items()
+                     for trial, folder in folders.items() if trial < 5})
+    return runs
+
+
+def write_grid(out: Path, force: bool) -> int:
+    """Copy the records of :func:`grid_runs` to ``out``/<env>/<method>/trial<t> (no models), for
+    ``sb3-cmzdril report``. The folder is written whole or not at all; an existing one is replaced only with
+    ``force``."""
+    if out.exists() and not force:
+        print(f"{out} exists; pass --force to replace it", file=sys.stderr)
+        return 2
+    staging = out.with_name(f".{out.name}.partial")
+    shutil.rmtree(staging, ignore_errors=True)
+    runs = grid_runs()
+    missing = sorted({f"{env} {method}" for label, env, *_ in TASKS if label in SIX
+                      for method in GRID_METHODS for trial in range(5)
+                      if (env, method, trial) not in runs})
+    if missing:
+        print(f"not every trial 0-4 has a finished run yet: {', '.join(missing)}", file=sys.stderr)
+    for (env, method, trial), folder in sorted(runs.items()):
+        shutil.copytree(folder, staging / env / method / f"trial{trial}",
+                        ignore=shutil.ignore_patterns(*NOT_RECORDS))
+    if out.exists():
+        shutil.rmtree(out)
+    staging.rename(out)
+    print(f"{out}: {len(runs)} runs")
+    return 0
 
 
 def _replace(text: str, begin: str, end: str, block: str) -> str:
@@ -393,7 +501,12 @@ def _replace(text: str, begin: str, end: str, block: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="fail when the page's table is out of date")
+    parser.add_argument("--grid", type=Path, metavar="DIR",
+                        help="instead, copy the default's grid (its runs' records) to DIR for sb3-cmzdril report")
+    parser.add_argument("--force", action="store_true", help="with --grid: replace DIR")
     args = parser.parse_args(argv)
+    if args.grid is not None:
+        return write_grid(args.grid, args.force)
     pages = {PAGE: (BEGIN, END, table()), README: (README_BEGIN, README_END, readme_table())}
     stale = []
     for page, (begin, end, block) in pages.items():
