@@ -703,7 +703,7 @@ def render(
         "# Beyond the three tuned tasks: demonstrations, budget and ablations",
         f"Written by `{command}` on {stamp} from the runs named under each table; no number is typed in. "
         "The published grid (Walker2d-v5 and Swimmer-v5 beside the paper's envs, tuned entries) is in "
-        "[its report](tuned/results.md), every method on the default in [results.md](results.md).",
+        "[its report](tuned/results.md), the methods on the default in [results.md](results.md).",
         "Versions: most of these runs were made before 0.3.0 (each config.json names its version), and "
         "\"package defaults\" there means the settings of then: the task's entry in `hyperparams/cmzdril.yml` "
         "or `cmzdril_sac.yml` (now `cmzdril-tuned.yml`, `cmzdril_sac-tuned.yml`: a command here that names "
