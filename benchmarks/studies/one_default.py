@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_cmzdril  # noqa: F401  (registers WaypointNav-v0)
-from cmzdril_lab.records_store import materialize_all
+from cmzdril_lab.records_store import NOT_RECORDS, materialize_all
 from cmzdril_lab.report.aggregate import Scores, aggregate
 from cmzdril_lab.report.final_eval import FinalRow, final_table, find
 from cmzdril_lab.report.records import load_runs
@@ -446,8 +446,6 @@ BASELINES = {label: ("tuning/D14-lunar-baselines",) if label.startswith("Lunar")
              for label in SIX}
 #: the default grid's methods
 GRID_METHODS = ("bc", "dril", "cmz", "env")
-#: what a run folder holds that the report does not read (models, checkpoints, the console log)
-NOT_RECORDS = ("*.zip", "*.pt", "*.pkl", "log.txt", "*.lock", "checkpoint")
 
 
 def grid_runs() -> dict[tuple[str, str, int], Path]:
