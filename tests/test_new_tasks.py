@@ -115,6 +115,16 @@ def test_the_reward_free_choice_is_paired_with_bc_and_dril_by_hand(root):
     assert "policy: % of expert (above BC, DRIL: trials)" in text
 
 
+def test_the_runs_line_names_each_folder_and_command_once_with_its_methods_and_trials():
+    variants = [studies.Variant(ENV, method, f"{method} {trials}", "results/tuning/X", "tune.py X", trials)
+                for method in ("bc", "cmz") for trials in ((0, 1, 2, 3, 4), (5, 6, 7, 8, 9))]
+    variants += [studies.Variant(ENV, "cmz", "averaged", "results/tuning/X", "tune.py X", (1, 3), "averaged"),
+                 studies.Variant(ENV, "dril", "all of Y", "results/tuning/Y", "")]
+    assert studies.runs_sentence(studies.variant_groups(variants)) == (
+        "Runs: `results/tuning/X` (BC: trials 0-4, 5-9; CMZ-DRIL: trials 0-4, 5-9, 1, 3), made by `tune.py X`; "
+        "`results/tuning/Y` (DRIL).")
+
+
 def test_cpu_minutes_are_the_median_of_the_runs_that_recorded_them(root):
     # The variant's two runs took 120 and 180 CPU seconds: median 2.5 minutes. The reference's runs
     # recorded none; with one of its three runs at 600 s, the column says which share it covers.

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -311,8 +312,36 @@ def ablation_markdown(
              f"Final above BC of {where} (trials)", f"Final above DRIL of {where} (trials)"],
             body,
         ))
-        parts.append("Runs: " + "; ".join(f"{v.label}: `{v.runs}`, made by `{v.made_by}`" for v in variants))
+        parts.append(runs_sentence(variant_groups(variants)))
     return "\n\n".join(parts)
+
+
+def trial_span(trials: tuple[int, ...] | None) -> str:
+    """e.g. "trials 0-4" or "trials 1, 3"; "" for every trial of a folder."""
+    if not trials:
+        return ""
+    ordered = sorted(trials)
+    if ordered == list(range(ordered[0], ordered[-1] + 1)) and len(ordered) > 1:
+        return f"trials {ordered[0]}-{ordered[-1]}"
+    return "trials " + ", ".join(map(str, ordered))
+
+
+def variant_groups(variants: Sequence[Variant]) -> dict[tuple[str, str], list[str]]:
+    """(folder, command) -> each method it holds, with its trials ("CMZ-DRIL: trials 0-4, 5-9"), so a
+    command shared by several rows is written once."""
+    by_method: dict[tuple[str, str], dict[str, dict[str, None]]] = {}
+    for v in variants:
+        spans = by_method.setdefault((v.runs, v.made_by), {}).setdefault(METHOD_LABELS[v.method], {})
+        spans[trial_span(v.trials).removeprefix("trials ")] = None
+    return {key: [method + (f": trials {', '.join(s for s in spans if s)}" if any(spans) else "")
+                  for method, spans in methods.items()]
+            for key, methods in by_method.items()}
+
+
+def runs_sentence(groups: dict[tuple[str, str], list[str]]) -> str:
+    """"Runs: `folder` (what it holds), made by `command`; ..." with each folder and command once."""
+    return "Runs: " + "; ".join(f"`{folder}` ({'; '.join(what)})" + (f", made by `{made_by}`" if made_by else "")
+                                for (folder, made_by), what in groups.items()) + "."
 
 
 def sweep_rows(sweep: Sweep, root: Path, skipped: list[Skipped]) -> dict[tuple[str, int], FinalRow]:
@@ -666,9 +695,8 @@ def across_markdown(root: Path, skipped: list[Skipped], figures: Path | None,
             for v in variants:
                 labels, envs = folders.setdefault((v.runs, v.made_by), ({}, {}))
                 labels[label], envs[v.env] = None, None
-        runs = [f"`{folder}` ({', '.join(labels)} on {', '.join(envs)})" + (f", made by `{made_by}`" if made_by else "")
-                for (folder, made_by), (labels, envs) in folders.items()]
-        parts.append("\n\n".join([*text, section.strip(), "Runs: " + "; ".join(runs) + "."]))
+        groups = {key: [f"{', '.join(labels)} on {', '.join(envs)}"] for key, (labels, envs) in folders.items()}
+        parts.append("\n\n".join([*text, section.strip(), runs_sentence(groups)]))
     return "\n\n".join(parts)
 
 
