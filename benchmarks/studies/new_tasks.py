@@ -1079,6 +1079,17 @@ D14_ROWS: tuple[Variant, ...] = (
       for row in candidate_rows(env, "D14-dril-bc", D14_DRIL_BC, D14_DRIL_BC_LABEL, ("0-4", "5-9"), methods=("dril",))),
 )
 
+#: Walker2d-v5's ceiling on the default (D14): less exploration noise (this table) and the budget (a sweep)
+W_D14 = (f"python benchmarks/studies/tune.py NAME --as-untuned {HELD_OUT_SETS}SETS -- --env Walker2d-v5 --methods "
+         "METHOD --trials TRIALS --timesteps STEPS --eval-every EVERY --workers 2 --no-progress")
+W_D14_ROWS: tuple[Variant, ...] = candidate_rows(
+    "Walker2d-v5", "W-D14-logstd-1.5", W_D14.replace("NAME", "W-D14-logstd-1.5")
+    .replace("SETS", " --set log_std_floor=-1.5").replace("METHOD", "cmz").replace("STEPS", "300000")
+    .replace("EVERY", "5"),
+    D14_LABEL + ", the policy's log-std floored at -1.5 after BC (`log_std_floor: -1.5`)", methods=("cmz",))
+W_D14_1M = (W_D14.replace("NAME", "W-D14-1M").replace("SETS", "").replace("METHOD", "cmz").replace("TRIALS", "0-9")
+            .replace("STEPS", "1000000").replace("EVERY", "15"))
+
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
                               ("HalfCheetah-v5", "HalfCheetah-v5"), ("Swimmer-v5", "Swimmer-v5"),
@@ -1365,6 +1376,7 @@ ABLATIONS: tuple[Variant, ...] = (
     *QUARTER_ROWS,
     *HELD_OUT_ROWS,
     *D14_ROWS,
+    *W_D14_ROWS,
 )
 
 
@@ -1657,6 +1669,15 @@ SWEEPS: tuple[Sweep, ...] = (
           "benchmark --env Walker2d-v5 --methods cmz,dril --trials 3 --timesteps 1000000 --eval-every 5 --workers 2 "
           "--hyperparams hyperparams/cmzdril.yml -o results/runs_1m`, with that entry",
           fixed=WALKER_FIRST_LABEL),
+    Sweep("Walker2d-v5", ("dril", "cmz"), "timesteps", "PPO timesteps",
+          ("results/tuning/D6-norew", "results/tuning/D14-dril-bc", "results/tuning/W-D14-1M"),
+          "new_tasks_budget_default.png",
+          f"`{tune_command('D6-norew', NOREW_DEFAULT, 'Walker2d-v5', '0-4')} --no-progress` and the same with "
+          "`--trials 5-9` (CMZ-DRIL at 300k steps: the sixth candidate's runs, which decides as the default does on "
+          f"Walker2d-v5, no NLL epochs where the clone falls), `{D14_DRIL_BC.replace('TRIALS', '0-4')}` and the same "
+          f"with `--trials 5-9` (DRIL at 300k steps) and `{W_D14_1M}` "
+          "(CMZ-DRIL at 1M steps; DRIL was not run to 1M steps, for the session's time)",
+          fixed="the default from 0.3.0 (D14)"),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
           (ENTRY_BEFORE["Walker2d-v5"][0], "results/tuning/W-abs-normrew-demos3",
            "results/tuning/W-abs-normrew-demos10"),
