@@ -445,10 +445,11 @@ def critic_warmup(env: str, trials: tuple[int, ...], named_trials: str, note: st
 
 
 def tune_command(name: str, sets: str, env: str, trials: int | str = 5, workers: int = 2, eval_every: int = 5,
-                 methods: str = "cmz") -> str:
-    """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps, as the grid)."""
+                 methods: str = "cmz", timesteps: int = 300000) -> str:
+    """The benchmarks/studies/tune.py command that made a results/tuning/NAME folder (300k steps unless given, as
+    the grid)."""
     return (f"python benchmarks/studies/tune.py {name} {sets} -- --env {env} --methods {methods} --trials {trials} "
-            f"--timesteps 300000 --eval-every {eval_every} --workers {workers}")
+            f"--timesteps {timesteps} --eval-every {eval_every} --workers {workers}")
 
 
 #: PPO's critic warm-up (CMZDRIL's `critic_warmup_updates`), as measured
@@ -1079,16 +1080,14 @@ D14_ROWS: tuple[Variant, ...] = (
       for row in candidate_rows(env, "D14-dril-bc", D14_DRIL_BC, D14_DRIL_BC_LABEL, ("0-4", "5-9"), methods=("dril",))),
 )
 
-#: Walker2d-v5's ceiling on the default (D14): less exploration noise (this table) and the budget (a sweep)
-W_D14 = (f"python benchmarks/studies/tune.py NAME --as-untuned {HELD_OUT_SETS}SETS -- --env Walker2d-v5 --methods "
-         "METHOD --trials TRIALS --timesteps STEPS --eval-every EVERY --workers 2 --no-progress")
+#: Walker2d-v5's ceiling on the default (D14): less exploration noise (this row) and the budget (a sweep)
 W_D14_ROWS: tuple[Variant, ...] = candidate_rows(
-    "Walker2d-v5", "W-D14-logstd-1.5", W_D14.replace("NAME", "W-D14-logstd-1.5")
-    .replace("SETS", " --set log_std_floor=-1.5").replace("METHOD", "cmz").replace("STEPS", "300000")
-    .replace("EVERY", "5"),
+    "Walker2d-v5", "W-D14-logstd-1.5",
+    tune_command("W-D14-logstd-1.5", f"--as-untuned {HELD_OUT_SETS} --set log_std_floor=-1.5", "Walker2d-v5",
+                 "TRIALS") + " --no-progress",
     D14_LABEL + ", the policy's log-std floored at -1.5 after BC (`log_std_floor: -1.5`)", methods=("cmz",))
-W_D14_1M = (W_D14.replace("NAME", "W-D14-1M").replace("SETS", "").replace("METHOD", "cmz").replace("TRIALS", "0-9")
-            .replace("STEPS", "1000000").replace("EVERY", "15"))
+W_D14_1M = tune_command("W-D14-1M", f"--as-untuned {HELD_OUT_SETS}", "Walker2d-v5", "0-9", eval_every=15,
+                        timesteps=1000000) + " --no-progress"
 
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
     *(row for env, env_id in (("Walker2d-v5", "Walker2d-v5"), ("Hopper-v5", "Hopper-v5"),
