@@ -509,6 +509,19 @@ def test_report_gap_closed_pairs_trials_of_a_partial_grid(tmp_path):
     assert "| HalfCheetah-v5 | 0 | n/a | n/a | n/a |" in text
 
 
+def test_report_gap_closed_is_none_where_the_env_reward_does_no_better_than_no_reward(tmp_path):
+    runs_dir = tmp_path / "runs"
+    # return: the env reward beats no reward (a gap); Fréchet: the env reward is further than no reward
+    # (lower is better: no gap); action MSE: both alike (no gap)
+    write_run(runs_dir, "zero", 0, [100.0] * 3, [5.0] * 3, [0.5] * 3)
+    write_run(runs_dir, "env", 0, [300.0] * 3, [5.1] * 3, [0.5] * 3)
+    write_run(runs_dir, "cmz", 0, [200.0] * 3, [4.0] * 3, [0.4] * 3)
+    gaps = report.gap_closed(report.table_one(report.load_runs(runs_dir)))["HalfCheetah-v5"]
+    assert gaps == {"return": pytest.approx(0.5), "frechet": None, "action_mse": None}
+    text = report.write_report(runs_dir, tmp_path / "docs", references=(), figures=False).read_text()
+    assert "| HalfCheetah-v5 | 1 | 50% | n/a | n/a |" in text
+
+
 def _progress_csv(run_dir: Path, start: int, u, ep_len) -> None:
     logs = run_dir / "logs"
     logs.mkdir(parents=True, exist_ok=True)

@@ -258,7 +258,7 @@ def how_to_read(reports: Sequence[GridReport], reference: ReferenceTable | None,
         "over the trials that all three methods have (Trials): 0 = no better than PPO+BC without reward, 1 = as "
         "good as training on the true reward (the paper: about 50% for the reward). For Fréchet distance and action "
         "MSE, where lower is better, the same ratio measures how far CMZ-DRIL moves from no reward toward env. "
-        "reward.",
+        "reward. n/a where the env. reward does no better than no reward: there is no gap to close.",
         f"- **The reward signal**: from each run's SB3 progress log (`logs/progress_*.csv`): the rollout statistics "
         f"averaged over its first and last {SIGNAL_EPOCHS} PPO updates, then over trials. u is the ensemble "
         "disagreement of the states the agent visited (the same for every method: it is logged even where it is not "

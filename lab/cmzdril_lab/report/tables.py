@@ -34,6 +34,8 @@ METRICS: tuple[tuple[str, str, str], ...] = (
     ("frechet", "Fréchet distance", "frechet_mean"),
     ("action_mse", "Action MSE", "action_mse"),
 )
+#: the metrics of :data:`METRICS` where lower is better
+LOWER_IS_BETTER = frozenset({"frechet", "action_mse"})
 
 
 @dataclasses.dataclass
@@ -83,7 +85,8 @@ def gap_trials(rows: Sequence[TableRow]) -> dict[str, list[int]]:
 def gap_closed(rows: Sequence[TableRow]) -> dict[str, dict[str, float | None]]:
     """env -> metric -> (cmz - zero) / (env - zero) over the trials all three have (:func:`gap_trials`):
     a grid still running must not divide one trial's env reward into five trials' means. None where no
-    trial has all three or env == zero."""
+    trial has all three or the env reward does no better than no reward (no gap to close: the ratio would
+    divide by a difference of noise, or turn a gain into a loss)."""
     by = {(r.env, r.method): r for r in rows}
     result: dict[str, dict[str, float | None]] = {}
     for env, trials in gap_trials(rows).items():
@@ -93,7 +96,8 @@ def gap_closed(rows: Sequence[TableRow]) -> dict[str, dict[str, float | None]]:
                 result[env][key] = None
                 continue
             cmz, zero, true = (_mean_over(by[(env, m)], key, trials) for m in GAP_METHODS)
-            result[env][key] = None if true == zero else (cmz - zero) / (true - zero)
+            better = zero - true if key in LOWER_IS_BETTER else true - zero
+            result[env][key] = (cmz - zero) / (true - zero) if better > 0 else None
     return result
 
 
