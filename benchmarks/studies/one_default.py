@@ -441,24 +441,25 @@ def readme_table() -> str:
     return "\n".join(rows)
 
 
-#: PPO on the env's reward on D14's settings, by the six tasks' row labels (no reward was not run on them)
+#: PPO on the env's reward and with no reward on D14's settings, by the six tasks' row labels
 BASELINES = {label: ("tuning/D14-lunar-baselines",) if label.startswith("Lunar") else ("tuning/D14-baselines",)
              for label in SIX}
 #: the default grid's methods
-GRID_METHODS = ("bc", "dril", "cmz", "env")
+GRID_METHODS = ("bc", "dril", "cmz", "env", "zero")
 
 
 def grid_runs() -> dict[tuple[str, str, int], Path]:
     """(env, method, trial) -> the run folder of the default's grid on the six tasks, trials 0-4: BC on D14's
-    inputs, DRIL (:data:`DRIL`), CMZ-DRIL (the runs D14 stands on, :func:`_d14`) and PPO on the env's reward
-    (:data:`BASELINES`)."""
+    inputs, DRIL (:data:`DRIL`), CMZ-DRIL (the runs D14 stands on, :func:`_d14`), and PPO on the env's reward
+    and with no reward (:data:`BASELINES`)."""
     materialize_all(ROOT / "results")
     runs: dict[tuple[str, str, int], Path] = {}
     for label, env, _, _, d11_folders, bc_folder in (task for task in TASKS if task[0] in SIX):
         baselines = tuple(folder for folder in BASELINES[label] if (ROOT / "results" / folder).is_dir())
         by_method: dict[str, dict[int, Path]] = {
             "bc": _values((bc_folder,), env, "bc", _run_folder), "dril": _values(DRIL[label], env, "dril", _run_folder),
-            "cmz": _d14(label, env, _run_folder, d11_folders), "env": _values(baselines, env, "env", _run_folder)}
+            "cmz": _d14(label, env, _run_folder, d11_folders)}
+        by_method.update({method: _values(baselines, env, method, _run_folder) for method in ("env", "zero")})
         runs.update({(env, method, trial): folder for method, folders in by_method.items()
                      for trial, folder in folders.items() if trial < 5})
     return runs
