@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import uuid
 from pathlib import Path
 
 import pytest
@@ -39,18 +40,24 @@ DRIVER = textwrap.dedent(
 )
 
 
-def _sleepers() -> dict[int, int]:
-    """Running ``sleep 300`` / ``sleep 301`` processes started by the test: pid -> start time."""
+#: The environment variable that marks one driver's processes: a suite running beside this one (another
+#: checkout's CI) starts sleepers of its own, with their own mark.
+MARK = "SB3_CMZDRIL_WATCHDOG_TEST"
+
+
+def _sleepers(mark: str) -> dict[int, int]:
+    """Running ``sleep 300`` / ``sleep 301`` processes started by the driver marked ``mark``: pid -> start time."""
     found = {}
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
         try:
             cmdline = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+            environ = Path(f"/proc/{entry}/environ").read_bytes().split(b"\0")
             stat = Path(f"/proc/{entry}/stat").read_text()
         except OSError:
             continue
-        if cmdline[:2] in ([b"sleep", b"300"], [b"sleep", b"301"]):
+        if cmdline[:2] in ([b"sleep", b"300"], [b"sleep", b"301"]) and f"{MARK}={mark}".encode() in environ:
             found[int(entry)] = int(stat[stat.rfind(")") + 2:].split()[19])
     return found
 
@@ -69,11 +76,11 @@ def _alive(processes: dict[int, int]) -> list[int]:
 
 
 def _start_driver(mode: str) -> tuple[subprocess.Popen[str], dict[int, int]]:
-    before = _sleepers()
+    mark = uuid.uuid4().hex
     driver = subprocess.Popen([sys.executable, "-c", DRIVER, mode], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), MARK: mark})
     assert driver.stdout is not None and driver.stdout.readline().strip() == "READY"
-    ours = {pid: t for pid, t in _sleepers().items() if pid not in before}
+    ours = _sleepers(mark)
     assert len(ours) == 2
     return driver, ours
 
