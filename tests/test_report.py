@@ -566,6 +566,48 @@ def test_report_links_the_discussion_and_refuses_a_missing_one(tmp_path, capsys)
     assert not (tmp_path / "x").exists()  # refused before writing anything
 
 
+def test_report_copies_one_section_of_the_discussion_with_its_links_made_to_work(tmp_path, capsys):
+    runs_dir = tmp_path / "runs"
+    write_run(runs_dir, "bc", 0, [1.0])
+    docs = tmp_path / "docs"
+    (docs / "studies").mkdir(parents=True)
+    notes = docs / "studies" / "notes.md"
+    notes.write_text("# Notes\n\n## How it was chosen\n\nBy hand.\n\n## Where the targets stand (D14)\n\n"
+                     "- Not met: Walker2d-v5 40.6 against 54 ([why](#how-it-was-chosen), [runs](runs.md#walker),\n"
+                     "  [code](https://example.org/x.md)).\n\n### A subsection\n\nIt stays.\n\n"
+                     "```\n## not a heading inside a fence\n```\n\n## Commands\n\nLeft out.\n")
+    assert main(["report", str(runs_dir), "-o", str(docs), "--discussion", str(notes), "--discussion-section",
+                 "Where the targets", "--no-figures"]) == 0
+    text = (docs / "results.md").read_text()
+    copied = text[text.index("## Where the targets stand (D14)"):]
+    assert copied.index("Written by hand, copied from [the discussion](studies/notes.md#where-the-targets-stand-d14)") \
+        < copied.index("- Not met: Walker2d-v5 40.6 against 54")
+    # Links as they pointed from the discussion: into it, beside it, elsewhere on the web.
+    assert "[why](studies/notes.md#how-it-was-chosen), [runs](studies/runs.md#walker)" in copied
+    assert "[code](https://example.org/x.md)" in copied
+    assert "### A subsection" in copied and "## not a heading inside a fence" in copied
+    assert "By hand." not in text and "Left out." not in text
+    assert "no number is typed in, except the paper's and the section copied from the discussion, labelled" in text
+    assert text.index("## Headline") < text.index("## Where the targets stand") < text.index("## Per task")
+    for argv, message in (
+        (["--discussion", str(notes), "--discussion-section", "Nowhere"],
+         "no section of " + str(notes) + " starts with 'Nowhere' (its sections: How it was chosen; Where the "
+         "targets stand (D14); Commands)"),
+        (["--discussion-section", "Where"], "a discussion section to copy needs the discussion page it is in"),
+    ):
+        assert main(["report", str(runs_dir), "-o", str(tmp_path / "x"), *argv, "--no-figures"]) == 2
+        assert message in capsys.readouterr().err
+        assert not (tmp_path / "x").exists()  # refused before writing anything
+
+
+def test_a_copied_section_s_heading_gets_the_anchor_mkdocs_gives_it():
+    from cmzdril_lab.report.excerpt import slug
+
+    assert slug("Where the targets stand (D14)") == "where-the-targets-stand-d14"
+    assert slug("Walker2d-v5's ceiling: the budget") == "walker2d-v5s-ceiling-the-budget"
+    assert slug("The default from 0.3.0, D14") == "the-default-from-030-d14"
+
+
 @pytest.mark.slow
 def test_the_published_report_stays_a_page_a_reader_finishes(tmp_path):
     # docs/results.md's own inputs (the command at its end), written beside the docs folder it links from.

@@ -152,6 +152,12 @@ def add_report(sub) -> None:
         help="a hand-written markdown page (what the numbers mean) that results.md links to",
     )
     p.add_argument(
+        "--discussion-section",
+        metavar="TITLE",
+        help="copy the --discussion page's '## ' section whose heading starts with TITLE into results.md, "
+        "labelled as written by hand (what the page must say on its face: where a target was not reached)",
+    )
+    p.add_argument(
         "--readme", metavar="README", help="also replace the results block of this README with the headline table"
     )
     p.add_argument(
@@ -180,6 +186,7 @@ def _run_report(args) -> int:
         references=() if args.no_paper else (PAPER_TABLE_I,),
         command=command_line(),
         discussion=args.discussion,
+        discussion_section=args.discussion_section,
         readme=args.readme,
         reference_runs=args.reference_runs,
         aggregate_runs=args.aggregate_runs,

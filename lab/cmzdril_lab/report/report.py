@@ -9,7 +9,9 @@ the paper-faithful grid of an earlier version), and writes into the output folde
   per grid and task: the final evaluation (:mod:`~cmzdril_lab.report.final_eval`), Table I, the gap
   closed by CMZ-DRIL and the reward signal (:mod:`~cmzdril_lab.report.tables`) and the training
   curves; the reference numbers (:mod:`~cmzdril_lab.report.paper`); how to read every table; the run
-  folders and commands behind every number. A hand-written discussion is linked, not copied.
+  folders and commands behind every number. A hand-written discussion is linked, not copied, but for
+  one section of it that the page must show on its own face (``discussion_section``, copied labelled by
+  :mod:`~cmzdril_lab.report.excerpt`).
 * table1.csv, final_table.csv, paired.csv and per_run.csv (``table1_reference.csv`` and so on for the
   reference grid): the tables at full precision, with their run folders; what the page shows in short.
 * fig1_bc_dril_cmz.png, fig2_cmz_env_zero.png (the main grid's curves), fig3_final_eval.png (the
@@ -31,6 +33,7 @@ from pathlib import Path
 from cmzdril_lab.report.aggregate import CSV as ACROSS_CSV
 from cmzdril_lab.report.aggregate import FIGURE as ACROSS_FIGURE
 from cmzdril_lab.report.aggregate import AcrossSection, write_aggregate
+from cmzdril_lab.report.excerpt import excerpt
 from cmzdril_lab.report.figures import (
     FIGURES,
     FINAL_FIGURE,
@@ -110,16 +113,17 @@ def render_markdown(
     window: int,
     discussion: str | None = None,
     across: AcrossSection | None = None,
+    copied: str | None = None,
 ) -> str:
-    """results.md: the headline, the across-task aggregate (``across``), each grid's per-task sections and
-    figures, the references, how to read them, the sources; ``discussion``: the link to a hand-written page."""
+    """results.md: the headline, the across-task aggregate (``across``), a section copied from the discussion
+    (``copied``), each grid's per-task sections and figures, the references, how to read them, the sources;
+    ``discussion``: the link to a hand-written page."""
     two = len(reports) > 1
     main = reports[0]
     reference = references[0] if references else None
     intro = (f"Computed by `cmzdril_lab.report` on {time.strftime('%Y-%m-%d %H:%M %Z')} from the run records of "
              + " and ".join(_grid_name(rep) for rep in reports)
-             + ("; no number is typed in, except the paper's, labelled as such." if references
-                else "; no number is typed in."))
+             + _typed_in(bool(references), bool(copied)))
     if discussion:
         intro += f" What the numbers mean, written by hand: [the discussion]({discussion})."
     parts = ["# Results", "", intro]
@@ -131,6 +135,8 @@ def render_markdown(
         parts += [f"![Final evaluation: {main.label}]({final_figures[main.suffix].name})", ""]
     if across:
         parts += ["## Across tasks", "", across.body]
+    if copied:
+        parts += [copied]
     for i, rep in enumerate(reports):
         parts += [f"## Per task: {rep.label}" if two else "## Per task", ""]
         if i > 0:
@@ -151,12 +157,24 @@ def render_markdown(
     return "\n".join(parts)
 
 
-def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | None) -> None:
+def _typed_in(references: bool, copied: bool) -> str:
+    """The intro's clause on what the page holds that no record gave."""
+    others = [name for name, present in (("the paper's", references), ("the section copied from the discussion",
+                                                                        copied)) if present]
+    if not others:
+        return "; no number is typed in."
+    return f"; no number is typed in, except {' and '.join(others)}, labelled as such."
+
+
+def _check_inputs(window: int, discussion: PathLike | None, readme: PathLike | None,
+                  discussion_section: str | None = None) -> None:
     """Fail on a bad input before anything is written."""
     if int(window) < 1:
         raise UserError(f"window must be >= 1, got {window}")
     if discussion is not None and not Path(discussion).is_file():
         raise MissingFileError(f"discussion file not found: {discussion}")
+    if discussion_section is not None and discussion is None:
+        raise UserError("a discussion section to copy needs the discussion page it is in (--discussion)")
     if readme is not None:
         readme_block(readme)
 
@@ -200,6 +218,7 @@ def write_report(
     command: str | None = None,
     sigma: float = SMOOTHING_SIGMA,
     discussion: PathLike | None = None,
+    discussion_section: str | None = None,
     readme: PathLike | None = None,
     reference_runs: PathLike | None = None,
     label: str | None = None,
@@ -214,6 +233,9 @@ def write_report(
     :param command: the report command line to record (the CLI passes its own).
     :param discussion: a markdown page written by a person (what the numbers mean): results.md links to
         it (relatively, so it should lie in the same documentation tree), it does not copy it.
+    :param discussion_section: but for this one of its ``## `` sections (the first words of the heading),
+        copied after the across-task aggregate, labelled as written by hand (where a target was not
+        reached, say: the page must say so itself).
     :param readme: a README holding the :data:`README_BEGIN`/:data:`README_END` block: it is replaced
         by the headline table (the main grid's final evaluation as % of the expert, env by method) and two
         sentences saying what its cells are and linking results.md.
@@ -225,14 +247,15 @@ def write_report(
         join the main grid's in the across-task aggregate (:mod:`~cmzdril_lab.report.aggregate`,
         rliable), written when the main grid has final evaluations.
     """
-    _check_inputs(window, discussion, readme)
+    _check_inputs(window, discussion, readme, discussion_section)
+    out = Path(output_dir)
+    copied = excerpt(discussion, discussion_section, out) if discussion is not None and discussion_section else None
     grids = [load_grid(runs_dir, label)]
     if reference_runs is not None:
         grids.append(load_grid(reference_runs, reference_label))
         if grids[0].label == grids[1].label:
             raise UserError(f"both grids are labelled {grids[0].label!r}: give them different labels")
     reports = [analyse(grid, int(window), suffix) for grid, suffix in zip(grids, SUFFIXES[: len(grids)], strict=True)]
-    out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     with staged(out) as stage:
         written = {"results.md"}
@@ -263,7 +286,8 @@ def write_report(
             if across is not None:
                 written.update({ACROSS_CSV, ACROSS_FIGURE} if figures else {ACROSS_CSV})
         notes = link(discussion, out) if discussion is not None else None
-        text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across)
+        text = render_markdown(reports, curves, final_figures, references, command, int(window), notes, across,
+                               copied)
         atomic_write_text(stage / "results.md", text)
         # The new report replaces the old one at once: an interruption leaves one or the other, never a mix.
         with deferred_signals():
