@@ -1088,7 +1088,7 @@ W_D14_ROWS: tuple[Variant, ...] = candidate_rows(
     D14_LABEL + ", the policy's log-std floored at -1.5 after BC (`log_std_floor: -1.5`)", methods=("cmz",))
 W_D14_1M = tune_command("W-D14-1M", f"--as-untuned {HELD_OUT_SETS}", "Walker2d-v5", "0-9", eval_every=15,
                         timesteps=1000000) + " --no-progress"
-W_D14_1M_DRIL = tune_command("W-D14-1M", f"--as-untuned {HELD_OUT_SETS}", "Walker2d-v5", "0-1", eval_every=15,
+W_D14_1M_DRIL = tune_command("W-D14-1M", f"--as-untuned {HELD_OUT_SETS}", "Walker2d-v5", "0-9", eval_every=15,
                              methods="dril", timesteps=1000000) + " --no-progress"
 
 NOREW_DEFAULT_ROWS: tuple[Variant, ...] = (
@@ -1677,7 +1677,7 @@ SWEEPS: tuple[Sweep, ...] = (
           "`--trials 5-9` (CMZ-DRIL at 300k steps: the sixth candidate's runs, which decides as the default does on "
           f"Walker2d-v5, no NLL epochs where the clone falls), `{D14_DRIL_BC.replace('TRIALS', '0-4')}` and the same "
           f"with `--trials 5-9` (DRIL at 300k steps), `{W_D14_1M}` (CMZ-DRIL at 1M steps) and `{W_D14_1M_DRIL}` "
-          "(DRIL at 1M steps, trials 0-1 alone for the session's time)",
+          "(DRIL at 1M steps)",
           fixed="the default from 0.3.0 (D14)"),
     Sweep("Walker2d-v5", ("cmz",), "n_demos", "training demonstrations",
           (ENTRY_BEFORE["Walker2d-v5"][0], "results/tuning/W-abs-normrew-demos3",
