@@ -30,24 +30,18 @@ def slug(heading: str) -> str:
 
 
 def sections(text: str) -> list[tuple[str, int, int]]:
-    """The ``## `` sections of a markdown page: (heading, first line, end line), fenced code skipped."""
+    """The ``## `` sections of a markdown page: (heading, first line, end line), fenced code skipped. A
+    section ends at the next ``## `` or ``# `` heading."""
     lines = text.splitlines()
-    starts: list[tuple[str, int]] = []
-    ends: list[int] = []
+    heads: list[tuple[str | None, int]] = []  # (a ``## `` heading, or None for a ``# `` one; its line)
     fenced = False
     for i, line in enumerate(lines):
         if line.lstrip().startswith(("```", "~~~")):
             fenced = not fenced
-        elif not fenced and line.startswith("## "):
-            starts.append((line[3:].strip(), i))
-            ends.append(i)
-        elif not fenced and line.startswith("# "):
-            ends.append(i)
-    out = []
-    for heading, start in starts:
-        end = next((e for e in ends if e > start), len(lines))
-        out.append((heading, start, end))
-    return out
+        elif not fenced and line.startswith(("# ", "## ")):
+            heads.append((line[3:].strip() if line.startswith("## ") else None, i))
+    ends = [i for _, i in heads[1:]] + [len(lines)]
+    return [(heading, i, end) for (heading, i), end in zip(heads, ends, strict=True) if heading is not None]
 
 
 def _retarget(target: str, page: Path, out: Path) -> str:
